@@ -1,0 +1,26 @@
+"""kincal: kinematic calibration of robot arms."""
+
+from kincal.errors import (
+    DataFormatError,
+    DegenerateExperimentError,
+    KincalError,
+    ManifoldError,
+    ModelError,
+    ShapeError,
+)
+from kincal.kinematics import ArmModel, Robot, forward_kinematics, identification_jacobian
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "ArmModel",
+    "DataFormatError",
+    "DegenerateExperimentError",
+    "KincalError",
+    "ManifoldError",
+    "ModelError",
+    "Robot",
+    "ShapeError",
+    "forward_kinematics",
+    "identification_jacobian",
+]

@@ -1,0 +1,51 @@
+"""Validation at public entry points: clear messages naming the argument, expected vs found."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kincal.errors import ManifoldError, ShapeError
+
+
+def as_array(x, name: str, tail: tuple[int, ...], *, finite: bool = True) -> np.ndarray:
+    """Return ``x`` as a float array whose trailing dimensions equal ``tail``."""
+    try:
+        arr = np.asarray(x, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ShapeError(f"{name}: expected a numeric array of shape (..., {_fmt(tail)}), got {type(x).__name__}") from exc
+    if arr.ndim < len(tail) or arr.shape[arr.ndim - len(tail):] != tail:
+        raise ShapeError(f"{name}: expected shape (..., {_fmt(tail)}), got {arr.shape}")
+    if finite and not np.all(np.isfinite(arr)):
+        bad = np.argwhere(~np.isfinite(arr))[0]
+        raise ShapeError(f"{name}: expected finite values, found {arr[tuple(bad)]} at index {tuple(int(i) for i in bad)}")
+    return arr
+
+
+def _fmt(tail: tuple[int, ...]) -> str:
+    return ", ".join(str(t) for t in tail)
+
+
+def check_rotation(R: np.ndarray, name: str, tol: float = 1e-9) -> None:
+    """Raise ManifoldError unless every R is orthonormal with determinant +1 (within ``tol``)."""
+    err = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(axis=(-2, -1))
+    det = np.linalg.det(R)
+    bad = (err > tol) | (np.abs(det - 1.0) > tol)
+    if np.any(bad):
+        idx = tuple(int(i) for i in np.argwhere(np.atleast_1d(bad))[0])
+        e = np.atleast_1d(err)[idx]
+        d = np.atleast_1d(det)[idx]
+        where = f" at batch index {idx}" if np.ndim(bad) else ""
+        raise ManifoldError(
+            f"{name}: rotation{where} is not orthonormal: max |R^T R - I| = {e:.3g}, det = {d:.6g} "
+            f"(expected within {tol:g} of an orthonormal matrix with det +1)"
+        )
+
+
+def check_transform(T: np.ndarray, name: str, tol: float = 1e-9) -> np.ndarray:
+    """Validate homogeneous transforms (..., 4, 4): finite, last row (0, 0, 0, 1), orthonormal rotation."""
+    T = as_array(T, name, (4, 4))
+    last = T[..., 3, :]
+    if np.any(np.abs(last - np.array([0.0, 0.0, 0.0, 1.0])) > tol):
+        raise ManifoldError(f"{name}: last row must be (0, 0, 0, 1), got {np.asarray(last).reshape(-1, 4)[0].tolist()}")
+    check_rotation(T[..., :3, :3], name, tol)
+    return T

@@ -1,0 +1,34 @@
+"""POE arm models, forward kinematics, geometric and identification Jacobians."""
+
+from kincal.kinematics.fk import (
+    Kinematics,
+    body_jacobian,
+    chain,
+    forward_kinematics,
+    joint_array,
+    joint_axes,
+    kinematics,
+    space_jacobian,
+)
+from kincal.kinematics.identification import IdentificationJacobian, identification_jacobian
+from kincal.kinematics.model import PRISMATIC, REVOLUTE, ArmModel, Robot
+from kincal.kinematics.twists import conform_twists, tangent_basis
+
+__all__ = [
+    "ArmModel",
+    "IdentificationJacobian",
+    "Kinematics",
+    "PRISMATIC",
+    "REVOLUTE",
+    "Robot",
+    "body_jacobian",
+    "chain",
+    "conform_twists",
+    "forward_kinematics",
+    "identification_jacobian",
+    "joint_array",
+    "joint_axes",
+    "kinematics",
+    "space_jacobian",
+    "tangent_basis",
+]

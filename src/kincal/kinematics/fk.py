@@ -1,0 +1,102 @@
+"""Vectorized POE forward kinematics and geometric Jacobians.
+
+All functions take joint readings ``q`` of shape (..., n) and broadcast over the leading dimensions.
+Loops run over the n joints only, never over configurations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from kincal._validate import as_array
+from kincal.errors import ShapeError
+from kincal.kinematics.model import ArmModel
+from kincal.lie import se3
+
+
+def joint_array(model: ArmModel, q, name: str = "q") -> np.ndarray:
+    """Validate joint readings: finite, last dimension equal to the arm's dof."""
+    q = np.asarray(q, dtype=float) if not isinstance(q, np.ndarray) else q
+    if q.ndim == 0 or q.shape[-1] != model.dof:
+        raise ShapeError(
+            f"{name}: arm '{model.name}' has {model.dof} joints ({', '.join(model.joint_names)}); "
+            f"expected shape (..., {model.dof}), got {np.shape(q)}"
+        )
+    return as_array(q, name, (model.dof,))
+
+
+@dataclass(frozen=True)
+class Kinematics:
+    """Everything forward kinematics computes for a batch of configurations.
+
+    Attributes
+    ----------
+    theta : (..., n) joint values with offsets applied.
+    exps : (..., n, 4, 4) ``exp(hat(xi_i) theta_i)``.
+    prefixes : (..., n + 1, 4, 4) ``base @ exp_1 @ ... @ exp_i`` for i = 0..n (index 0 is ``base``).
+    flange : (..., 4, 4) ``T_world_flange``.
+    tool : (..., 4, 4) ``T_world_tool``.
+    """
+
+    theta: np.ndarray
+    exps: np.ndarray
+    prefixes: np.ndarray
+    flange: np.ndarray
+    tool: np.ndarray
+
+
+def kinematics(model: ArmModel, q) -> Kinematics:
+    """Forward kinematics with every intermediate product; q is validated against the model."""
+    q = joint_array(model, q)
+    return chain(model.screws, q + model.offsets, model.base, model.home, model.tool)
+
+
+def chain(screws, theta, base, home, tool) -> Kinematics:
+    """Unvalidated POE kernel on raw arrays (screws need not be conformed): theta (..., n)."""
+    theta = np.asarray(theta, dtype=float)
+    exps = se3.exp(screws * theta[..., None])
+    n = theta.shape[-1]
+    prefixes = np.empty(theta.shape[:-1] + (n + 1, 4, 4))
+    prefixes[..., 0, :, :] = base
+    for i in range(n):
+        prefixes[..., i + 1, :, :] = prefixes[..., i, :, :] @ exps[..., i, :, :]
+    flange = prefixes[..., -1, :, :] @ home
+    return Kinematics(theta, exps, prefixes, flange, flange @ tool)
+
+
+def forward_kinematics(model: ArmModel, q) -> np.ndarray:
+    """``T_world_tool`` for joint readings q: (..., n) -> (..., 4, 4)."""
+    return kinematics(model, q).tool
+
+
+def space_jacobian(model: ArmModel, q, kin: Kinematics | None = None) -> np.ndarray:
+    """Geometric Jacobian in the world frame: (Tdot T^-1)^vee = J_s qdot; (..., n) -> (..., 6, n).
+
+    Column i is ``Ad(prefix_{i-1}) xi_i``; it does not depend on the tool.
+    """
+    kin = kinematics(model, q) if kin is None else kin
+    Ad = se3.adjoint(kin.prefixes[..., :-1, :, :])  # (..., n, 6, 6)
+    return np.swapaxes(np.einsum("...kij,kj->...ki", Ad, model.screws), -1, -2)
+
+
+def body_jacobian(model: ArmModel, q, kin: Kinematics | None = None) -> np.ndarray:
+    """Geometric Jacobian in the tool frame: (T^-1 Tdot)^vee = J_b qdot; (..., n) -> (..., 6, n)."""
+    kin = kinematics(model, q) if kin is None else kin
+    return se3.adjoint_inv(kin.tool) @ space_jacobian(model, q, kin)
+
+
+def joint_axes(model: ArmModel, q) -> tuple[np.ndarray, np.ndarray]:
+    """Current joint axes in the world frame: (points (..., n, 3), unit directions (..., n, 3)).
+
+    For a prismatic joint the point is the origin of its preceding frame.
+    """
+    kin = kinematics(model, q)
+    xi = np.einsum("...kij,kj->...ki", se3.adjoint(kin.prefixes[..., :-1, :, :]), model.screws)
+    v, w = se3.split(xi)
+    ww = np.sum(w * w, axis=-1, keepdims=True)
+    revolute = ww > 0.25
+    point = np.where(revolute, np.cross(w, v) / np.where(revolute, ww, 1.0), kin.prefixes[..., :-1, :3, 3])
+    direction = np.where(revolute, w, v)
+    return point, direction / np.linalg.norm(direction, axis=-1, keepdims=True)

@@ -1,0 +1,193 @@
+"""Immutable product-of-exponentials arm and robot models."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from types import MappingProxyType
+from typing import Mapping
+
+import numpy as np
+
+from kincal._validate import as_array, check_transform
+from kincal.errors import ModelError
+from kincal.lie import se3
+
+REVOLUTE = "revolute"
+PRISMATIC = "prismatic"
+_UNIT_TOL = 1e-9
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a = np.array(a, dtype=float)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class ArmModel:
+    """A serial arm in product-of-exponentials form.
+
+    ``T_world_tool(q) = base @ exp(hat(xi_1) (q_1 + o_1)) ... exp(hat(xi_n) (q_n + o_n)) @ home @ tool``
+
+    Attributes
+    ----------
+    name : str
+    screws : ndarray, shape (n, 6)
+        Joint twists ``(v, w)`` in the arm base frame at q = 0. Revolute: unit w, v = -w x p (zero pitch).
+        Prismatic: w = 0, unit v.
+    home : ndarray, shape (4, 4)
+        ``T_base_flange`` at q = 0 (the thesis' T_st).
+    base : ndarray, shape (4, 4)
+        ``T_world_base``, pose of the arm base in the robot/world frame.
+    tool : ndarray, shape (4, 4)
+        ``T_flange_tool``.
+    offsets : ndarray, shape (n,)
+        Joint offsets o (rad or m): the true joint value is the reading plus the offset.
+    lower, upper : ndarray, shape (n,)
+        Joint limits in model units (rad or m), applied to the reading q.
+    gear_ratios : ndarray, shape (n,)
+        Motor units per joint unit (motor rad = ratio * arm rad), in model joint order.
+    controller_order : tuple of int
+        0-based model joint index carried by each controller channel (Frida: (0, 1, 6, 2, 3, 4, 5)).
+    joint_names, joint_types : tuple of str
+    meta : mapping
+        Free-form provenance (source, notes); not used in computation.
+    """
+
+    name: str
+    screws: np.ndarray
+    home: np.ndarray
+    base: np.ndarray = field(default_factory=lambda: np.eye(4))
+    tool: np.ndarray = field(default_factory=lambda: np.eye(4))
+    offsets: np.ndarray | None = None
+    lower: np.ndarray | None = None
+    upper: np.ndarray | None = None
+    gear_ratios: np.ndarray | None = None
+    controller_order: tuple[int, ...] | None = None
+    joint_names: tuple[str, ...] | None = None
+    joint_types: tuple[str, ...] | None = None
+    meta: Mapping = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        where = f"arm '{self.name}'"
+        screws = as_array(self.screws, f"{where}: screws", (6,))
+        if screws.ndim != 2 or screws.shape[0] < 1:
+            raise ModelError(f"{where}: screws must have shape (n, 6) with n >= 1, got {screws.shape}")
+        n = screws.shape[0]
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731  (frozen dataclass)
+        set_("screws", _frozen(screws))
+        for key in ("home", "base", "tool"):
+            set_(key, _frozen(check_transform(getattr(self, key), f"{where}: {key}", tol=1e-6)))
+
+        def vec(key, default):
+            val = getattr(self, key)
+            arr = np.full(n, default, dtype=float) if val is None else np.asarray(val, dtype=float)
+            if arr.shape != (n,):
+                raise ModelError(f"{where}: {key} must have {n} entries (one per joint), got shape {arr.shape}")
+            if key != "lower" and key != "upper" and not np.all(np.isfinite(arr)):
+                raise ModelError(f"{where}: {key} must be finite, got {arr.tolist()}")
+            set_(key, _frozen(arr))
+
+        vec("offsets", 0.0)
+        vec("lower", -np.inf)
+        vec("upper", np.inf)
+        vec("gear_ratios", 1.0)
+        if np.any(np.isnan(self.lower)) or np.any(np.isnan(self.upper)) or np.any(self.lower >= self.upper):
+            raise ModelError(f"{where}: joint limits need lower < upper, got lower={self.lower.tolist()} upper={self.upper.tolist()}")
+        if np.any(self.gear_ratios == 0):
+            raise ModelError(f"{where}: gear ratios must be non-zero, got {self.gear_ratios.tolist()}")
+
+        names = tuple(self.joint_names) if self.joint_names is not None else tuple(f"j{i + 1}" for i in range(n))
+        if len(names) != n or len(set(names)) != n or not all(isinstance(s, str) and s for s in names):
+            raise ModelError(f"{where}: joint_names must be {n} distinct non-empty strings, got {names}")
+        set_("joint_names", names)
+
+        w_norm = np.linalg.norm(screws[:, 3:], axis=1)
+        inferred = tuple(PRISMATIC if w < 0.5 else REVOLUTE for w in w_norm)
+        types = tuple(self.joint_types) if self.joint_types is not None else inferred
+        if len(types) != n or any(t not in (REVOLUTE, PRISMATIC) for t in types):
+            raise ModelError(f"{where}: joint_types must be {n} of 'revolute'/'prismatic', got {types}")
+        set_("joint_types", types)
+        for i, t in enumerate(types):
+            v, w = screws[i, :3], screws[i, 3:]
+            if t == REVOLUTE and (abs(np.linalg.norm(w) - 1) > _UNIT_TOL or abs(w @ v) > _UNIT_TOL):
+                raise ModelError(
+                    f"{where}: joint {names[i]} is revolute and needs a unit axis with zero pitch; "
+                    f"got |w| = {np.linalg.norm(w):.12g}, w.v = {w @ v:.3g} (use kincal.kinematics.conform_twists)"
+                )
+            if t == PRISMATIC and (np.linalg.norm(w) > _UNIT_TOL or abs(np.linalg.norm(v) - 1) > _UNIT_TOL):
+                raise ModelError(
+                    f"{where}: joint {names[i]} is prismatic and needs w = 0 and a unit v; "
+                    f"got |w| = {np.linalg.norm(w):.3g}, |v| = {np.linalg.norm(v):.12g}"
+                )
+
+        order = tuple(range(n)) if self.controller_order is None else tuple(int(i) for i in self.controller_order)
+        if sorted(order) != list(range(n)):
+            raise ModelError(f"{where}: controller_order must be a permutation of 0..{n - 1}, got {order}")
+        set_("controller_order", order)
+        set_("meta", MappingProxyType(dict(self.meta)))
+
+    @property
+    def dof(self) -> int:
+        return self.screws.shape[0]
+
+    def replace(self, **changes) -> "ArmModel":
+        """A copy with some fields changed (validated again)."""
+        return replace(self, **changes)
+
+    def home_twist(self) -> np.ndarray:
+        """The thesis' xi_st: twist coordinates with exp(xi_st) = home."""
+        return se3.log(self.home)
+
+    def within_limits(self, q: np.ndarray, tol: float = 0.0) -> np.ndarray:
+        q = np.asarray(q, dtype=float)
+        return np.all((q >= self.lower - tol) & (q <= self.upper + tol), axis=-1)
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, ArmModel):
+            return NotImplemented
+        arrays = ("screws", "home", "base", "tool", "offsets", "lower", "upper", "gear_ratios")
+        return (
+            self.name == other.name
+            and self.joint_names == other.joint_names
+            and self.joint_types == other.joint_types
+            and self.controller_order == other.controller_order
+            and all(np.array_equal(getattr(self, a), getattr(other, a)) for a in arrays)
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+@dataclass(frozen=True, eq=False)
+class Robot:
+    """One or more arms sharing a world frame (each arm's ``base`` is ``T_world_base``)."""
+
+    name: str
+    arms: Mapping[str, ArmModel]
+    meta: Mapping = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not self.arms:
+            raise ModelError(f"robot '{self.name}': needs at least one arm")
+        for key, arm in self.arms.items():
+            if not isinstance(arm, ArmModel):
+                raise ModelError(f"robot '{self.name}': arm '{key}' is {type(arm).__name__}, expected ArmModel")
+        object.__setattr__(self, "arms", MappingProxyType(dict(self.arms)))
+        object.__setattr__(self, "meta", MappingProxyType(dict(self.meta)))
+
+    def __getitem__(self, arm: str) -> ArmModel:
+        try:
+            return self.arms[arm]
+        except KeyError:
+            raise ModelError(f"robot '{self.name}' has no arm '{arm}'; arms: {', '.join(self.arms)}") from None
+
+    def replace_arm(self, arm: str, model: ArmModel) -> "Robot":
+        self[arm]
+        return Robot(self.name, {**self.arms, arm: model}, self.meta)
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, Robot):
+            return NotImplemented
+        return self.name == other.name and dict(self.arms) == dict(other.arms)
+
+    __hash__ = None  # type: ignore[assignment]

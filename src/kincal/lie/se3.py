@@ -1,0 +1,147 @@
+"""SE(3): rigid transforms, batch-first. Twists ``xi = (v, w)`` have shape (..., 6), transforms (..., 4, 4).
+
+Conventions (see docs/conventions.md):
+- ``hat(xi) = [[hat(w), v], [0, 0]]``; a revolute joint through p with unit axis w has v = -w x p.
+- ``adjoint(T) = [[R, hat(p) R], [0, R]]`` maps twists: T hat(xi) T^-1 = hat(adjoint(T) xi).
+- ``ad(xi) = [[hat(w), hat(v)], [0, hat(w)]]`` (the thesis' Omega).
+- Left Jacobian: exp(xi + d) = exp(J_l(xi) d) exp(xi) to first order, i.e.
+  [d exp(xi) exp(-xi)]^vee = J_l(xi) d.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kincal.lie import so3
+from kincal.lie._coeffs import se3_jl_coeffs
+
+
+def split(xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(v, w) views of a twist array (..., 6)."""
+    xi = np.asarray(xi)
+    return xi[..., :3], xi[..., 3:]
+
+
+def join(v: np.ndarray, w: np.ndarray) -> np.ndarray:
+    v, w = np.broadcast_arrays(np.asarray(v, dtype=float), np.asarray(w, dtype=float))
+    return np.concatenate([v, w], axis=-1)
+
+
+def hat(xi: np.ndarray) -> np.ndarray:
+    xi = np.asarray(xi, dtype=float)
+    v, w = split(xi)
+    out = np.zeros(xi.shape[:-1] + (4, 4))
+    out[..., :3, :3] = so3.hat(w)
+    out[..., :3, 3] = v
+    return out
+
+
+def vee(X: np.ndarray) -> np.ndarray:
+    X = np.asarray(X, dtype=float)
+    return join(X[..., :3, 3], so3.vee(X[..., :3, :3]))
+
+
+def make(R: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Assemble transforms from rotations (..., 3, 3) and translations (..., 3)."""
+    R = np.asarray(R, dtype=float)
+    p = np.asarray(p, dtype=float)
+    batch = np.broadcast_shapes(R.shape[:-2], p.shape[:-1])
+    out = np.zeros(batch + (4, 4))
+    out[..., :3, :3] = R
+    out[..., :3, 3] = p
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def identity(batch: tuple[int, ...] = ()) -> np.ndarray:
+    return np.broadcast_to(np.eye(4), batch + (4, 4)).copy()
+
+
+def exp(xi: np.ndarray) -> np.ndarray:
+    """exp(hat(xi)) = [[exp(w), J_l(w) v], [0, 1]]: (..., 6) -> (..., 4, 4)."""
+    v, w = split(np.asarray(xi, dtype=float))
+    return make(so3.exp(w), np.einsum("...ij,...j->...i", so3.left_jacobian(w), v))
+
+
+def log(T: np.ndarray) -> np.ndarray:
+    """Twist with rotation angle in [0, pi]: (..., 4, 4) -> (..., 6)."""
+    T = np.asarray(T, dtype=float)
+    w = so3.log(T[..., :3, :3])
+    v = np.einsum("...ij,...j->...i", so3.left_jacobian_inv(w), T[..., :3, 3])
+    return join(v, w)
+
+
+def inverse(T: np.ndarray) -> np.ndarray:
+    T = np.asarray(T, dtype=float)
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    return make(Rt, -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3]))
+
+
+def adjoint(T: np.ndarray) -> np.ndarray:
+    """Ad_T = [[R, hat(p) R], [0, R]]: (..., 4, 4) -> (..., 6, 6)."""
+    T = np.asarray(T, dtype=float)
+    R = T[..., :3, :3]
+    out = np.zeros(T.shape[:-2] + (6, 6))
+    out[..., :3, :3] = R
+    out[..., 3:, 3:] = R
+    out[..., :3, 3:] = so3.hat(T[..., :3, 3]) @ R
+    return out
+
+
+def adjoint_inv(T: np.ndarray) -> np.ndarray:
+    """Ad_{T^-1} without forming T^-1: [[R^T, -R^T hat(p)], [0, R^T]]."""
+    T = np.asarray(T, dtype=float)
+    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
+    out = np.zeros(T.shape[:-2] + (6, 6))
+    out[..., :3, :3] = Rt
+    out[..., 3:, 3:] = Rt
+    out[..., :3, 3:] = -Rt @ so3.hat(T[..., :3, 3])
+    return out
+
+
+def ad(xi: np.ndarray) -> np.ndarray:
+    """Small adjoint: ad(a) b is the Lie bracket [a, b]; (..., 6) -> (..., 6, 6)."""
+    v, w = split(np.asarray(xi, dtype=float))
+    out = np.zeros(np.shape(xi)[:-1] + (6, 6))
+    W = so3.hat(w)
+    out[..., :3, :3] = W
+    out[..., 3:, 3:] = W
+    out[..., :3, 3:] = so3.hat(v)
+    return out
+
+
+def left_jacobian(xi: np.ndarray) -> np.ndarray:
+    """J_l(xi) = sum_k ad(xi)^k / (k+1)!, in the thesis' four-term closed form (eq. 2.44): (..., 6, 6)."""
+    xi = np.asarray(xi, dtype=float)
+    a1, a2, a3, a4 = (c[..., None, None] for c in se3_jl_coeffs(so3.angle(split(xi)[1])))
+    X = ad(xi)
+    X2 = X @ X
+    X3 = X2 @ X
+    return np.eye(6) + a1 * X + a2 * X2 + a3 * X3 + a4 * (X2 @ X2)
+
+
+def left_jacobian_inv(xi: np.ndarray) -> np.ndarray:
+    """Inverse of J_l from its block structure [[J, Q], [0, J]]^-1 = [[J^-1, -J^-1 Q J^-1], [0, J^-1]]."""
+    xi = np.asarray(xi, dtype=float)
+    w = split(xi)[1]
+    Q = left_jacobian(xi)[..., :3, 3:]
+    Ji = so3.left_jacobian_inv(w)
+    out = np.zeros(xi.shape[:-1] + (6, 6))
+    out[..., :3, :3] = Ji
+    out[..., 3:, 3:] = Ji
+    out[..., :3, 3:] = -Ji @ Q @ Ji
+    return out
+
+
+def right_jacobian(xi: np.ndarray) -> np.ndarray:
+    return left_jacobian(-np.asarray(xi, dtype=float))
+
+
+def right_jacobian_inv(xi: np.ndarray) -> np.ndarray:
+    return left_jacobian_inv(-np.asarray(xi, dtype=float))
+
+
+def transform_points(T: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """T @ p for points (..., 3)."""
+    T = np.asarray(T, dtype=float)
+    return np.einsum("...ij,...j->...i", T[..., :3, :3], p) + T[..., :3, 3]

@@ -1,0 +1,105 @@
+"""SO(3): rotations, batch-first. Rotation vectors ``w`` have shape (..., 3), matrices (..., 3, 3).
+
+Conventions: ``exp(hat(w))`` rotates by |w| about w / |w| (right-handed). The left Jacobian ``J_l``
+satisfies ``exp(w + dw) = exp(J_l(w) dw) exp(w)`` to first order; the right Jacobian
+``J_r(w) = J_l(-w)`` satisfies ``exp(w + dw) = exp(w) exp(J_r(w) dw)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kincal.lie._coeffs import log_coeff, one_minus_cos_over_t2, sin_over_t, t_minus_sin_over_t3
+
+
+def hat(w: np.ndarray) -> np.ndarray:
+    """Skew-symmetric matrix of w: hat(a) @ b == cross(a, b). (..., 3) -> (..., 3, 3)."""
+    w = np.asarray(w, dtype=float)
+    out = np.zeros(w.shape + (3,))
+    out[..., 0, 1] = -w[..., 2]
+    out[..., 0, 2] = w[..., 1]
+    out[..., 1, 0] = w[..., 2]
+    out[..., 1, 2] = -w[..., 0]
+    out[..., 2, 0] = -w[..., 1]
+    out[..., 2, 1] = w[..., 0]
+    return out
+
+
+def vee(W: np.ndarray) -> np.ndarray:
+    """Inverse of hat, taking the skew part: (..., 3, 3) -> (..., 3)."""
+    W = np.asarray(W, dtype=float)
+    return 0.5 * np.stack(
+        [W[..., 2, 1] - W[..., 1, 2], W[..., 0, 2] - W[..., 2, 0], W[..., 1, 0] - W[..., 0, 1]], axis=-1
+    )
+
+
+def angle(w: np.ndarray) -> np.ndarray:
+    return np.linalg.norm(w, axis=-1)
+
+
+def exp(w: np.ndarray) -> np.ndarray:
+    """Rodrigues' formula: (..., 3) -> (..., 3, 3)."""
+    w = np.asarray(w, dtype=float)
+    t = angle(w)[..., None, None]
+    W = hat(w)
+    return np.eye(3) + sin_over_t(t) * W + one_minus_cos_over_t2(t) * (W @ W)
+
+
+def log(R: np.ndarray) -> np.ndarray:
+    """Rotation vector of R with angle in [0, pi]: (..., 3, 3) -> (..., 3).
+
+    The angle comes from atan2(|s|, c), accurate everywhere. The axis comes from the skew part for
+    angles below pi/2 and from the symmetric part above, so it stays accurate up to pi.
+    """
+    R = np.asarray(R, dtype=float)
+    s = vee(R)  # sin(t) * axis
+    c = 0.5 * (np.trace(R, axis1=-2, axis2=-1) - 1.0)
+    sin_t = np.linalg.norm(s, axis=-1)
+    t = np.arctan2(sin_t, c)
+    w_small = s / sin_over_t(t)[..., None]
+
+    # Near pi: R + R^T = 2 c I + 2 (1 - c) a a^T; read a from the largest diagonal entry.
+    # Evaluated everywhere, but with the identity standing in where c >= 0 (its result is unused there).
+    large = c < 0.0
+    sym = 0.5 * (R + np.swapaxes(R, -1, -2)) - c[..., None, None] * np.eye(3)
+    B = np.where(large[..., None, None], sym / np.where(large, 1.0 - c, 1.0)[..., None, None], np.eye(3))
+    i = np.argmax(np.diagonal(B, axis1=-2, axis2=-1), axis=-1)
+    col = np.take_along_axis(B, np.broadcast_to(i[..., None, None], B.shape[:-1] + (1,)), axis=-1)[..., 0]
+    a = col / np.sqrt(np.take_along_axis(col, i[..., None], axis=-1))
+    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    sign = np.where(np.sum(a * s, axis=-1) < 0.0, -1.0, 1.0)
+    w_large = (sign * t)[..., None] * a
+    return np.where(large[..., None], w_large, w_small)
+
+
+def left_jacobian(w: np.ndarray) -> np.ndarray:
+    """J_l(w) = I + (1 - cos t)/t^2 W + (t - sin t)/t^3 W^2: (..., 3) -> (..., 3, 3)."""
+    w = np.asarray(w, dtype=float)
+    t = angle(w)[..., None, None]
+    W = hat(w)
+    return np.eye(3) + one_minus_cos_over_t2(t) * W + t_minus_sin_over_t3(t) * (W @ W)
+
+
+def left_jacobian_inv(w: np.ndarray) -> np.ndarray:
+    """Inverse of J_l: I - W/2 + (1 - (t/2)cot(t/2))/t^2 W^2. Singular at t = 2 pi k, k != 0."""
+    w = np.asarray(w, dtype=float)
+    t = angle(w)[..., None, None]
+    W = hat(w)
+    return np.eye(3) - 0.5 * W + log_coeff(t) * (W @ W)
+
+
+def right_jacobian(w: np.ndarray) -> np.ndarray:
+    return left_jacobian(-np.asarray(w, dtype=float))
+
+
+def right_jacobian_inv(w: np.ndarray) -> np.ndarray:
+    return left_jacobian_inv(-np.asarray(w, dtype=float))
+
+
+def project(M: np.ndarray) -> np.ndarray:
+    """Nearest rotation (Frobenius norm) to each 3x3 matrix, via SVD. Only for explicit user requests."""
+    U, _, Vt = np.linalg.svd(np.asarray(M, dtype=float))
+    d = np.sign(np.linalg.det(U @ Vt))
+    U = U.copy()
+    U[..., :, 2] *= d[..., None]
+    return U @ Vt
