@@ -1,0 +1,48 @@
+"""The ``kincal`` command. Each sub-command lives in its own module and registers itself here."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+import click
+
+from kincal import __version__
+from kincal.errors import KincalError
+
+# Sub-command modules; each defines ``register(group)``.
+_COMMAND_MODULES = ("kincal.cli.model_cmds",)
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="kincal")
+def cli() -> None:
+    """kincal: kinematic calibration of robot arms."""
+
+
+for _name in _COMMAND_MODULES:
+    try:
+        importlib.import_module(_name).register(cli)
+    except ModuleNotFoundError as exc:  # a sub-command still being written
+        if exc.name != _name:
+            raise
+
+
+def main(argv=None) -> int:
+    """Console entry point: kincal errors become one clear line and exit code 2, never a traceback."""
+    try:
+        cli.main(args=argv, prog_name="kincal", standalone_mode=False)
+    except KincalError as exc:
+        click.echo(f"kincal: error: {exc}", err=True)
+        return 2
+    except click.exceptions.Abort:
+        click.echo("kincal: aborted", err=True)
+        return 130
+    except click.ClickException as exc:
+        exc.show()
+        return exc.exit_code
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,131 @@
+"""In-memory experiment data sets: what was measured, per experiment kind.
+
+A ``Dataset`` holds joint readings per arm (model order, SI units) plus the measurements and known
+transforms of its kind. Files (CSV + YAML manifest) map onto it in ``kincal.io.datasets``; ground truth
+never lives here (see ``Truth`` in ``kincal.simulate``).
+
+Kinds and their entries (N samples; shapes batch-first):
+
+================  ====================================  ======================================================
+kind              measured                              known (optional unless marked *)
+================  ====================================  ======================================================
+``pose``          ``T_tracker_tool`` (N, 4, 4)          ``T_world_tracker`` (4, 4)
+``markers``       ``p_tracker_marker`` (N, m, 3)        ``T_world_tracker`` (4, 4), ``p_tool_marker`` (m, 3),
+                  ``wrench_tool`` (N, 6) optional       (loads as (force, torque) in the tool frame, N, N m)
+``clamp``         --                                    ``T_world_fixture`` (4, 4)
+``plate``         ``fixture`` (N,) int in [0, K)        ``T_plate_fixture`` (K, 4, 4) *, ``T_world_plate`` (4, 4)
+``dual``          --                                    ``T_toolA_toolB`` (4, 4): arm B's tool in arm A's tool
+``socket``        --                                    ``p_world_socket`` (3,): tool point held in a socket
+``distance``      --                                    ``distance`` (): |p_A - p_B| of the two arms' tool points
+``plane``         --                                    ``plane_world`` (4,): n . p = d with unit n
+================  ====================================  ======================================================
+
+``arms`` lists the arms involved (two for ``dual`` and ``distance``, first is A). Unknown quantities
+(absent from ``known``) become parameters of the calibration.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Mapping
+
+import numpy as np
+
+from kincal.errors import DegenerateExperimentError, ShapeError
+
+KINDS = {
+    # kind: (number of arms, required measured keys, optional measured keys, required known keys, optional known keys)
+    "pose": (1, ("T_tracker_tool",), (), (), ("T_world_tracker",)),
+    "markers": (1, ("p_tracker_marker",), ("wrench_tool",), (), ("T_world_tracker", "p_tool_marker")),
+    "clamp": (1, (), (), (), ("T_world_fixture",)),
+    "plate": (1, ("fixture",), (), ("T_plate_fixture",), ("T_world_plate",)),
+    "dual": (2, (), (), (), ("T_toolA_toolB",)),
+    "socket": (1, (), (), (), ("p_world_socket",)),
+    "distance": (2, (), (), ("distance",), ()),
+    "plane": (1, (), (), (), ("plane_world",)),
+}
+
+
+def _ro(a) -> np.ndarray:
+    a = np.array(a)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class Dataset:
+    """One experiment's data. See the module docstring for the kinds."""
+
+    kind: str
+    robot: str
+    arms: tuple[str, ...]
+    q: Mapping[str, np.ndarray]
+    measured: Mapping[str, np.ndarray] = field(default_factory=dict)
+    known: Mapping[str, np.ndarray] = field(default_factory=dict)
+    name: str = "experiment"
+    meta: Mapping = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        where = f"data set '{self.name}'"
+        if self.kind not in KINDS:
+            raise ShapeError(f"{where}: unknown kind {self.kind!r}; kinds: {', '.join(KINDS)}")
+        n_arms, req_m, opt_m, req_k, opt_k = KINDS[self.kind]
+        arms = tuple(self.arms)
+        if len(arms) != n_arms:
+            raise ShapeError(f"{where}: kind '{self.kind}' needs {n_arms} arm(s), got {list(arms)}")
+        object.__setattr__(self, "arms", arms)
+        q = {}
+        for arm in arms:
+            if arm not in self.q:
+                raise ShapeError(f"{where}: no joint readings for arm '{arm}'")
+            qa = np.asarray(self.q[arm], dtype=float)
+            if qa.ndim != 2:
+                raise ShapeError(f"{where}: joint readings of arm '{arm}' must be (N, n), got shape {qa.shape}")
+            bad = np.argwhere(~np.isfinite(qa))
+            if len(bad):
+                raise ShapeError(f"{where}: arm '{arm}' sample {bad[0][0]} joint {bad[0][1]} is {qa[tuple(bad[0])]}")
+            q[arm] = _ro(qa)
+        counts = {qa.shape[0] for qa in q.values()}
+        if len(counts) != 1:
+            raise ShapeError(f"{where}: arms have different sample counts {[(a, q[a].shape[0]) for a in arms]}")
+        for key, allowed_req, allowed_opt, store in (
+            ("measured", req_m, opt_m, self.measured),
+            ("known", req_k, opt_k, self.known),
+        ):
+            for k in allowed_req:
+                if k not in store:
+                    raise ShapeError(f"{where}: kind '{self.kind}' needs {key} '{k}'")
+            for k in store:
+                if k not in allowed_req + allowed_opt:
+                    raise ShapeError(
+                        f"{where}: unexpected {key} entry '{k}' for kind '{self.kind}'; "
+                        f"allowed: {', '.join(allowed_req + allowed_opt) or 'none'}"
+                    )
+        object.__setattr__(self, "q", MappingProxyType(q))
+        object.__setattr__(self, "measured", MappingProxyType({k: _ro(v) for k, v in self.measured.items()}))
+        object.__setattr__(self, "known", MappingProxyType({k: _ro(v) for k, v in self.known.items()}))
+        object.__setattr__(self, "meta", MappingProxyType(dict(self.meta)))
+        n = self.size
+        for k, v in self.measured.items():
+            if v.shape[:1] != (n,):
+                raise ShapeError(f"{where}: measured '{k}' has {v.shape[:1]} samples, joint readings have {n}")
+        if n == 0:
+            raise DegenerateExperimentError(f"{where}: contains no samples")
+
+    @property
+    def size(self) -> int:
+        return next(iter(self.q.values())).shape[0]
+
+    def subset(self, index) -> "Dataset":
+        """The samples selected by ``index`` (slice, mask or integer array)."""
+        return Dataset(
+            self.kind,
+            self.robot,
+            self.arms,
+            {a: v[index] for a, v in self.q.items()},
+            {k: v[index] for k, v in self.measured.items()},
+            dict(self.known),
+            self.name,
+            dict(self.meta),
+        )
