@@ -11,7 +11,11 @@ from kincal import __version__
 from kincal.errors import KincalError
 
 # Sub-command modules; each defines ``register(group)``.
-_COMMAND_MODULES = ("kincal.cli.model_cmds",)
+_COMMAND_MODULES = (
+    "kincal.cli.model_cmds",
+    "kincal.cli.simulate_cmds",
+    "kincal.cli.calibrate_cmds",
+)
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})

@@ -1,0 +1,1 @@
+"""File formats: the only package that reads or writes files."""
