@@ -47,8 +47,13 @@ def _horner(coeffs: np.ndarray, t2: np.ndarray) -> np.ndarray:
 def _branch(theta: np.ndarray, coeffs: np.ndarray, closed_form) -> np.ndarray:
     theta = np.asarray(theta, dtype=float)
     small = theta < _TAYLOR_BELOW
-    safe = np.where(small, _TAYLOR_BELOW, theta)  # keeps the closed form away from 0/0
-    return np.where(small, _horner(coeffs, theta * theta), closed_form(safe))
+    if theta.ndim == 0:
+        return _horner(coeffs, theta * theta) if small else closed_form(theta)
+    out = np.empty_like(theta)
+    out[small] = _horner(coeffs, theta[small] ** 2)
+    large = ~small
+    out[large] = closed_form(theta[large])
+    return out
 
 
 def sin_over_t(theta):

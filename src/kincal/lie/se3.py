@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from kincal.lie import so3
-from kincal.lie._coeffs import se3_jl_coeffs
+from kincal.lie._coeffs import one_minus_cos_over_t2, se3_jl_coeffs, t_minus_sin_over_t3
 
 
 def split(xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -58,9 +58,15 @@ def identity(batch: tuple[int, ...] = ()) -> np.ndarray:
 
 
 def exp(xi: np.ndarray) -> np.ndarray:
-    """exp(hat(xi)) = [[exp(w), J_l(w) v], [0, 1]]: (..., 6) -> (..., 4, 4)."""
+    """exp(hat(xi)) = [[exp(w), J_l(w) v], [0, 1]]: (..., 6) -> (..., 4, 4).
+
+    J_l(w) v = v + (1 - cos t)/t^2 (w x v) + (t - sin t)/t^3 (w x (w x v)), without forming J_l.
+    """
     v, w = split(np.asarray(xi, dtype=float))
-    return make(so3.exp(w), np.einsum("...ij,...j->...i", so3.left_jacobian(w), v))
+    t = so3.angle(w)
+    wv = so3.cross(w, v)
+    p = v + one_minus_cos_over_t2(t)[..., None] * wv + t_minus_sin_over_t3(t)[..., None] * so3.cross(w, wv)
+    return make(so3.exp(w), p)
 
 
 def log(T: np.ndarray) -> np.ndarray:

@@ -34,15 +34,37 @@ def vee(W: np.ndarray) -> np.ndarray:
 
 
 def angle(w: np.ndarray) -> np.ndarray:
-    return np.linalg.norm(w, axis=-1)
+    return np.sqrt(np.einsum("...i,...i->...", w, w))
+
+
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a x b over the last axis (faster than np.cross for large batches)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
 
 
 def exp(w: np.ndarray) -> np.ndarray:
-    """Rodrigues' formula: (..., 3) -> (..., 3, 3)."""
+    """Rodrigues' formula: (..., 3) -> (..., 3, 3).
+
+    Uses hat(w)^2 = w w^T - |w|^2 I, so R = cos(t) I + sin(t)/t hat(w) + (1 - cos t)/t^2 w w^T,
+    assembled entry by entry (contiguous elementwise work is much faster than tiny batched matmuls).
+    """
     w = np.asarray(w, dtype=float)
-    t = angle(w)[..., None, None]
-    W = hat(w)
-    return np.eye(3) + sin_over_t(t) * W + one_minus_cos_over_t2(t) * (W @ W)
+    t = angle(w)
+    a = sin_over_t(t)
+    b = one_minus_cos_over_t2(t)
+    c = np.cos(t)
+    x, y, z = w[..., 0], w[..., 1], w[..., 2]
+    bxy, bxz, byz = b * x * y, b * x * z, b * y * z
+    ax, ay, az = a * x, a * y, a * z
+    R = np.empty(w.shape + (3,))
+    R[..., 0, 0], R[..., 0, 1], R[..., 0, 2] = c + b * x * x, bxy - az, bxz + ay
+    R[..., 1, 0], R[..., 1, 1], R[..., 1, 2] = bxy + az, c + b * y * y, byz - ax
+    R[..., 2, 0], R[..., 2, 1], R[..., 2, 2] = bxz - ay, byz + ax, c + b * z * z
+    return R
 
 
 def log(R: np.ndarray) -> np.ndarray:
