@@ -48,7 +48,8 @@ class ArmModel:
     gear_ratios : ndarray, shape (n,)
         Motor units per joint unit (motor rad = ratio * arm rad), in model joint order.
     controller_order : tuple of int
-        0-based model joint index carried by each controller channel (Frida: (0, 1, 6, 2, 3, 4, 5)).
+        0-based model joint index carried by each controller channel (Frida: (0, 1, 3, 4, 5, 6, 2):
+        its axes are numbered 1, 2, 7, 3, 4, 5, 6 from the base, so channel 7 carries model joint 3).
     joint_names, joint_types : tuple of str
     meta : mapping
         Free-form provenance (source, notes); not used in computation.

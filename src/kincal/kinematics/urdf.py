@@ -1,0 +1,176 @@
+"""URDF <-> POE: import a chain base_link -> tip_link as an ArmModel (via yourdfpy), export an ArmModel.
+
+Import: the joint frames are composed at q = 0 along the chain (fixed joints fold into the next
+transform). Joint i with URDF origin ``O_i`` and unit axis ``a_i`` (in its own frame) sits at
+``F_i = O_1 ... O_i`` (fixed origins included); its twist is ``(-w x p, w)`` with ``w = R(F_i) a_i``,
+``p = t(F_i)`` (revolute, continuous) or ``(w, 0)`` (prismatic); ``home = T_base_link_tip_link`` at q = 0.
+Revolute/prismatic limits are kept (missing lower/upper attributes mean unlimited); continuous joints
+are unlimited. URDF axes are normalized (URDF
+treats ``axis`` as a direction). Mimic, floating and planar joints are refused.
+
+Export (``to_urdf``): one link per joint, every joint frame parallel to the arm base frame at q = 0,
+so axes are generally not along z; joint offsets are folded into the origins
+(``exp(xi (q + o)) = F exp(xi_local o) exp(xi_local q) F^-1``). Meant for cross-checks (pinocchio).
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+
+from kincal.errors import DataFormatError, ModelError
+from kincal.kinematics.model import PRISMATIC, REVOLUTE, ArmModel
+from kincal.lie import se3
+
+_MOVING = {"revolute": REVOLUTE, "continuous": REVOLUTE, "prismatic": PRISMATIC}
+
+
+def _yourdfpy():
+    try:
+        import yourdfpy
+    except ImportError:
+        raise ModelError(
+            "URDF import needs the optional package 'yourdfpy': pip install 'kincal[urdf]'"
+        ) from None
+    return yourdfpy
+
+
+def _load(source):
+    """yourdfpy.URDF from a path or from URDF text (a string starting with '<')."""
+    yourdfpy = _yourdfpy()
+    text = isinstance(source, str) and source.lstrip().startswith("<")
+    label = "<urdf string>" if text else str(source)
+    if not text and not Path(source).is_file():
+        raise DataFormatError(f"{label}: no such URDF file")
+    handle = io.BytesIO(source.encode("utf-8")) if text else str(source)
+    try:
+        return yourdfpy.URDF.load(handle, build_scene_graph=False, load_meshes=False,
+                                  load_collision_meshes=False, build_collision_scene_graph=False), label
+    except Exception as exc:  # yourdfpy/lxml raise many kinds; report them as a format error
+        raise DataFormatError(f"{label}: cannot parse URDF: {exc}") from None
+
+
+def _chain(robot, base_link: str, tip_link: str, label: str) -> list:
+    """Joints from base_link to tip_link, in order."""
+    links = set(robot.link_map)
+    for role, link in (("base_link", base_link), ("tip_link", tip_link)):
+        if link not in links:
+            known = ", ".join(sorted(links))
+            raise DataFormatError(f"{label}: {role} {link!r} is not a link of the URDF (links: {known})")
+    parent_joint = {j.child: j for j in robot.joint_map.values()}
+    chain, link = [], tip_link
+    while link != base_link:
+        if link not in parent_joint:
+            raise DataFormatError(f"{label}: tip_link {tip_link!r} is not below base_link {base_link!r}")
+        joint = parent_joint[link]
+        chain.append(joint)
+        link = joint.parent
+    return chain[::-1]
+
+
+def from_urdf(source, base_link: str, tip_link: str, *, name: str | None = None, **model_fields) -> ArmModel:
+    """ArmModel of the URDF chain from ``base_link`` to ``tip_link`` (``home = T_base_link_tip_link`` at q = 0).
+
+    ``source`` is a URDF file path or URDF text. ``model_fields`` go to ArmModel (base, tool, gear_ratios, ...).
+    Joint names are the URDF joint names.
+    """
+    robot, label = _load(source)
+    T = np.eye(4)
+    screws, names, types, lower, upper = [], [], [], [], []
+    for joint in _chain(robot, base_link, tip_link, label):
+        origin = np.eye(4) if joint.origin is None else np.asarray(joint.origin, dtype=float)
+        T = T @ origin
+        if joint.type == "fixed":
+            continue
+        if joint.type not in _MOVING:
+            raise DataFormatError(
+                f"{label}: joint {joint.name!r}: type {joint.type!r} is not supported in a serial chain"
+            )
+        if joint.mimic is not None:
+            raise DataFormatError(f"{label}: joint {joint.name!r}: mimic joints are not supported")
+        axis = np.asarray(joint.axis, dtype=float)
+        norm = np.linalg.norm(axis)
+        if not np.isfinite(norm) or norm < 1e-9:
+            raise DataFormatError(
+                f"{label}: joint {joint.name!r}: axis must be a non-zero vector, found {axis.tolist()}"
+            )
+        w = T[:3, :3] @ (axis / norm)
+        kind = _MOVING[joint.type]
+        screws.append(se3.join(-np.cross(w, T[:3, 3]), w) if kind == REVOLUTE else se3.join(w, np.zeros(3)))
+        limit = joint.limit
+        bounded = (joint.type != "continuous" and limit is not None
+                   and limit.lower is not None and limit.upper is not None)
+        lower.append(float(limit.lower) if bounded else -np.inf)
+        upper.append(float(limit.upper) if bounded else np.inf)
+        if not lower[-1] < upper[-1]:
+            raise DataFormatError(
+                f"{label}: joint {joint.name!r}: limit needs lower < upper, found {lower[-1]}, {upper[-1]}"
+            )
+        names.append(joint.name)
+        types.append(kind)
+    if not screws:
+        raise DataFormatError(f"{label}: no moving joint between {base_link!r} and {tip_link!r}")
+    model_fields.setdefault("lower", lower)
+    model_fields.setdefault("upper", upper)
+    return ArmModel(name or f"{base_link}->{tip_link}", np.array(screws), T, joint_names=tuple(names),
+                    joint_types=tuple(types), **model_fields)
+
+
+def _origin_xml(T: np.ndarray) -> str:
+    from kincal.io.rotations import matrix_to_rpy  # pure math helper (no file access)
+
+    xyz = " ".join(repr(float(x)) for x in T[:3, 3])
+    rpy = " ".join(repr(float(x)) for x in matrix_to_rpy(T[:3, :3]))
+    return f'<origin xyz="{xyz}" rpy="{rpy}"/>'
+
+
+def to_urdf(model: ArmModel, *, root: str = "world", flange: str = "flange", tip: str = "tool") -> str:
+    """URDF text of ``model``: links ``root`` -> ``base`` -> ``link1`` ... ``linkN`` -> ``flange`` -> ``tip``.
+
+    Joint names are the model's joint names. Revolute joints with infinite limits become 'continuous';
+    prismatic joints need finite limits (URDF requires them).
+    """
+    rows = [f'<robot name="{model.name}">', f'  <link name="{root}"/>', '  <link name="base"/>']
+    rows += _joint_xml("base_joint", "fixed", root, "base", model.base)
+    previous, prev_link = np.eye(4), "base"
+    for i, (jname, kind) in enumerate(zip(model.joint_names, model.joint_types)):
+        v, w = se3.split(model.screws[i])
+        if kind == REVOLUTE:
+            point, axis = np.cross(w, v), w
+            local = se3.join(np.zeros(3), w)  # the screw seen from a frame at `point`, parallel to the base
+        else:
+            point, axis = previous[:3, 3], v
+            local = se3.join(v, np.zeros(3))
+        frame = se3.make(np.eye(3), point)
+        origin = se3.inverse(previous) @ frame @ se3.exp(local * model.offsets[i])
+        link = f"link{i + 1}"
+        rows.append(f'  <link name="{link}"/>')
+        lo, up = model.lower[i], model.upper[i]
+        if kind == REVOLUTE and not (np.isfinite(lo) and np.isfinite(up)):
+            jtype, limit = "continuous", ""
+        else:
+            if not (np.isfinite(lo) and np.isfinite(up)):
+                raise ModelError(
+                    f"arm '{model.name}': joint {jname} is prismatic without finite limits; URDF needs them"
+                )
+            jtype = "revolute" if kind == REVOLUTE else "prismatic"
+            limit = f'<limit lower="{float(lo)!r}" upper="{float(up)!r}" effort="0" velocity="0"/>'
+        axis_xml = f'<axis xyz="{" ".join(repr(float(a)) for a in axis)}"/>'
+        rows += _joint_xml(jname, jtype, prev_link, link, origin, axis_xml + limit)
+        previous, prev_link = frame, link
+    rows += [f'  <link name="{flange}"/>', f'  <link name="{tip}"/>']
+    rows += _joint_xml("flange_joint", "fixed", prev_link, flange, se3.inverse(previous) @ model.home)
+    rows += _joint_xml("tool_joint", "fixed", flange, tip, model.tool)
+    rows.append("</robot>")
+    return "\n".join(rows) + "\n"
+
+
+def _joint_xml(name: str, jtype: str, parent: str, child: str, origin: np.ndarray, extra: str = "") -> list[str]:
+    return [
+        f'  <joint name="{name}" type="{jtype}">',
+        f'    <parent link="{parent}"/><child link="{child}"/>',
+        f"    {_origin_xml(origin)}{extra}",
+        "  </joint>",
+    ]
