@@ -1,0 +1,106 @@
+"""``kincal simulate`` (scenario -> data set, truth, validation) and ``kincal convert-log`` (motor log -> joints)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from kincal.errors import DataFormatError
+
+
+def register(group: click.Group) -> None:
+    group.add_command(simulate)
+    group.add_command(convert_log)
+
+
+@click.command()
+@click.argument("scenario", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("-o", "--output", "output", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Directory for data.yaml/data.csv, truth/ and validation/.")
+@click.option("--seed", type=int, default=None, help="Override the scenario's seed.")
+@click.option("--overwrite", is_flag=True, help="Replace files already in the output directory.")
+@click.option("--quiet", is_flag=True, help="No progress bar or summary.")
+def simulate(scenario: Path, output: Path, seed: int | None, overwrite: bool, quiet: bool) -> None:
+    """Simulate the experiment of SCENARIO.yaml (examples: kincal/scenarios/*.yaml)."""
+    from dataclasses import replace
+
+    from kincal.io.datasets import load_scenario, write_simulation
+    from kincal.simulate.generators import dataset_spread
+    from kincal.simulate.scenario import run
+
+    sc = load_scenario(scenario)
+    if not overwrite and (output / "data.yaml").exists():
+        raise DataFormatError(f"{output / 'data.yaml'}: exists; refusing to overwrite it (pass --overwrite)")
+    if seed is not None:
+        sc = replace(sc, seed=seed)
+    console = Console(stderr=True, quiet=quiet)
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+                  TimeElapsedColumn(), console=console, transient=True, disable=quiet) as bar:
+        task = bar.add_task(f"{sc.name}: self-motion", total=None)
+
+        def progress(done: int, total: int) -> None:
+            bar.update(task, completed=done, total=total)
+
+        true, ds, truth, validation = run(sc, progress)
+    paths = write_simulation(output, ds, truth, validation, sc.robot, model=sc.model, angle=sc.angle_unit,
+                             length=sc.length_unit, overwrite=overwrite)
+    if quiet:
+        return
+    out = Console()
+    out.print(f"[bold]{sc.name}[/]: {ds.kind}, {ds.size} samples, arms {', '.join(ds.arms)}")
+    for key, p in paths.items():
+        out.print(f"  {key}: {p}")
+    stats = {k: v for k, v in truth.meta.items() if k != "generator"}
+    if stats:
+        out.print(f"  generator: {stats}")
+    if ds.kind not in ("pose", "markers"):
+        for arm, sp in dataset_spread(ds, sc.robot, truth).items():
+            t = Table(title=f"joint spread, arm {arm}")
+            for col in ("joint", "min (rad)", "max (rad)", "range (rad)", "of limits"):
+                t.add_column(col, justify="right")
+            for i, name in enumerate(sp.names):
+                frac = "" if sp.fraction[i] != sp.fraction[i] else f"{100 * sp.fraction[i]:.0f}%"
+                t.add_row(name + (" (weak)" if name in sp.weak else ""), f"{sp.low[i]:.3f}", f"{sp.high[i]:.3f}",
+                          f"{sp.range[i]:.3f}", frac)
+            out.print(t)
+            if sp.n_branches is not None:
+                out.print(f"  self-motion branches visited: {sp.n_branches}")
+            if sp.weak:
+                out.print(f"  [yellow]hardly excited: {', '.join(sp.weak)}[/]")
+
+
+@click.command("convert-log")
+@click.argument("log", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("-m", "--model", required=True, help="Built-in robot name or model file.")
+@click.option("-a", "--arm", "arms", multiple=True, help="Arm(s) in the log, in column order (default: all).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="CSV of joint readings (rad, model order).")
+@click.option("--every", type=int, default=1, show_default=True, help="Keep every k-th sample.")
+@click.option("--still-rad-s", type=float, default=None,
+              help="Keep only samples where every joint moves slower than this (rad/s).")
+@click.option("--window", type=int, default=25, show_default=True, help="Samples in the standstill window.")
+@click.option("--per-stop", is_flag=True, help="With --still-rad-s: one sample (the mean) per stop.")
+@click.option("--no-header", is_flag=True, help="The log has no header: all columns are channels.")
+@click.option("--period-s", type=float, default=None,
+              help="Sample period without a t column (default ExtCtrl 0.004032 s).")
+@click.option("--overwrite", is_flag=True, help="Replace OUTPUT if it exists.")
+def convert_log(log: Path, model: str, arms: tuple[str, ...], output: Path, every: int, still_rad_s: float | None,
+                window: int, per_stop: bool, no_header: bool, period_s: float | None, overwrite: bool) -> None:
+    """Convert a controller LOG in motor radians (controller joint order) to arm radians in model order."""
+    from kincal.io.logs import EXTCTRL_PERIOD_S, convert_log as convert, write_joint_csv
+    from kincal.io.models import load_robot
+
+    if output.resolve() == log.resolve():
+        raise DataFormatError(f"{output}: is the input log; choose another output file")
+    robot = load_robot(model)
+    arms = tuple(arms) or tuple(robot.arms)
+    for a in arms:
+        robot[a]
+    t, q = convert(log, robot, arms, every=every, still_rad_s=still_rad_s, window=window, per_stop=per_stop,
+                   header=not no_header, period_s=period_s or EXTCTRL_PERIOD_S)
+    write_joint_csv(output, t, q, robot, overwrite=overwrite)
+    click.echo(f"{log} -> {output}: {len(t)} samples, arms {', '.join(arms)}")

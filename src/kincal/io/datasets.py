@@ -1,0 +1,588 @@
+"""Data set files: a CSV of samples plus a YAML manifest  <->  ``kincal.data.Dataset``.
+
+The format is documented in docs/formats.md. In short, the manifest (``format: kincal-dataset``,
+``version: 1``) names the experiment ``kind``, the ``model`` (built-in robot name or model file path
+relative to the manifest), the ``arms``, the CSV file (``data``), the ``units`` of the CSV and of the known
+transforms, the ``known`` quantities and optional ``noise`` levels. The CSV header names its columns:
+
+- joints ``<arm>.<joint>`` (e.g. ``left.j1``), every joint of every arm;
+- ``pose``: ``tool.x, tool.y, tool.z, tool.qw, tool.qx, tool.qy, tool.qz`` (tracker frame);
+- ``markers``: ``m1.x, m1.y, m1.z, m2.x, ...``; optional ``wrench.fx .. wrench.tz`` (N, N m);
+- ``plate``: ``fixture`` (0-based index into ``known.T_plate_fixture``);
+- optional ``t`` (s) in any kind, kept in ``Dataset.meta["t"]``.
+
+Every problem is a DataFormatError naming the file, the row (1-based line number in the CSV) and the
+column or manifest field. Writers never replace an existing file unless ``overwrite=True``. Ground truth
+(``write_truth``) and validation sets go to separate files beside the data.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import yaml
+
+from kincal.data import KINDS, Dataset
+from kincal.errors import DataFormatError, KincalError
+from kincal.io import units
+from kincal.io.models import _Ctx, _mapping, _matrix, _number, _pose, _vector, load_robot, save_robot
+from kincal.io.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix
+from kincal.kinematics import PRISMATIC, Robot
+from kincal.lie import se3
+
+FORMAT = "kincal-dataset"
+VERSION = 1
+QUAT_TOL = 1e-6
+_TOP_KEYS = {"format", "version", "name", "kind", "model", "arms", "data", "units", "known", "noise", "description",
+             "meta"}
+POSE_COLUMNS = ("tool.x", "tool.y", "tool.z", "tool.qw", "tool.qx", "tool.qy", "tool.qz")
+WRENCH_COLUMNS = ("wrench.fx", "wrench.fy", "wrench.fz", "wrench.tx", "wrench.ty", "wrench.tz")
+# noise keys: base name -> quantity; the file key carries its unit, e.g. joint_sigma_deg, tracker_sigma_mm
+NOISE_KEYS = {"joint_sigma": ("angle", "joint_rad"), "tracker_sigma": ("length", "tracker_m"),
+              "tracker_rot_sigma": ("angle", "tracker_rad"), "backlash": ("angle", "backlash_rad")}
+
+
+def _fmt(x: float) -> str:
+    return repr(float(x))
+
+
+# --------------------------------------------------------------------------------------------- reading
+
+
+def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
+    """Read and validate a data set from its manifest path.
+
+    ``robot``: the model to check joint names (and prismatic units) against; default: the manifest's
+    ``model`` (built-in name or a path relative to the manifest).
+    """
+    manifest = Path(manifest)
+    try:
+        text = manifest.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise DataFormatError(f"{manifest}: cannot read data set manifest: {exc.strerror or exc}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+        raise DataFormatError(f"{manifest}: not valid YAML{where}: {getattr(exc, 'problem', None) or exc}") from None
+    ctx = _Ctx(str(manifest))
+    top = _mapping(ctx, data, "(top level)", _TOP_KEYS, ("format", "version", "kind", "model", "arms", "data", "units"))
+    if top["format"] != FORMAT:
+        raise ctx.fail("format", f"expected {FORMAT!r}, found {top['format']!r}")
+    if top["version"] != VERSION or isinstance(top["version"], bool):
+        raise ctx.fail("version", f"expected {VERSION}, found {top['version']!r}")
+    kind = top["kind"]
+    if kind not in KINDS:
+        raise ctx.fail("kind", f"expected one of {', '.join(KINDS)}, found {kind!r}")
+    arms = top["arms"]
+    if not isinstance(arms, list) or not all(isinstance(a, str) and a for a in arms) or len(set(arms)) != len(arms):
+        raise ctx.fail("arms", f"expected a list of distinct arm names, found {arms!r}")
+    if len(arms) != KINDS[kind][0]:
+        raise ctx.fail("arms", f"kind '{kind}' needs {KINDS[kind][0]} arm(s), found {arms}")
+    u = _mapping(ctx, top["units"], "units", {"angle", "length"}, ("angle", "length"))
+    ctx.angle = units.factor("angle", u["angle"], f"{manifest}: units.angle")
+    ctx.length = units.factor("length", u["length"], f"{manifest}: units.length")
+    model_ref = top["model"]
+    if not isinstance(model_ref, str) or not model_ref:
+        raise ctx.fail("model", f"expected a built-in robot name or a model file path, found {model_ref!r}")
+    resolved = _resolve_model(manifest, model_ref)
+    if robot is None:
+        try:
+            robot = load_robot(resolved)
+        except KincalError as exc:
+            raise ctx.fail("model", str(exc)) from None
+    for a in arms:
+        if a not in robot.arms:
+            raise ctx.fail("arms", f"model '{robot.name}' has no arm {a!r}; its arms: {', '.join(robot.arms)}")
+    known = _known(ctx, kind, top.get("known") or {})
+    noise = _noise(ctx, top.get("noise") or {})
+    csv_path = manifest.parent / str(top["data"])
+    table = _read_csv(csv_path)
+    q = {}
+    for a in arms:
+        model = robot[a]
+        f = np.array([ctx.length if t == PRISMATIC else ctx.angle for t in model.joint_types])
+        q[a] = table.take([f"{a}.{j}" for j in model.joint_names]) * f
+    measured = _measured(ctx, kind, table, known)
+    meta = {"noise": noise, "manifest": str(manifest), "description": top.get("description", "")}
+    if "t" in table.header:
+        meta["t"] = table.take(["t"])[:, 0]
+    extra = [c for c in table.header if c not in table.used]
+    if extra:
+        raise DataFormatError(f"{csv_path}: line {table.header_line}, column '{extra[0]}': unexpected column for kind "
+                              f"'{kind}' with arms {arms}; expected only {', '.join(table.used)}")
+    name = str(top.get("name") or manifest.stem)
+    try:
+        return Dataset(kind, resolved, tuple(arms), q, measured, known, name, meta)
+    except KincalError as exc:
+        raise DataFormatError(f"{manifest}: {exc}") from None
+
+
+def _resolve_model(manifest: Path, ref: str) -> str:
+    """A built-in name stays as is; a path is taken relative to the manifest."""
+    p = Path(ref)
+    if p.suffix in (".yaml", ".yml") or "/" in ref or os.sep in ref:
+        return str(p if p.is_absolute() else (manifest.parent / p))
+    return ref
+
+
+class _Table:
+    """A parsed CSV: header, values per line, and which columns were used."""
+
+    def __init__(self, path: Path, header: list[str], header_line: int, rows: list[tuple[int, list[str]]]):
+        self.path, self.header, self.header_line, self.rows = path, header, header_line, rows
+        self.col = {c: i for i, c in enumerate(header)}
+        self.used: list[str] = []
+
+    def take(self, columns: list[str], integer: bool = False) -> np.ndarray:
+        for c in columns:
+            if c not in self.col:
+                raise DataFormatError(
+                    f"{self.path}: line {self.header_line}, column '{c}': missing from the header; "
+                    f"found columns: {', '.join(self.header)}"
+                )
+        self.used += [c for c in columns if c not in self.used]
+        out = np.empty((len(self.rows), len(columns)))
+        for r, (line, values) in enumerate(self.rows):
+            for k, c in enumerate(columns):
+                text = values[self.col[c]].strip()
+                try:
+                    x = int(text) if integer else float(text)
+                except ValueError:
+                    what = "an integer" if integer else "a number"
+                    raise DataFormatError(
+                        f"{self.path}: line {line}, column '{c}': expected {what}, found {text!r}"
+                    ) from None
+                if not math.isfinite(x):
+                    raise DataFormatError(
+                        f"{self.path}: line {line}, column '{c}': expected a finite number, found {text!r}"
+                    )
+                out[r, k] = x
+        return out
+
+
+def _read_csv(path: Path) -> _Table:
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except OSError as exc:
+        raise DataFormatError(f"{path}: cannot read data file: {exc.strerror or exc}") from None
+    header, header_line, rows = None, 0, []
+    for number, fields in ((i + 1, f) for i, f in enumerate(csv.reader(lines))):
+        if not fields or not "".join(fields).strip() or fields[0].lstrip().startswith("#"):
+            continue
+        if header is None:
+            header, header_line = [f.strip() for f in fields], number
+            dup = {c for c in header if header.count(c) > 1}
+            if dup or "" in header:
+                raise DataFormatError(f"{path}: line {number}: header has empty or repeated column names {sorted(dup)}")
+            continue
+        if len(fields) < len(header):
+            raise DataFormatError(f"{path}: line {number}, column '{header[len(fields)]}': row has {len(fields)} "
+                                  f"values, the header has {len(header)} columns")
+        if len(fields) > len(header):
+            raise DataFormatError(
+                f"{path}: line {number}: row has {len(fields)} values, the header has {len(header)} columns"
+            )
+        rows.append((number, fields))
+    if header is None:
+        raise DataFormatError(f"{path}: no header line (expected column names such as 'left.j1')")
+    if not rows:
+        raise DataFormatError(f"{path}: no data rows after the header (line {header_line})")
+    return _Table(path, header, header_line, rows)
+
+
+def _measured(ctx, kind: str, table: _Table, known: dict) -> dict:
+    out = {}
+    if kind == "pose":
+        v = table.take(list(POSE_COLUMNS))
+        norm = np.linalg.norm(v[:, 3:], axis=-1)
+        bad = np.flatnonzero(np.abs(norm - 1) > QUAT_TOL)
+        if bad.size:
+            line = table.rows[bad[0]][0]
+            raise DataFormatError(f"{table.path}: line {line}, column 'tool.qw': expected a unit quaternion "
+                                  f"(norm 1 within {QUAT_TOL:g}), found norm {norm[bad[0]]:.9g}")
+        out["T_tracker_tool"] = se3.make(quat_wxyz_to_matrix(v[:, 3:] / norm[:, None]), v[:, :3] * ctx.length)
+    elif kind == "markers":
+        k = 1
+        while f"m{k}.x" in table.col:
+            k += 1
+        if k == 1:
+            raise DataFormatError(f"{table.path}: line {table.header_line}, column 'm1.x': missing; kind 'markers' "
+                                  "needs columns m1.x, m1.y, m1.z (and m2.x ... for more markers)")
+        cols = [f"m{i}.{c}" for i in range(1, k) for c in "xyz"]
+        out["p_tracker_marker"] = table.take(cols).reshape(-1, k - 1, 3) * ctx.length
+        if "p_tool_marker" in known and known["p_tool_marker"].shape[0] != k - 1:
+            m = known["p_tool_marker"].shape[0]
+            raise ctx.fail("known.p_tool_marker", f"lists {m} markers, the CSV has {k - 1}")
+        if any(c in table.col for c in WRENCH_COLUMNS):
+            out["wrench_tool"] = table.take(list(WRENCH_COLUMNS))
+    elif kind == "plate":
+        idx = table.take(["fixture"], integer=True)[:, 0].astype(int)
+        K = known["T_plate_fixture"].shape[0]
+        bad = np.flatnonzero((idx < 0) | (idx >= K))
+        if bad.size:
+            raise DataFormatError(f"{table.path}: line {table.rows[bad[0]][0]}, column 'fixture': expected a fixture "
+                                  f"index 0..{K - 1} (known.T_plate_fixture lists {K}), found {idx[bad[0]]}")
+        out["fixture"] = idx
+    return out
+
+
+def _known(ctx, kind: str, data: Any) -> dict:
+    _, _, _, req, opt = KINDS[kind]
+    d = _mapping(ctx, data, "known", set(req + opt), req)
+    out = {}
+    for key, value in d.items():
+        path = f"known.{key}"
+        if key.startswith("T_") and key != "T_plate_fixture":
+            out[key] = _pose(ctx, value, path)
+        elif key == "T_plate_fixture":
+            if not isinstance(value, list) or not value:
+                raise ctx.fail(path, "expected a non-empty list of poses (one per fixture)")
+            out[key] = np.stack([_pose(ctx, v, f"{path}[{i}]") for i, v in enumerate(value)])
+        elif key == "p_tool_marker":
+            if not isinstance(value, list) or not value:
+                raise ctx.fail(path, "expected a non-empty list of [x, y, z] (one per marker)")
+            out[key] = _matrix(ctx, value, path, len(value), 3) * ctx.length
+        elif key == "p_world_socket":
+            out[key] = _vector(ctx, value, path, 3) * ctx.length
+        elif key == "distance":
+            out[key] = np.array(_number(ctx, value, path) * ctx.length)
+        elif key == "plane_world":
+            v = _vector(ctx, value, path, 4)
+            if abs(np.linalg.norm(v[:3]) - 1) > 1e-6:
+                norm = np.linalg.norm(v[:3])
+                raise ctx.fail(path, f"expected [nx, ny, nz, d] with a unit normal, found |n| = {norm:.9g}")
+            out[key] = np.concatenate([v[:3], [v[3] * ctx.length]])
+    return out
+
+
+def _noise(ctx, data: Any) -> dict:
+    if not isinstance(data, dict):
+        raise ctx.fail("noise", f"expected a mapping, found {type(data).__name__}")
+    out = {}
+    for key, value in data.items():
+        base, _, unit = str(key).rpartition("_")
+        if base not in NOISE_KEYS:
+            allowed = ", ".join(f"{b}_<{q} unit>" for b, (q, _) in NOISE_KEYS.items())
+            raise ctx.fail(f"noise.{key}", f"unknown key; expected {allowed}")
+        quantity, si = NOISE_KEYS[base]
+        x = _number(ctx, value, f"noise.{key}")
+        out[si] = x * units.factor(quantity, unit, f"{ctx.file}: noise.{key}")
+    return out
+
+
+# --------------------------------------------------------------------------------------------- writing
+
+
+def _new_file(path: Path, overwrite: bool) -> Path:
+    if path.exists() and not overwrite:
+        raise DataFormatError(f"{path}: exists; refusing to overwrite it (pass overwrite=True / --overwrite)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def _pose_block(T: np.ndarray, length: float) -> dict:
+    M = np.array(T, dtype=float)
+    M[:3, 3] /= length
+    return {"matrix": [[float(x) for x in row] for row in M]}
+
+
+def dataset_to_dict(ds: Dataset, model: str, data_file: str, angle: str = "rad", length: str = "m") -> dict:
+    """The manifest content of ``ds`` (known quantities in the given units)."""
+    fl = units.factor("length", length, "length unit")
+    known: dict[str, Any] = {}
+    for key, v in ds.known.items():
+        if key == "T_plate_fixture":
+            known[key] = [_pose_block(T, fl) for T in v]
+        elif key.startswith("T_"):
+            known[key] = _pose_block(v, fl)
+        elif key == "plane_world":
+            known[key] = [float(x) for x in v[:3]] + [float(v[3]) / fl]
+        elif key == "distance":
+            known[key] = float(v) / fl
+        else:
+            known[key] = (np.asarray(v) / fl).tolist()
+    out = {"format": FORMAT, "version": VERSION, "name": ds.name, "kind": ds.kind, "model": model,
+           "arms": list(ds.arms), "data": data_file, "units": {"angle": angle, "length": length}}
+    if known:
+        out["known"] = known
+    noise = dict(ds.meta.get("noise") or {})
+    if noise:
+        out["noise"] = {f"{base}_{'rad' if q == 'angle' else 'm'}": float(noise[si])
+                        for base, (q, si) in NOISE_KEYS.items() if si in noise}
+    if ds.meta.get("description"):
+        out["description"] = str(ds.meta["description"])
+    return out
+
+
+def write_dataset(
+    ds: Dataset,
+    manifest,
+    robot: Robot,
+    *,
+    model: str | None = None,
+    angle: str = "rad",
+    length: str = "m",
+    overwrite: bool = False,
+) -> Path:
+    """Write ``ds`` as ``manifest`` (YAML) plus a CSV of the same stem; returns the manifest path.
+
+    ``robot`` gives the joint names and types; ``model`` is the manifest's model reference (default
+    ``ds.robot``; an existing file path is written relative to the manifest). Units: ``angle`` 'rad'/'deg',
+    ``length`` 'm'/'mm'. Floats are written with shortest round-trip text, so rad/m files reload exactly.
+    """
+    manifest = Path(manifest)
+    fa = units.factor("angle", angle, "angle unit")
+    fl = units.factor("length", length, "length unit")
+    csv_path = manifest.with_suffix(".csv")
+    model = ds.robot if model is None else model
+    if Path(model).is_file():
+        model = os.path.relpath(Path(model).resolve(), manifest.parent.resolve())
+    header, cols = [], []
+    if "t" in ds.meta:
+        header.append("t")
+        cols.append(np.asarray(ds.meta["t"], dtype=float)[:, None])
+    for a in ds.arms:
+        m = robot[a]
+        header += [f"{a}.{j}" for j in m.joint_names]
+        f = np.array([fl if t == PRISMATIC else fa for t in m.joint_types])
+        cols.append(ds.q[a] / f)
+    if ds.kind == "pose":
+        T = ds.measured["T_tracker_tool"]
+        header += list(POSE_COLUMNS)
+        cols += [T[:, :3, 3] / fl, matrix_to_quat_wxyz(T[:, :3, :3])]
+    elif ds.kind == "markers":
+        p = ds.measured["p_tracker_marker"]
+        header += [f"m{i + 1}.{c}" for i in range(p.shape[1]) for c in "xyz"]
+        cols.append(p.reshape(len(p), -1) / fl)
+        if "wrench_tool" in ds.measured:
+            header += list(WRENCH_COLUMNS)
+            cols.append(ds.measured["wrench_tool"])
+    table = np.concatenate(cols, axis=1)
+    fixture = ds.measured.get("fixture") if ds.kind == "plate" else None
+    if fixture is not None:
+        header.append("fixture")
+    _new_file(manifest, overwrite)
+    _new_file(csv_path, overwrite)
+    with open(csv_path, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(header)
+        for i, row in enumerate(table):
+            w.writerow([_fmt(x) for x in row] + ([str(int(fixture[i]))] if fixture is not None else []))
+    content = dataset_to_dict(ds, model, csv_path.name, angle, length)
+    with open(manifest, "w", encoding="utf-8") as fh:
+        yaml.safe_dump(content, fh, sort_keys=False, default_flow_style=None, width=120)
+    return manifest
+
+
+def write_truth(truth, directory, dataset: Dataset, *, overwrite: bool = False) -> Path:
+    """Ground truth beside a data set, in ``directory``: ``robot.yaml`` (the true model, model-file format),
+    ``truth.yaml`` (nuisance values in SI, noise, generator statistics) and ``q_true.csv`` (noise-free readings)."""
+    directory = Path(directory)
+    save_robot(truth.robot, _new_file(directory / "robot.yaml", overwrite), overwrite=True)
+    values = {}
+    for k, v in truth.values.items():
+        v = np.asarray(v)
+        values[k] = ([_pose_block(T, 1.0) for T in v] if v.ndim == 3 else _pose_block(v, 1.0)) if k.startswith("T_") \
+            else v.tolist()
+    content = {"format": "kincal-truth", "version": VERSION, "data_set": dataset.name, "robot": "robot.yaml",
+               "units": {"angle": "rad", "length": "m"}, "values": values,
+               "noise": {k: float(x) for k, x in truth.noise.as_dict().items()}, "meta": _plain(dict(truth.meta))}
+    with open(_new_file(directory / "truth.yaml", overwrite), "w", encoding="utf-8") as fh:
+        yaml.safe_dump(content, fh, sort_keys=False, default_flow_style=None, width=120)
+    with open(_new_file(directory / "q_true.csv", overwrite), "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow([f"{a}.{j}" for a in dataset.arms for j in truth.robot[a].joint_names])
+        for row in np.concatenate([truth.q[a] for a in dataset.arms], axis=1):
+            w.writerow([_fmt(x) for x in row])
+    return directory
+
+
+def read_truth_values(path) -> dict[str, np.ndarray]:
+    """The ``values`` block of a ``truth.yaml`` as arrays (SI)."""
+    path = Path(path)
+    data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    ctx = _Ctx(str(path))
+    out = {}
+    for k, v in (data.get("values") or {}).items():
+        if k.startswith("T_"):
+            out[k] = np.stack([_pose(ctx, b, f"values.{k}[{i}]") for i, b in enumerate(v)]) if isinstance(v, list) \
+                else _pose(ctx, v, f"values.{k}")
+        else:
+            out[k] = np.asarray(v, dtype=float)
+    return out
+
+
+def _plain(x: Any) -> Any:
+    if isinstance(x, Mapping):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, np.generic):
+        return x.item()
+    return x
+
+
+def write_simulation(directory, dataset: Dataset, truth, validation: Mapping[str, Dataset], robot: Robot, *,
+                     model: str | None = None, angle: str = "rad", length: str = "m", overwrite: bool = False) -> dict:
+    """The output of ``kincal simulate``: ``data.yaml``/``data.csv``, ``truth/`` and ``validation/<arm>.yaml``.
+
+    ``robot`` is the nominal model (joint names); ``model`` the manifest's model reference (default ``dataset.robot``).
+    """
+    directory = Path(directory)
+    paths = {"data": write_dataset(dataset, directory / "data.yaml", robot, model=model, angle=angle, length=length,
+                                   overwrite=overwrite)}
+    paths["truth"] = write_truth(truth, directory / "truth", dataset, overwrite=overwrite)
+    for a, v in validation.items():
+        paths[f"validation.{a}"] = write_dataset(v, directory / "validation" / f"{a}.yaml", robot, model=model,
+                                                 angle=angle, length=length, overwrite=overwrite)
+    return paths
+
+
+# --------------------------------------------------------------------------------------------- scenarios
+
+SCENARIO_FORMAT = "kincal-scenario"
+_SCENARIO_KEYS = {"format", "version", "name", "model", "seed", "units", "truth", "experiment", "noise", "validation",
+                  "output", "description"}
+# experiment keys per kind (besides kind and n); pose blocks and points use the scenario's units
+_EXPERIMENT_KEYS = {
+    "pose": {"arm", "known_tracker", "T_world_tracker"},
+    "markers": {"arm", "markers", "p_tool_marker", "known_markers", "known_tracker", "T_world_tracker"},
+    "clamp": {"arm", "T_world_fixture", "known_fixture", "workspace", "explore"},
+    "plate": {"arm", "T_plate_fixture", "T_world_plate", "known_plate", "workspace", "explore"},
+    "dual": {"arms", "clamp", "known_clamp", "workspace", "explore"},
+    "socket": {"arm", "p_world_socket", "known_socket", "workspace", "explore"},
+}
+_EXPLORE_KEYS = {"n_seeds", "n_steps", "step_rad", "momentum"}
+
+
+def _si_key(ctx, key: str, value: Any, path: str) -> tuple[str, float]:
+    """``twist_mm: 1`` -> ('twist_m', 0.001); the suffix names the unit."""
+    base, _, unit = str(key).rpartition("_")
+    if unit in units.LENGTH:
+        return f"{base}_m", _number(ctx, value, path) * units.LENGTH[unit]
+    if unit in units.ANGLE:
+        return f"{base}_rad", _number(ctx, value, path) * units.ANGLE[unit]
+    raise ctx.fail(path, f"key must end in a unit ({', '.join(list(units.LENGTH) + list(units.ANGLE))}), found {key!r}")
+
+
+def load_scenario(path):
+    """Read a scenario file (docs/simulation.md) into a ``kincal.simulate.scenario.Scenario``."""
+    from kincal.simulate.noise import Noise
+    from kincal.simulate.perturb import Perturbation, perturbation
+    from kincal.simulate.scenario import Scenario
+
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise DataFormatError(f"{path}: cannot read scenario: {exc.strerror or exc}") from None
+    except yaml.YAMLError as exc:
+        raise DataFormatError(f"{path}: not valid YAML: {getattr(exc, 'problem', None) or exc}") from None
+    ctx = _Ctx(str(path))
+    top = _mapping(ctx, data, "(top level)", _SCENARIO_KEYS, ("format", "version", "model", "experiment"))
+    if top["format"] != SCENARIO_FORMAT:
+        raise ctx.fail("format", f"expected {SCENARIO_FORMAT!r}, found {top['format']!r}")
+    if top["version"] != VERSION:
+        raise ctx.fail("version", f"expected {VERSION}, found {top['version']!r}")
+    u = _mapping(ctx, top.get("units", {"length": "m", "angle": "rad"}), "units", {"length", "angle"},
+                 ("length", "angle"))
+    ctx.length = units.factor("length", u["length"], f"{path}: units.length")
+    ctx.angle = units.factor("angle", u["angle"], f"{path}: units.angle")
+    model = _resolve_model(path, str(top["model"]))
+    try:
+        robot = load_robot(model)
+    except KincalError as exc:
+        raise ctx.fail("model", str(exc)) from None
+
+    fields = Perturbation.__dataclass_fields__
+    allowed = set(fields) | {"level", "arms"} | {f"{f.rpartition('_')[0]}_{u}" for f in fields for u in ("mm", "deg")}
+    truth = _mapping(ctx, top.get("truth") or {}, "truth", allowed)
+    over = dict(_si_key(ctx, k, v, f"truth.{k}") for k, v in truth.items() if k not in ("level", "arms"))
+    try:
+        pert = perturbation(truth.get("level", "thesis"), **over)
+    except KincalError as exc:
+        raise ctx.fail("truth", str(exc)) from None
+    perturb_arms = truth.get("arms")
+    if perturb_arms is not None and (
+        not isinstance(perturb_arms, list) or any(a not in robot.arms for a in perturb_arms)
+    ):
+        raise ctx.fail("truth.arms", f"expected a list of arms of '{robot.name}' ({', '.join(robot.arms)}), "
+                       f"found {perturb_arms!r}")
+
+    noise_keys = {f"{b}_{u}" for b, (q, _) in NOISE_KEYS.items()
+                  for u in (units.ANGLE if q == "angle" else units.LENGTH)}
+    noise_in = _mapping(ctx, top.get("noise") or {}, "noise", noise_keys)
+    noise = Noise(**_noise(ctx, noise_in))
+
+    exp = top["experiment"]
+    if not isinstance(exp, dict) or exp.get("kind") not in _EXPERIMENT_KEYS:
+        raise ctx.fail("experiment.kind", f"expected one of {', '.join(_EXPERIMENT_KEYS)}, found "
+                       f"{exp.get('kind') if isinstance(exp, dict) else exp!r}")
+    kind = exp["kind"]
+    exp = _mapping(ctx, exp, "experiment", _EXPERIMENT_KEYS[kind] | {"kind", "n"})
+    options: dict[str, Any] = {}
+    for key, value in exp.items():
+        p = f"experiment.{key}"
+        if key == "kind":
+            continue
+        if key in ("n", "markers"):
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ctx.fail(p, f"expected a positive integer, found {value!r}")
+            options[key] = value
+        elif key.startswith("known_"):
+            if not isinstance(value, bool):
+                raise ctx.fail(p, f"expected true or false, found {value!r}")
+            options[key] = value
+        elif key == "arm":
+            if value not in robot.arms:
+                raise ctx.fail(p, f"expected an arm of '{robot.name}' ({', '.join(robot.arms)}), found {value!r}")
+            options[key] = value
+        elif key == "arms":
+            if not isinstance(value, list) or len(value) != 2 or any(a not in robot.arms for a in value):
+                raise ctx.fail(p, f"expected two arms of '{robot.name}' ({', '.join(robot.arms)}), found {value!r}")
+            options[key] = tuple(value)
+        elif key == "T_plate_fixture":
+            if not isinstance(value, list) or not value:
+                raise ctx.fail(p, "expected a non-empty list of poses (one per fixture)")
+            options[key] = np.stack([_pose(ctx, v, f"{p}[{i}]") for i, v in enumerate(value)])
+        elif key.startswith("T_") or key == "clamp":
+            options[key] = _pose(ctx, value, p)
+        elif key == "workspace":
+            w = _mapping(ctx, value, p, {"lower", "upper"}, ("lower", "upper"))
+            options[key] = (_vector(ctx, w["lower"], f"{p}.lower", 3) * ctx.length,
+                            _vector(ctx, w["upper"], f"{p}.upper", 3) * ctx.length)
+        elif key == "p_world_socket":
+            options[key] = _vector(ctx, value, p, 3) * ctx.length
+        elif key == "p_tool_marker":
+            if not isinstance(value, list) or not value:
+                raise ctx.fail(p, "expected a list of [x, y, z]")
+            options["markers"] = _matrix(ctx, value, p, len(value), 3) * ctx.length
+        elif key == "explore":
+            e = _mapping(ctx, value, p, _EXPLORE_KEYS)
+            options["explore_options"] = {k: (int(_number(ctx, v, f"{p}.{k}")) if k in ("n_seeds", "n_steps")
+                                              else _number(ctx, v, f"{p}.{k}")) for k, v in e.items()}
+    if kind in ("pose", "markers", "clamp", "plate", "socket") and "arm" not in options and len(robot.arms) > 1:
+        raise ctx.fail("experiment.arm", f"name the arm; '{robot.name}' has {', '.join(robot.arms)}")
+    out = _mapping(ctx, top.get("output") or {"angle": "rad", "length": "m"}, "output", {"angle", "length"})
+    for q in ("angle", "length"):
+        units.factor(q, out.get(q, "rad" if q == "angle" else "m"), f"{path}: output.{q}")
+    seed = top.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ctx.fail("seed", f"expected a non-negative integer, found {seed!r}")
+    n_val = top.get("validation", 100)
+    if isinstance(n_val, bool) or not isinstance(n_val, int) or n_val < 1:
+        raise ctx.fail("validation", f"expected a positive number of configurations, found {n_val!r}")
+    return Scenario(
+        name=str(top.get("name") or path.stem), robot=robot, model=model, kind=kind, options=options,
+        perturbation=pert, perturb_arms=tuple(perturb_arms) if perturb_arms else None, noise=noise,
+        n_validation=n_val, seed=seed, angle_unit=out.get("angle", "rad"), length_unit=out.get("length", "m"),
+    )

@@ -1,0 +1,81 @@
+"""``kincal simulate``: shipped scenarios parse; a small scenario writes data, truth and validation."""
+
+from importlib import resources
+
+import numpy as np
+import pytest
+
+from kincal.cli import main
+from kincal.errors import DataFormatError
+from kincal.io.datasets import load_dataset, load_scenario, read_truth_values
+from kincal.simulate.ik import closure_error
+from kincal.io.models import read_robot
+
+SHIPPED = sorted(f.name for f in resources.files("kincal.scenarios").iterdir() if f.name.endswith(".yaml"))
+
+
+def test_shipped_scenarios_parse():
+    assert {"frida_clamp_one.yaml", "frida_plate4.yaml", "frida_dual_bracket.yaml",
+            "ur10_tracker_markers.yaml"} <= set(SHIPPED)
+    kinds = set()
+    for name in SHIPPED:
+        with resources.as_file(resources.files("kincal.scenarios") / name) as path:
+            kinds.add(load_scenario(path).kind)
+    assert {"clamp", "plate", "dual", "markers"} <= kinds
+
+
+SMALL_DUAL = """\
+format: kincal-scenario
+version: 1
+name: tiny-dual
+model: frida
+seed: 5
+units: {length: m, angle: deg}
+truth: {level: thesis}
+experiment:
+  kind: dual
+  arms: [left, right]
+  n: 20
+  clamp: {xyz: [0.10, 0.0, 0.10], rpy: [0, -90, 0]}
+  known_clamp: false
+  explore: {n_seeds: 24, n_steps: 30}
+noise: {joint_sigma_deg: 0.01}
+validation: 10
+output: {angle: deg, length: mm}
+"""
+
+
+def test_cli_simulate_dual(tmp_path, capsys):
+    (tmp_path / "s.yaml").write_text(SMALL_DUAL)
+    out = tmp_path / "out"
+    assert main(["simulate", str(tmp_path / "s.yaml"), "-o", str(out), "--quiet"]) == 0
+    ds = load_dataset(out / "data.yaml")
+    assert ds.kind == "dual" and ds.size == 20 and ds.name == "tiny-dual" and "T_toolA_toolB" not in ds.known
+    true = read_robot(out / "truth" / "robot.yaml")
+    clamp = read_truth_values(out / "truth" / "truth.yaml")["T_toolA_toolB"]
+    q_true = np.loadtxt(out / "truth" / "q_true.csv", delimiter=",", skiprows=1)
+    pos, rot = closure_error(true["left"], true["right"], clamp, q_true[:, :7], q_true[:, 7:])
+    assert pos.max() < 1e-10 and rot.max() < 1e-10
+    err = np.concatenate([ds.q["left"], ds.q["right"]], axis=1) - q_true
+    assert 0 < np.abs(err).max() < 6 * np.deg2rad(0.01)  # encoder noise, written in degrees
+    assert load_dataset(out / "validation" / "right.yaml").size == 10
+    # same seed, same files; existing output is not overwritten
+    assert main(["simulate", str(tmp_path / "s.yaml"), "-o", str(out), "--quiet"]) == 2
+    assert main(["simulate", str(tmp_path / "s.yaml"), "-o", str(tmp_path / "again"), "--quiet"]) == 0
+    assert (tmp_path / "again" / "data.csv").read_text() == (out / "data.csv").read_text()
+
+
+def test_cli_simulate_prints_spread(tmp_path, capsys):
+    (tmp_path / "s.yaml").write_text(SMALL_DUAL)
+    assert main(["simulate", str(tmp_path / "s.yaml"), "-o", str(tmp_path / "o")]) == 0
+    text = capsys.readouterr().out
+    assert "joint spread, arm left" in text and "j7" in text
+
+
+def test_bad_scenario_names_the_field(tmp_path):
+    (tmp_path / "s.yaml").write_text(SMALL_DUAL.replace("joint_sigma_deg", "joint_sigma_furlong"))
+    with pytest.raises(DataFormatError, match=r"s\.yaml: noise\.joint_sigma_furlong: unknown key"):
+        load_scenario(tmp_path / "s.yaml")
+    (tmp_path / "s.yaml").write_text(SMALL_DUAL.replace("kind: dual", "kind: laser"))
+    with pytest.raises(DataFormatError, match="experiment.kind: expected one of"):
+        load_scenario(tmp_path / "s.yaml")
