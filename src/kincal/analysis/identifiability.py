@@ -1,0 +1,192 @@
+"""Rank and null space of a whitened identification Jacobian, with each null direction named.
+
+Rank: singular values of the whitened Jacobian after scaling every column to unit norm (so units and
+the size of a parameter's effect do not matter). A direction is unidentifiable when its singular value is
+below ``rtol * sigma_max`` (default ``rtol = 1e-9``: exact symmetries of noise-free data sit at ~1e-15,
+badly excited but identifiable directions well above). Directions below ``weak_rtol`` (1e-5) but above
+``rtol`` are reported as weakly identifiable.
+
+Null directions are presented in reduced row-echelon form over the parameters in priority order
+(arm offsets, twists, home, base, tool, then experiment frames): each has one *pivot* parameter with
+coefficient 1 and the parameters it trades off against. The scale direction (all lengths scaled
+together, thesis Sec. 2.11) is tested explicitly and reported as scale.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+IDENTIFIABLE_TOL = 1e-6  # a parameter is identifiable when its row of the (scaled) null basis is below this
+
+
+@dataclass(frozen=True)
+class Direction:
+    """One unidentifiable direction: ``pivot`` moves by 1, ``partners`` by their coefficients (natural units)."""
+
+    pivot: str
+    partners: tuple[tuple[str, float], ...]
+    vector: np.ndarray  # (p,) over the analysed parameters, natural units
+    words: str
+
+
+@dataclass(frozen=True)
+class Identifiability:
+    names: tuple[str, ...]
+    rank: int
+    singular_values: np.ndarray  # of the column-scaled whitened Jacobian, descending
+    rtol: float
+    null_space: np.ndarray  # (p, k) orthonormal basis in natural units
+    range_space: np.ndarray  # (p, p - k) orthonormal complement in natural units
+    identifiable: np.ndarray  # (p,) bool
+    scale_unidentifiable: bool
+    directions: tuple[Direction, ...]
+    weak: tuple[str, ...] = ()
+    messages: tuple[str, ...] = field(default=())
+
+    @property
+    def deficiency(self) -> int:
+        return len(self.names) - self.rank
+
+    @property
+    def condition(self) -> float:
+        s = self.singular_values[: self.rank]
+        return float(s[0] / s[-1]) if self.rank else np.inf
+
+    def unidentifiable_names(self) -> list[str]:
+        return [n for n, ok in zip(self.names, self.identifiable) if not ok]
+
+
+def analyse(
+    J: np.ndarray,
+    names: Sequence[str],
+    *,
+    rtol: float = 1e-9,
+    weak_rtol: float = 1e-5,
+    scale: np.ndarray | None = None,  # a candidate scale direction (p,), reported as scale if it is null
+    priority: Sequence[int] | None = None,
+    describe: Callable[[np.ndarray], str] | None = None,
+    context: str = "",
+) -> Identifiability:
+    """Analyse the whitened Jacobian J (m, p) whose columns are the parameters ``names``."""
+    names = tuple(names)
+    m, p = J.shape
+    c = np.linalg.norm(J, axis=0)
+    c_safe = np.where(c > 0, c, 1.0)
+    Js = J / c_safe
+    _, S, Vt = np.linalg.svd(Js, full_matrices=m < p)
+    S_full = np.zeros(p)
+    S_full[: len(S)] = S
+    smax = S_full[0] if p else 0.0
+    rank = int(np.sum(S_full > rtol * smax)) if smax > 0 else 0
+    Ns = Vt[rank:].T  # (p, k) scaled coordinates
+    identifiable = np.linalg.norm(Ns, axis=1) < IDENTIFIABLE_TOL
+    N = _orth(Ns / c_safe[:, None])
+    R = _complement(N, p)
+    weak_idx = np.flatnonzero((S_full > rtol * smax) & (S_full < weak_rtol * smax))
+    weak = tuple(_top_names(Vt[i], names) for i in weak_idx)
+
+    scale_null = False
+    directions: list[Direction] = []
+    messages: list[str] = []
+    Nd = N
+    if scale is not None and N.shape[1] and np.linalg.norm(scale) > 0:
+        s = scale / np.linalg.norm(scale)
+        if np.linalg.norm(N.T @ s) > 1 - 1e-4:
+            s = N @ (N.T @ s)
+            s /= np.linalg.norm(s)
+            scale_null = True
+            lengths = [names[i] for i in np.argsort(-np.abs(s)) if abs(s[i]) > 1e-3 * np.max(np.abs(s))]
+            messages.append(
+                "scale cannot be identified: no known length closes the loop, so scaling every length together "
+                f"(mostly {_list(lengths, 4)}) leaves every residual unchanged (thesis Sec. 2.11); "
+                "fix or measure one length"
+            )
+            Nd = _orth(N - np.outer(s, s @ N), drop=1)
+    order = list(range(p)) if priority is None else list(priority)
+    for row in _rref(Nd.T, order):
+        piv = int(order[next(i for i, j in enumerate(order) if abs(row[j]) > 0.5)])
+        big = np.max(np.abs(row))
+        partners = tuple((names[j], float(row[j])) for j in np.argsort(-np.abs(row))
+                         if j != piv and abs(row[j]) > 1e-3 * big)
+        words = f"{names[piv]} cannot be identified{(' from ' + context) if context else ''}"
+        if partners:
+            words += f": it trades off against {_list([f'{n} ({v:+.3g})' for n, v in partners])}"
+        else:
+            words += ": it does not affect any residual"
+        extra = describe(row) if describe else ""
+        if extra:
+            words += f" ({extra})"
+        directions.append(Direction(names[piv], partners, row, words))
+    messages += [d.words for d in directions]
+    for w in weak:
+        messages.append(f"weakly identifiable direction (singular value below {weak_rtol:g} of the largest): {w}")
+    return Identifiability(names, rank, S_full, rtol, N, R, identifiable, scale_null, tuple(directions),
+                           weak, tuple(messages))
+
+
+def select_columns(J: np.ndarray, order: Sequence[int], rank: int, tol: float = 1e-6) -> list[int]:
+    """Greedy column-pivoted QR in a user priority order: the first ``rank`` columns (of unit-scaled J) that
+    add a new direction. The others are to be held fixed (the user's gauge)."""
+    c = np.linalg.norm(J, axis=0)
+    Js = J / np.where(c > 0, c, 1.0)
+    Q = np.zeros((J.shape[0], 0))
+    chosen: list[int] = []
+    for j in order:
+        if len(chosen) == rank:
+            break
+        r = Js[:, j] - Q @ (Q.T @ Js[:, j])
+        nr = np.linalg.norm(r)
+        if c[j] > 0 and nr > tol:
+            Q = np.column_stack([Q, r / nr])
+            chosen.append(int(j))
+    return sorted(chosen)
+
+
+def _rref(M: np.ndarray, order: Sequence[int]) -> list[np.ndarray]:
+    """Rows spanning the same space as M's rows, reduced with pivots taken in ``order``."""
+    M = np.array(M, dtype=float)
+    k = M.shape[0]
+    rows_done = 0
+    for j in order:
+        if rows_done == k:
+            break
+        i = rows_done + int(np.argmax(np.abs(M[rows_done:, j])))
+        if abs(M[i, j]) < 1e-8:
+            continue
+        M[[rows_done, i]] = M[[i, rows_done]]
+        M[rows_done] /= M[rows_done, j]
+        others = np.arange(k) != rows_done
+        M[others] -= np.outer(M[others, j], M[rows_done])
+        rows_done += 1
+    M[np.abs(M) < 1e-12] = 0.0
+    return [M[i] for i in range(rows_done)]
+
+
+def _orth(A: np.ndarray, drop: int = 0) -> np.ndarray:
+    if A.shape[1] == 0:
+        return A
+    U, S, _ = np.linalg.svd(A, full_matrices=False)
+    k = A.shape[1] - drop
+    return U[:, :k]
+
+
+def _complement(N: np.ndarray, p: int) -> np.ndarray:
+    if N.shape[1] == 0:
+        return np.eye(p)
+    Q, _ = np.linalg.qr(np.column_stack([N, np.eye(p)]))
+    return Q[:, N.shape[1]: p]
+
+
+def _top_names(v: np.ndarray, names, count: int = 4) -> str:
+    idx = np.argsort(-np.abs(v))[:count]
+    return " ".join(f"{v[i]:+.2f} {names[i]}" for i in idx)
+
+
+def _list(items: Sequence[str], limit: int = 6) -> str:
+    items = list(items)
+    if len(items) <= limit:
+        return ", ".join(items)
+    return ", ".join(items[:limit]) + f" and {len(items) - limit} more"

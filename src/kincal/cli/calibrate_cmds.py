@@ -1,0 +1,184 @@
+"""``kincal calibrate JOB.yaml -o OUT`` and ``kincal demo``: run a calibration, print a summary, write results."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import click
+import yaml
+from rich.console import Console
+from rich.table import Table
+
+from kincal.errors import DataFormatError
+from kincal.io.jobs import load_job, run_job
+from kincal.io.results import result_to_dict, write_results
+
+DEG = 180.0 / math.pi
+DEMO_SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "frida_dual_bracket.yaml"
+
+
+def _console() -> Console:
+    console = Console(highlight=False, markup=False)
+    return console if console.is_terminal else Console(highlight=False, markup=False, width=200)
+
+
+def _num(x, scale=1.0, digits=4) -> str:
+    return "-" if x is None or not math.isfinite(x) else f"{x * scale:.{digits}g}"
+
+
+def _shown(e) -> tuple[str, float, float]:
+    """(unit, value, std) in display units: deg and mm."""
+    k = DEG if e.unit == "rad" else 1e3
+    return ("deg" if e.unit == "rad" else "mm"), e.value * k, e.std * k
+
+
+def print_summary(console: Console, result, title: str) -> None:
+    ana = result.identifiability
+    console.print(f"{title}: {result.status} after {result.iterations} outer iterations "
+                  f"({result.evaluations} evaluations); rank {ana.rank} of {len(ana.names)} free parameters; "
+                  f"residual variance factor {_num(result.sigma2)}")
+    t = Table(title="residuals per experiment (position mm, orientation deg)")
+    for c in ("experiment", "kind", "samples", "pos RMS before", "pos RMS after", "rot RMS before", "rot RMS after"):
+        t.add_column(c, justify="right" if c not in ("experiment", "kind") else "left")
+    for b, a in zip(result.before, result.after):
+        t.add_row(b["experiment"], b["kind"], str(b["samples"]), _num(b.get("position_rms"), 1e3),
+                  _num(a.get("position_rms"), 1e3), _num(b.get("orientation_rms"), DEG), _num(a.get("orientation_rms"), DEG))
+    console.print(t)
+    if result.validation:
+        t = Table(title="validation on held-out configurations (position mm, orientation deg)")
+        for c in ("set", "samples", "pos RMS before", "pos RMS after", "pos max before", "pos max after",
+                  "rot RMS before", "rot RMS after"):
+            t.add_column(c, justify="left" if c == "set" else "right")
+        for v in result.validation:
+            t.add_row(v["experiment"], str(v["samples"]), _num(v.get("position_rms_before"), 1e3),
+                      _num(v.get("position_rms_after"), 1e3), _num(v.get("position_max_before"), 1e3),
+                      _num(v.get("position_max_after"), 1e3), _num(v.get("orientation_rms_before"), DEG),
+                      _num(v.get("orientation_rms_after"), DEG))
+        console.print(t)
+    t = Table(title="estimates (offsets absolute; twist/pose coordinates as change from nominal)")
+    for c in ("parameter", "value", "std", "unit"):
+        t.add_column(c, justify="left" if c == "parameter" else "right")
+    for e in result.estimates:
+        unit, v, s = _shown(e)
+        t.add_row(e.name, _num(v, digits=6), _num(s, digits=3) if e.identifiable else "unidentifiable", unit)
+    console.print(t)
+    for m in result.messages:
+        console.print(f"- {m}")
+    for a, b, r in result.correlated[:10]:
+        console.print(f"- strongly correlated: {a} and {b} (rho = {r:+.3f})")
+
+
+def _progress(console: Console, quiet: bool):
+    if quiet:
+        return None
+    return lambda it, cost: console.print(f"  outer iteration {it}: whitened cost {cost:.6g}", style="dim")
+
+
+@click.command("calibrate")
+@click.argument("job", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Directory for model.yaml and result.yaml (existing files are never replaced).")
+@click.option("--quiet", is_flag=True, help="Print nothing but errors.")
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
+def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool) -> None:
+    """Calibrate as described by JOB.yaml (docs/job-format.md) and write the results to OUT."""
+    console = _console()
+    _refuse_existing(out, ("model.yaml", "result.yaml"))
+    j = load_job(job)
+    if not (quiet or as_json):
+        console.print(f"calibrating '{j.name}': {len(j.datasets)} data set(s), free: {j.free}, method: {j.method}")
+    result = run_job(j, _progress(console, quiet or as_json))
+    if j.method == "thesis":
+        _write_thesis(result, j, out, console, quiet or as_json, as_json)
+        return
+    paths = write_results(result, out)
+    if as_json:
+        click.echo(json.dumps(result_to_dict(result)))
+    elif not quiet:
+        print_summary(console, result, j.name)
+        console.print(f"wrote {paths['model']} and {paths['result']}")
+    if result.status != "converged":
+        raise SystemExit(1)
+
+
+def _write_thesis(res, job, out: Path, console, quiet, as_json) -> None:
+    from kincal.io.models import save_robot
+
+    robot = job.robot
+    for arm, model in res.models.items():
+        robot = robot.replace_arm(arm, model)
+    out.mkdir(parents=True, exist_ok=True)
+    save_robot(robot, out / "model.yaml")
+    report = {"format": "kincal-result", "version": 1, "method": res.method, "converged": bool(res.converged),
+              "iterations": int(res.iterations),
+              "estimates": {n: float(v) for n, v in zip(res.parameter_names, res.estimate)}}
+    with open(out / "result.yaml", "x", encoding="utf-8") as fh:
+        yaml.safe_dump(report, fh, sort_keys=False)
+    if as_json:
+        click.echo(json.dumps(report))
+    elif not quiet:
+        console.print(f"thesis baseline {res.method}: converged={res.converged} after {res.iterations} iterations")
+        console.print(f"wrote {out / 'model.yaml'} and {out / 'result.yaml'}")
+
+
+def _refuse_existing(out: Path, names) -> None:
+    existing = [str(out / n) for n in names if (out / n).exists()]
+    if existing:
+        raise DataFormatError(f"{', '.join(existing)}: file exists; not overwritten (choose another output directory)")
+
+
+@click.command("demo")
+@click.option("-o", "--output", "out", default="kincal-demo-out", show_default=True,
+              type=click.Path(file_okay=False, path_type=Path), help="Output directory (must not hold results).")
+@click.option("-n", "--samples", default=200, show_default=True, type=click.IntRange(20, 5000),
+              help="Clamped configurations to simulate.")
+@click.option("--quiet", is_flag=True, help="Print nothing but errors.")
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
+def demo_cmd(out: Path, samples: int, quiet: bool, as_json: bool) -> None:
+    """Frida's arms clamped tool to tool (thesis Fig. 3.5): simulate, calibrate joint offsets, validate, write.
+
+    Writes the simulated data (data.yaml, truth/, validation/), a job file (job.yaml) that re-runs the
+    calibration with ``kincal calibrate``, and the results (model.yaml, result.yaml).
+    """
+    from kincal.io.datasets import load_scenario, write_simulation
+    from kincal.simulate.perturb import perturbation
+    from kincal.simulate.scenario import run
+
+    console = _console()
+    say = (lambda msg: None) if (quiet or as_json) else (lambda msg: console.print(msg))
+    _refuse_existing(out, ("data.yaml", "job.yaml", "model.yaml", "result.yaml", "truth", "validation"))
+    t0 = time.perf_counter()
+    scenario = load_scenario(DEMO_SCENARIO)
+    # thesis Table 4.5: nominal geometry, joint offsets of thesis size (up to 0.07 rad)
+    scenario = replace(scenario, options={**scenario.options, "n": samples},
+                       perturbation=perturbation("thesis", twist_m=0.0, twist_rad=0.0, home_m=0.0, home_rad=0.0))
+    say(f"simulating {samples} configurations of Frida's clamped arms (true robot: joint offsets up to 0.07 rad) ...")
+    true, ds, truth, validation = run(scenario)
+    write_simulation(out, ds, truth, validation, scenario.robot, model=scenario.model)
+    job = {"format": "kincal-job", "version": 1, "name": "frida-dual-offsets", "model": scenario.model,
+           "data": [{"manifest": "data.yaml"}], "validation": [{"manifest": f"validation/{a}.yaml"} for a in validation],
+           "free": "offsets"}
+    with open(out / "job.yaml", "x", encoding="utf-8") as fh:
+        yaml.safe_dump(job, fh, sort_keys=False)
+    say(f"calibrating joint offsets of both arms (job {out / 'job.yaml'}) ...")
+    j = load_job(out / "job.yaml")
+    result = run_job(j, _progress(console, quiet or as_json))
+    paths = write_results(result, out)
+    if as_json:
+        click.echo(json.dumps(result_to_dict(result)))
+    else:
+        if not quiet:
+            print_summary(console, result, "demo")
+        say(f"wrote {paths['model']}, {paths['result']} and the simulated data in {out} "
+            f"({time.perf_counter() - t0:.1f} s)")
+    if result.status != "converged":
+        raise SystemExit(1)
+
+
+def register(group: click.Group) -> None:
+    group.add_command(calibrate_cmd)
+    group.add_command(demo_cmd)

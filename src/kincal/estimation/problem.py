@@ -1,0 +1,139 @@
+"""Stack experiment residuals over the free coordinates and whiten them by each experiment's stated noise.
+
+Whitening (per configuration, k x k): ``Sigma = diag(sigma_meas^2) + sum_arms sigma_joint^2 J_q J_q^T``,
+``r_w = L^-1 r`` with ``Sigma = L L^T``. Encoder noise thus enters through the residual's Jacobian w.r.t. the
+joint readings (first order). ``Sigma`` is evaluated at the linearization point of each outer iteration and
+held during the inner solve. Measurement variances have a floor of (1e-9)^2 so a purely encoder-noise
+closed chain stays positive definite.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from kincal.experiments import Experiment
+from kincal.params import Layout, State, displacement, pose_retraction_jacobians, retract
+
+VARIANCE_FLOOR = 1e-18
+
+
+@dataclass(frozen=True)
+class Noise:
+    """Stated noise of one experiment (SI): measurement position (m), orientation (rad), joint readings."""
+
+    sigma_position: float = 1e-5
+    sigma_orientation: float = 1e-5
+    sigma_joint: float = 1e-5
+
+
+@dataclass(frozen=True, eq=False)
+class Problem:
+    experiments: Sequence[Experiment]
+    layout: Layout
+    nominal: State
+    noise: Sequence[Noise]
+
+    def __post_init__(self):
+        free = np.flatnonzero(self.layout.free)
+        object.__setattr__(self, "free_idx", free)
+        prior = np.isfinite(self.layout.prior_sigma) & self.layout.free
+        object.__setattr__(self, "prior_idx", np.flatnonzero(prior))
+        want = {b.name for b in self.layout.blocks if self.layout.free[b.start: b.stop].any()}
+        object.__setattr__(self, "want", want)
+
+    @property
+    def free_names(self) -> list[str]:
+        return [self.layout.names[i] for i in self.free_idx]
+
+    def equations(self) -> list[int]:
+        return [e.size * len(e.components()) for e in self.experiments]
+
+    def full_delta(self, delta_free: np.ndarray) -> np.ndarray:
+        d = np.zeros(self.layout.size)
+        d[self.free_idx] = delta_free
+        return d
+
+    def whiteners(self, state: State) -> list[np.ndarray]:
+        """Per experiment (N, k, k) inverse Cholesky factors of the residual covariance at ``state``."""
+        out = []
+        for exp, nz in zip(self.experiments, self.noise):
+            res = exp.residual(state, want=set())
+            sig = np.array([nz.sigma_position if c == "position" else nz.sigma_orientation for c in exp.components()])
+            cov = np.broadcast_to(np.diag(np.maximum(sig**2, VARIANCE_FLOOR)), res.r.shape + (res.r.shape[1],)).copy()
+            for jq in res.jq.values():
+                cov += nz.sigma_joint**2 * (jq @ np.swapaxes(jq, -1, -2))
+            L = np.linalg.cholesky(cov)
+            out.append(np.linalg.inv(L))
+        return out
+
+    def evaluate(self, state0: State, delta_free: np.ndarray, whiteners, jac: bool = True):
+        """Whitened stacked residual (m,) at ``retract(state0, delta)`` and, if asked, its Jacobian (m, p_free)."""
+        delta = self.full_delta(delta_free)
+        state = retract(state0, self.layout, delta)
+        Rl = {k: v for k, v in pose_retraction_jacobians(self.layout, delta).items() if k in self.want} if jac else {}
+        col = np.full(self.layout.size, -1)
+        col[self.free_idx] = np.arange(len(self.free_idx))
+        rs, Js = [], []
+        for exp, W in zip(self.experiments, whiteners):
+            res = exp.residual(state, want=self.want if jac else set())
+            rs.append(np.einsum("nij,nj->ni", W, res.r).ravel())
+            if not jac:
+                continue
+            N, k = res.r.shape
+            J = np.zeros((N, k, len(self.free_idx)))
+            for b in self.layout.blocks:
+                Jb = res.jac.get(b.name)
+                if Jb is None:
+                    continue
+                if b.name in Rl:
+                    Jb = Jb @ Rl[b.name]
+                c = col[b.start: b.stop]
+                sel = c >= 0
+                J[:, :, c[sel]] = Jb[:, :, sel]
+            Js.append((W @ J).reshape(N * k, -1))
+        if len(self.prior_idx):
+            disp, D = displacement(state, self.nominal, self.layout)
+            sig = self.layout.prior_sigma[self.prior_idx]
+            rs.append((disp[self.prior_idx] - self.layout.prior_mean[self.prior_idx]) / sig)
+            if jac:
+                Dfull = D[self.prior_idx]
+                for name, Jl in Rl.items():
+                    b = self.layout.block(name)
+                    Dfull[:, b.start: b.stop] = Dfull[:, b.start: b.stop] @ Jl
+                Js.append(Dfull[:, self.free_idx] / sig[:, None])
+        r = np.concatenate(rs)
+        return (r, np.concatenate(Js, axis=0)) if jac else (r, None)
+
+    def statistics(self, state: State, whiteners=None) -> list[dict]:
+        """Per experiment: samples, position / orientation RMS and max (norm per sample), whitened chi^2."""
+        W = self.whiteners(state) if whiteners is None else whiteners
+        out = []
+        for exp, Wi in zip(self.experiments, W):
+            r = exp.residual(state, want=set()).r
+            comp = np.array(exp.components())
+            st = {"experiment": exp.name, "kind": exp.kind, "samples": exp.size}
+            st.update(residual_norms(r, comp))
+            st["chi2"] = float(np.sum(np.einsum("nij,nj->ni", Wi, r) ** 2))
+            st["dof"] = int(r.size)
+            out.append(st)
+        return out
+
+
+def residual_norms(r: np.ndarray, components) -> dict:
+    """RMS and max over samples of the position-part and orientation-part norms (m, rad)."""
+    comp = np.asarray(components)
+    st = {}
+    for key, mask in (("position", comp == "position"), ("orientation", comp == "orientation")):
+        if mask.any():
+            if mask.sum() % 3 == 0 and key == "position" and mask.sum() > 1:
+                e = np.linalg.norm(r[:, mask].reshape(len(r), -1, 3), axis=-1).ravel()
+            elif key == "orientation":
+                e = np.linalg.norm(r[:, mask], axis=-1)
+            else:
+                e = np.abs(r[:, mask]).ravel()
+            st[f"{key}_rms"] = float(np.sqrt(np.mean(e**2)))
+            st[f"{key}_max"] = float(np.max(e))
+    return st

@@ -1,0 +1,67 @@
+"""The outcome of a calibration: estimates with uncertainty, identifiability in words, statistics, model."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+
+from kincal.analysis import Identifiability
+from kincal.kinematics import Robot
+from kincal.params import Layout, State
+
+
+@dataclass(frozen=True)
+class Estimate:
+    name: str
+    value: float  # displacement from nominal in local coordinates for twists/poses; absolute for offsets/points
+    nominal: float
+    std: float  # nan when unidentifiable
+    unit: str
+    identifiable: bool
+
+
+@dataclass(frozen=True, eq=False)
+class Result:
+    """Reports, never raises, on non-convergence or rank deficiency (see ``status`` and ``messages``)."""
+
+    robot: Robot  # calibrated
+    nominal_robot: Robot
+    state: State
+    layout: Layout
+    estimates: tuple[Estimate, ...]
+    covariance: np.ndarray  # (p_free, p_free) in local coordinates, gauge-fixed
+    correlated: tuple[tuple[str, str, float], ...]
+    identifiability: Identifiability  # after solving
+    identifiability_before: Identifiability
+    before: tuple[dict, ...]  # residual statistics per experiment at the nominal values
+    after: tuple[dict, ...]
+    sigma2: float  # residual variance factor (chi^2 / (m - rank)) that scales the covariance
+    status: str  # converged | not converged | degenerate
+    iterations: int  # outer (re-linearization) iterations
+    evaluations: int  # residual evaluations of the inner solver
+    messages: tuple[str, ...]
+    extras: Mapping[str, object] = field(default_factory=dict)  # final experiment frames
+    twists: tuple = ()  # derived (names, values (6n,), std (6n,)) of every arm with free twists
+    validation: tuple[dict, ...] = ()
+
+    @property
+    def success(self) -> bool:
+        return self.status == "converged"
+
+    def estimate(self, name: str) -> Estimate:
+        for e in self.estimates:
+            if e.name == name:
+                return e
+        raise KeyError(name)
+
+    def values(self) -> dict[str, float]:
+        return {e.name: e.value for e in self.estimates}
+
+    def summary(self) -> str:
+        lines = [f"status: {self.status} after {self.iterations} outer iterations ({self.evaluations} evaluations)"]
+        lines.append(f"rank {self.identifiability.rank} of {len(self.identifiability.names)} free parameters; "
+                     f"residual variance factor {self.sigma2:.3g}")
+        lines += self.messages
+        return "\n".join(lines)

@@ -1,0 +1,385 @@
+"""The calibration solver: outer re-linearization around a state, inner ``scipy.optimize.least_squares``.
+
+Each outer iteration: whiten at the current state, analyse the rank of the whitened Jacobian, restrict the
+step to the identifiable subspace (gauge ``"min-change"``: the minimum-norm step in natural units, m and rad;
+or a user priority list of globs: keep the first identifiable parameters in that order, hold the rest), solve
+the inner problem with the analytic Jacobian, then re-centre (conform twists, re-linearize tangent bases).
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import logging
+from dataclasses import replace
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from kincal.analysis import analyse, correlated_pairs, covariance, select_columns
+from kincal.data import Dataset
+from kincal.errors import DegenerateExperimentError, ModelError
+from kincal.estimation.problem import Noise, Problem, residual_norms
+from kincal.estimation.result import Estimate, Result
+from kincal.experiments import build
+from kincal.kinematics import Robot, chain
+from kincal.lie import se3
+from kincal.params import (
+    Prior,
+    State,
+    build_layout,
+    displacement,
+    recentre,
+    retract,
+    scale_direction,
+    twist_coordinates,
+)
+
+log = logging.getLogger(__name__)
+
+_PART_RANK = {"offsets": 0, "twists": 1, "home": 2, "base": 3, "tool": 4}
+
+
+def calibrate(
+    robot: Robot,
+    datasets: Sequence[Dataset],
+    free: str | Sequence[str] = "offsets",
+    *,
+    fixed: Sequence[str] = (),
+    priors: Mapping[str, Prior] | None = None,
+    noise: Noise | Mapping[str, Noise] | None = None,
+    gauge: str | Sequence[str] = "min-change",
+    loss: str = "linear",
+    f_scale: float = 1.0,
+    max_outer: int = 20,
+    rank_rtol: float = 1e-9,
+    correlation_threshold: float = 0.9,
+    validation: Sequence[Dataset] = (),
+    progress: Callable[[int, float], None] | None = None,
+) -> Result:
+    """Calibrate ``robot`` from ``datasets``.
+
+    ``free``: ``"offsets"`` (thesis level 1), ``"kinematic"`` (full POE: offsets, twists, home; level 2) or a
+    list of names/globs (level words allowed inside the list). Frames absent from a data set's ``known``
+    (fixture pose, clamp, tracker, markers, ...) are always estimated; known ones only when freed by name.
+    ``noise``: one ``Noise`` for all data sets or a mapping data set name -> Noise.
+    """
+    if not datasets:
+        raise DegenerateExperimentError("no data sets given: nothing to calibrate from")
+    problem, unknown = _problem(robot, datasets, free, fixed, priors, noise)
+    p = len(problem.free_idx)
+    if p == 0:
+        raise DegenerateExperimentError(
+            f"every parameter is fixed: nothing to estimate (free={free!r}, fixed={list(fixed)!r})"
+        )
+    eqs = problem.equations()
+    m = sum(eqs) + len(problem.prior_idx)
+    if m < p:
+        per = ", ".join(f"'{e.name}' ({e.kind_name}, {e.size} samples): {n}" for e, n in zip(problem.experiments, eqs))
+        raise DegenerateExperimentError(
+            f"{m} equations for {p} unknowns: too few configurations for the free parameters "
+            f"(equations per data set: {per})"
+        )
+    result = _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, correlation_threshold, progress)
+    if validation:
+        result = _with_validation(result, validation, noise)
+    return result
+
+
+def evaluate(robot: Robot, datasets: Sequence[Dataset], noise=None) -> list[dict]:
+    """Residual statistics of ``robot`` on ``datasets``; unknown frames (fixture, tracker, ...) are fitted first
+    with every arm parameter fixed."""
+    problem, unknown = _problem(robot, datasets, [], (), None, noise)
+    state = problem.nominal
+    if len(problem.free_idx):
+        res = _solve(problem, robot, "min-change", "linear", 1.0, 10, 1e-9, 0.9, None, quiet=True)
+        state = res.state
+    return problem.statistics(state)
+
+
+def _problem(robot, datasets, free, fixed, priors, noise):
+    nominal_arms = State.from_robot(robot)
+    exps, extras, unknown = build(datasets, nominal_arms)
+    arms = [a for a in robot.arms if any(a in e.arms for e in exps)]
+    nominal = State({a: nominal_arms.arms[a] for a in arms}, extras)
+    layout = build_layout(nominal, free, fixed=fixed, priors=priors, free_extras=unknown, arms=arms)
+    for name in unknown:
+        b = layout.block(name)
+        if not layout.free[b.start: b.stop].all():
+            raise ModelError(f"'{name}' is unknown (not given in its data set) and cannot be fixed; give its value")
+    if isinstance(noise, Mapping):
+        bad = set(noise) - {e.name for e in exps}
+        if bad:
+            raise ModelError(f"noise given for unknown data set(s) {sorted(bad)}; data sets: {[e.name for e in exps]}")
+        noises = [noise.get(e.name, Noise()) for e in exps]
+    else:
+        noises = [noise or Noise()] * len(exps)
+    return Problem(exps, layout, nominal, noises), unknown
+
+
+def _priority(problem: Problem, gauge) -> list[int]:
+    """Free-coordinate order for pivots: user globs first (if any), then arm offsets, twists, home, base, tool,
+    then experiment frames."""
+    names = problem.free_names
+    layout = problem.layout
+    block_of = {}
+    for b in layout.blocks:
+        for i in range(b.start, b.stop):
+            block_of[i] = b
+    default = sorted(range(len(names)), key=lambda k: (
+        _PART_RANK.get(block_of[problem.free_idx[k]].part, 9), k))
+    if isinstance(gauge, str):
+        return default
+    order: list[int] = []
+    for pat in gauge:
+        hit = [k for k in default if k not in order and (
+            fnmatch.fnmatchcase(names[k], pat) or fnmatch.fnmatchcase(block_of[problem.free_idx[k]].name, pat))]
+        if not hit:
+            raise ModelError(f"gauge priority pattern {pat!r} matches no free parameter")
+        order += hit
+    return order + [k for k in default if k not in order]
+
+
+def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_threshold, progress, quiet=False):
+    if not (gauge == "min-change" or not isinstance(gauge, str)):
+        raise ModelError(f"gauge must be 'min-change' or a list of parameter globs in priority order, got {gauge!r}")
+    names = problem.free_names
+    p = len(names)
+    order = _priority(problem, gauge)
+    state = problem.nominal
+    describe_ctx = _context(problem)
+    before = problem.statistics(state)
+    messages: list[str] = []
+    id_before = None
+    evaluations = 0
+    status = "not converged"
+    it = 0
+    for it in range(1, max_outer + 1):
+        W = problem.whiteners(state)
+        r0, J0 = problem.evaluate(state, np.zeros(p), W)
+        if not np.all(np.isfinite(r0)) or not np.all(np.isfinite(J0)):
+            raise DegenerateExperimentError("residuals or Jacobian are not finite at the starting values")
+        ana = analyse(J0, names, rtol=rank_rtol, priority=order)
+        if id_before is None:
+            id_before = _analyse_named(problem, state, J0, rank_rtol, order, describe_ctx)
+            if _degenerate(problem, ana):
+                status = "degenerate"
+                break
+        if isinstance(gauge, str):
+            V = ana.range_space
+        else:
+            V = np.eye(p)[:, select_columns(J0, order, ana.rank)]
+        cache = {}
+
+        def both(z, need_jac, state=state, W=W, V=V):
+            key = z.tobytes()
+            if key not in cache or (need_jac and cache[key][1] is None):
+                cache.clear()
+                r, J = problem.evaluate(state, V @ z, W, jac=need_jac)
+                cache[key] = (r, None if J is None else J @ V)
+            return cache[key]
+
+        method = "lm" if loss == "linear" and V.shape[1] <= len(r0) else "trf"
+        sol = least_squares(
+            lambda z: both(z, False)[0], np.zeros(V.shape[1]), jac=lambda z: both(z, True)[1], method=method,
+            loss=loss if method == "trf" else "linear", f_scale=f_scale, x_scale="jac",
+            ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=200 * (V.shape[1] + 1),
+        )
+        evaluations += sol.nfev
+        delta = V @ sol.x
+        step = float(np.linalg.norm(J0 @ delta))
+        state = recentre(retract(state, problem.layout, problem.full_delta(delta)))
+        if progress:
+            progress(it, float(2 * sol.cost))
+        log.debug("outer %d: cost %.6g, whitened step %.3g, max |delta| %.3g", it, 2 * sol.cost, step,
+                  np.max(np.abs(delta), initial=0))
+        # stop when the step is negligible against the residual (or, with noise, well below one sigma)
+        scatter = np.sqrt(2 * sol.cost / max(len(r0) - V.shape[1], 1))
+        if step < max(1e-6 * (1.0 + np.linalg.norm(r0)), 1e-3 * scatter) or np.max(np.abs(delta), initial=0) < 1e-13:
+            status = "converged"
+            break
+
+    W = problem.whiteners(state)
+    r, J = problem.evaluate(state, np.zeros(p), W)
+    ana = _analyse_named(problem, state, J, rank_rtol, order, describe_ctx)
+    if status == "degenerate":
+        messages.append("degenerate experiment: no arm parameter can be identified from these data; "
+                        "nothing was estimated")
+    elif status == "not converged":
+        messages.append(f"did not converge in {max_outer} outer iterations")
+    dof = len(r) - ana.rank
+    sigma2 = float(r @ r / dof) if dof > 0 else float("nan")
+    if isinstance(gauge, str):
+        V = ana.range_space
+    else:
+        V = np.eye(p)[:, select_columns(J, order, ana.rank)]
+    cov = covariance(J, V, sigma2 if np.isfinite(sigma2) else 1.0) if V.shape[1] else np.zeros((p, p))
+    std = np.sqrt(np.clip(np.diag(cov), 0, None))
+    ok = ana.identifiable & (status != "degenerate")
+    std = np.where(ok, std, np.nan)
+    estimates = _estimates(problem, state, std, ok)
+    messages += list(ana.messages)
+    if dof <= 0:
+        messages.append("as many equations as identifiable parameters: no residual variance, standard deviations "
+                        "are not scaled")
+    tw_names, tw_vals, tw_cov = twist_coordinates(state, problem.layout, _embed(cov, problem))
+    twists = (tuple(tw_names), tw_vals, np.sqrt(np.clip(np.diag(tw_cov), 0, None)) if tw_cov is not None else None)
+    return Result(
+        robot=state.to_robot(robot) if not quiet else robot,
+        nominal_robot=robot,
+        state=state,
+        layout=problem.layout,
+        estimates=tuple(estimates),
+        covariance=cov,
+        correlated=tuple(correlated_pairs(cov, names, corr_threshold, ok)),
+        identifiability=ana,
+        identifiability_before=id_before,
+        before=tuple(before),
+        after=tuple(problem.statistics(state, W)),
+        sigma2=sigma2,
+        status=status,
+        iterations=it,
+        evaluations=evaluations,
+        messages=tuple(messages),
+        extras=dict(state.extras),
+        twists=twists,
+    )
+
+
+def _embed(cov, problem):
+    full = np.zeros((problem.layout.size, problem.layout.size))
+    full[np.ix_(problem.free_idx, problem.free_idx)] = cov
+    return full
+
+
+def _degenerate(problem, ana) -> bool:
+    """No free arm coordinate is identifiable (only experiment frames move, or nothing does)."""
+    arm_cols = [k for k, i in enumerate(problem.free_idx) if _block(problem, i).arm is not None]
+    if ana.rank == 0:
+        return True
+    return bool(arm_cols) and not ana.identifiable[arm_cols].any()
+
+
+def _block(problem, i):
+    for b in problem.layout.blocks:
+        if b.start <= i < b.stop:
+            return b
+    raise IndexError(i)
+
+
+def _estimates(problem, state, std, ok):
+    layout = problem.layout
+    disp, _ = displacement(state, problem.nominal, layout)
+    out = []
+    for k, i in enumerate(problem.free_idx):
+        b = _block(problem, i)
+        absolute = b.kind in ("offsets", "points")
+        nominal = 0.0
+        if absolute:
+            nominal = float(np.ravel(problem.nominal.arms[b.arm].offsets if b.arm else problem.nominal.extras[b.name])[
+                i - b.start])
+        out.append(Estimate(layout.names[i], nominal + float(disp[i]), nominal, float(std[k]), layout.units[i],
+                            bool(ok[k])))
+    return out
+
+
+def _context(problem):
+    """Axes of every joint (world twists at each arm's first sample) and increment frames of experiment poses."""
+    state = problem.nominal
+    parts = []
+    for e in problem.experiments:
+        unknown = [n for r, n in e.frames.items()
+                   if problem.layout.free[problem.layout.block(n).start]]
+        parts.append(f"{e.kind_name} '{e.name}'" + (f" (free: {', '.join(unknown)})" if unknown else ""))
+    return "; ".join(parts)
+
+
+def _analyse_named(problem, state, J, rtol, order, context):
+    layout = problem.layout
+    axes, frames = {}, {}
+    for e in problem.experiments:
+        for arm in e.arms:
+            a = state.arms[arm]
+            kin = chain(a.screws, e.dataset.q[arm][:1] + a.offsets, a.base, a.home, a.tool)
+            Ad = se3.adjoint(kin.prefixes[0, :-1])
+            for j, jn in enumerate(a.joint_names):
+                axes.setdefault(f"{arm}.{jn}", Ad[j] @ a.screws[j])
+        for role, G in e.increment_frames(state).items():
+            frames[e.frames[role]] = G
+    col = {int(i): k for k, i in enumerate(problem.free_idx)}
+    block_of = [_block(problem, i) for i in problem.free_idx]
+    pose_blocks = [(b, [col.get(i) for i in range(b.start, b.stop)]) for b in layout.blocks
+                   if b.kind == "pose" and b.arm is None]
+
+    def describe(row):
+        words = []
+        for b, idx in pose_blocks:
+            if any(i is None for i in idx):
+                continue
+            d = row[idx]
+            if np.linalg.norm(d) < 1e-9:
+                continue
+            tw = se3.adjoint(frames.get(b.name, np.eye(4))) @ d
+            v, w = se3.split(tw)
+            if np.linalg.norm(w) < 1e-9 * max(np.linalg.norm(v), 1e-300):
+                words.append(f"a translation of the {b.name}")
+                continue
+            t = tw / np.linalg.norm(w)
+            match = [jn for jn, ax in axes.items() if min(np.linalg.norm(t - ax), np.linalg.norm(t + ax)) < 1e-6]
+            words.append(f"a rotation of the {b.name} about the axis of {match[0]}" if match
+                         else f"a screw motion of the {b.name}")
+        moved = {block_of[k].part for k in np.flatnonzero(np.abs(row) > 1e-9) if block_of[k].arm is not None}
+        if "offsets" in moved and moved & {"twists", "home"}:
+            words.append("in a full POE model a joint offset equals rotating the later joint axes and the home pose "
+                         "about that joint's axis")
+        return "; ".join(words)
+
+    return analyse(J, problem.free_names, rtol=rtol, scale=_scale_null(problem, state, J), priority=order,
+                   describe=describe, context=context)
+
+
+def _scale_null(problem, state, J):
+    """The free direction equivalent to scaling every length, if the data cannot see scale; else None.
+
+    Scale is unidentifiable when (1) scaling every length, fixed ones included, leaves the residuals unchanged
+    to first order (no measured length: ``J_all s_all = 0``), and (2) the fixed length coordinates add no rank
+    to the free ones (e.g. a fixed base is absorbed by free twists and home). The direction is then
+    ``s_free + u`` with ``J u = J_fixed s_fixed`` (free parameters standing in for the fixed lengths).
+    """
+    layout = problem.layout
+    if not any(layout.units[i] == "m" for i in problem.free_idx):
+        return None  # no free length, nothing to scale
+    every = Problem(problem.experiments, replace(layout, free=np.ones(layout.size, bool)), problem.nominal,
+                    problem.noise)
+    _, Ja = every.evaluate(state, np.zeros(layout.size), problem.whiteners(state))
+    s = scale_direction(state, layout)
+    g = Ja @ s
+    if np.linalg.norm(g) > 1e-6 * np.sum(np.linalg.norm(Ja, axis=0) * np.abs(s)):
+        return None
+    fixed = ~layout.free
+    lengths = np.flatnonzero(fixed & (np.array(layout.units) == "m") & (np.linalg.norm(Ja, axis=0) > 0))
+    if len(lengths):
+        A = Ja[:, lengths]
+        R = A - J @ np.linalg.lstsq(J, A, rcond=None)[0]
+        if np.max(np.linalg.norm(R, axis=0) / np.linalg.norm(A, axis=0)) > 1e-6:
+            return None
+    u = np.linalg.lstsq(J, Ja[:, fixed] @ s[fixed], rcond=None)[0]
+    d = s[problem.free_idx] + u
+    return d if np.linalg.norm(d) > 0 else None
+
+
+def _with_validation(result: Result, validation, noise) -> Result:
+    noise = None if isinstance(noise, Mapping) else noise  # per-set noise names the calibration data
+    before = evaluate(result.nominal_robot, validation, noise)
+    after = evaluate(result.robot, validation, noise)
+    rows = []
+    for b, a in zip(before, after):
+        row = {"experiment": b["experiment"], "kind": b["kind"], "samples": b["samples"]}
+        for k in ("position_rms", "position_max", "orientation_rms", "orientation_max"):
+            if k in b:
+                row[f"{k}_before"], row[f"{k}_after"] = b[k], a[k]
+        rows.append(row)
+    return replace(result, validation=tuple(rows))
+
+
+__all__ = ["calibrate", "evaluate", "residual_norms"]

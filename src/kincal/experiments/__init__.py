@@ -1,0 +1,87 @@
+"""Experiment kinds: pure residuals with analytic Jacobians, one module per kind.
+
+``build(datasets, state)`` turns data sets into experiments and the state extras they read (known frames
+as given, unknown frames initialized from the nominal arms), plus the names of the unknown extras.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Sequence
+
+import numpy as np
+
+from kincal.data import Dataset
+from kincal.errors import DataFormatError
+from kincal.experiments.base import Experiment, Residual
+from kincal.experiments.clamp import ClampExperiment
+from kincal.experiments.distance import DistanceExperiment
+from kincal.experiments.dual import DualExperiment
+from kincal.experiments.markers import MarkersExperiment
+from kincal.experiments.plane import PlaneExperiment
+from kincal.experiments.plate import PlateExperiment
+from kincal.experiments.pose import PoseExperiment
+from kincal.experiments.socket import SocketExperiment
+from kincal.params import Plane, State
+
+KINDS: dict[str, type[Experiment]] = {
+    cls.KIND: cls
+    for cls in (PoseExperiment, MarkersExperiment, ClampExperiment, PlateExperiment, DualExperiment,
+                SocketExperiment, DistanceExperiment, PlaneExperiment)
+}
+
+__all__ = ["Experiment", "KINDS", "Residual", "build", "check_joints"]
+
+
+def check_joints(ds: Dataset, state: State) -> None:
+    """Every arm of the data set exists in the model with the same number of joints."""
+    for arm in ds.arms:
+        if arm not in state.arms:
+            raise DataFormatError(
+                f"data set '{ds.name}': arm '{arm}' is not in the model (arms: {', '.join(state.arms)})"
+            )
+        a = state.arms[arm]
+        n = ds.q[arm].shape[1]
+        if n != a.dof:
+            raise DataFormatError(
+                f"data set '{ds.name}': field q[{arm}] has {n} joints per sample, expected {a.dof} "
+                f"({', '.join(a.joint_names)}) for arm '{arm}' of the model"
+            )
+
+
+def build(datasets: Sequence[Dataset], state: State) -> tuple[list[Experiment], dict[str, object], list[str]]:
+    """(experiments, extras, names of unknown extras). Frame names are the role (``fixture``) when only one
+    data set has that role, else ``<data set>.<role>``."""
+    names = [d.name for d in datasets]
+    dup = [n for n, c in Counter(names).items() if c > 1]
+    if dup:
+        raise DataFormatError(f"data set names must be unique; repeated: {', '.join(dup)}")
+    roles = Counter(r for d in datasets for r in KINDS[d.kind].ROLES)
+    experiments, extras, unknown = [], {}, []
+    for ds in datasets:
+        check_joints(ds, state)
+        _check_finite(ds)
+        cls = KINDS[ds.kind]
+        frames = {r: (r if roles[r] == 1 else f"{ds.name}.{r}") for r in cls.ROLES}
+        exp = cls(ds, frames)
+        exp.check()
+        known = {r: np.asarray(ds.known[k], dtype=float) for r, k in cls.ROLES.items() if k in ds.known}
+        guesses = exp.initial(state, known)
+        for role, value in {**known, **guesses}.items():
+            extras[frames[role]] = Plane.from_array(value) if role == "plane" else value
+        unknown += [frames[r] for r in guesses]
+        experiments.append(exp)
+    return experiments, extras, unknown
+
+
+def _check_finite(ds: Dataset) -> None:
+    for group, store in (("measured", ds.measured), ("known", ds.known)):
+        for key, value in store.items():
+            v = np.asarray(value, dtype=float)
+            bad = np.argwhere(~np.isfinite(v))
+            if len(bad):
+                where = f"sample {bad[0][0]} " if group == "measured" else ""
+                raise DataFormatError(
+                    f"data set '{ds.name}': {where}field {group}['{key}'] at index {tuple(int(i) for i in bad[0])} "
+                    f"is {v[tuple(bad[0])]}, expected a finite number"
+                )

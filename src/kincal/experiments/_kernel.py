@@ -1,0 +1,85 @@
+"""Shared kernels: an arm's tool pose with its parameter Jacobians, and the gap between two poses or points.
+
+Jacobians of poses are w.r.t. *left (space) increments*: ``T -> exp(d) T`` with d in world coordinates.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kincal.kinematics import Kinematics, chain
+from kincal.lie import se3, so3
+from kincal.params import ArmValues
+
+ARM_PARTS = ("offsets", "twists", "home", "base", "tool")
+
+
+def arm_tool(a: ArmValues, q: np.ndarray, parts=ARM_PARTS) -> tuple[Kinematics, dict[str, np.ndarray], np.ndarray]:
+    """``T_world_tool`` for q (N, n) and ``d/dparam`` of its left increment, per part: (N, 6, k).
+
+    Parts: offsets (additive), twists (tangent coordinates ``xi + B d``), home/base/tool (``exp(d) T``).
+    Also returns ``J_q`` (N, 6, n), the space Jacobian w.r.t. the joint readings (equal to the offsets block).
+    """
+    kin = chain(a.screws, q + a.offsets, a.base, a.home, a.tool)
+    Ad = se3.adjoint(kin.prefixes)  # (N, n+1, 6, 6)
+    jq = np.einsum("...kij,kj->...ik", Ad[..., :-1, :, :], a.screws)
+    out = {}
+    if "offsets" in parts:
+        out["offsets"] = jq
+    if "twists" in parts:
+        theta = kin.theta
+        A = theta[..., None, None] * se3.left_jacobian(a.screws * theta[..., None])  # (N, n, 6, 6)
+        tw = Ad[..., :-1, :, :] @ A
+        n = a.dof
+        tw = np.moveaxis(tw, -3, -2).reshape(theta.shape[:-1] + (6, 6 * n))
+        out["twists"] = tw @ a.basis
+    if "home" in parts:
+        out["home"] = Ad[..., -1, :, :]
+    if "base" in parts:
+        out["base"] = np.broadcast_to(np.eye(6), kin.theta.shape[:-1] + (6, 6))
+    if "tool" in parts:
+        out["tool"] = se3.adjoint(kin.flange)
+    return kin, out, jq
+
+
+def pose_gap(TA: np.ndarray, TB: np.ndarray):
+    """r = [p_A - p_B, log(R_A R_B^T)] (N, 6) in world coordinates, and dr/d(left increment) of A and of B."""
+    pA, pB = TA[..., :3, 3], TB[..., :3, 3]
+    E = TA[..., :3, :3] @ np.swapaxes(TB[..., :3, :3], -1, -2)
+    rw = so3.log(E)
+    Ji = so3.left_jacobian_inv(rw)
+    shape = TA.shape[:-2]
+    GA = np.zeros(shape + (6, 6))
+    GB = np.zeros(shape + (6, 6))
+    GA[..., :3, :3] = np.eye(3)
+    GA[..., :3, 3:] = -so3.hat(pA)
+    GA[..., 3:, 3:] = Ji
+    GB[..., :3, :3] = -np.eye(3)
+    GB[..., :3, 3:] = so3.hat(pB)
+    GB[..., 3:, 3:] = -Ji @ E
+    return np.concatenate([pA - pB, rw], axis=-1), GA, GB
+
+
+def point_jacobian(p: np.ndarray) -> np.ndarray:
+    """d p / d(left increment of the frame carrying p): [I, -hat(p)], (..., 3, 6)."""
+    out = np.zeros(p.shape[:-1] + (3, 6))
+    out[..., :, :3] = np.eye(3)
+    out[..., :, 3:] = -so3.hat(p)
+    return out
+
+
+def pose_mean(T: np.ndarray) -> np.ndarray:
+    """A rigid transform near the mean of T (N, 4, 4): two Gauss-Newton steps of the left log-average."""
+    M = T[0]
+    for _ in range(2):
+        M = se3.exp(np.mean(se3.log(T @ se3.inverse(M)), axis=0)) @ M
+    return M
+
+
+def fit_transform(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Rigid T minimizing sum |T src - dst|^2 (Kabsch), points (K, 3)."""
+    cs, cd = src.mean(axis=0), dst.mean(axis=0)
+    U, _, Vt = np.linalg.svd((dst - cd).T @ (src - cs))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ D @ Vt
+    return se3.make(R, cd - R @ cs)

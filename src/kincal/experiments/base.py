@@ -1,0 +1,97 @@
+"""The experiment interface: a pure residual of one data set with its analytic Jacobian.
+
+An experiment reads every value it needs from a ``State``: arm parameters by arm name, and its frames
+(fixture pose, clamp transform, tracker frame, ...) from ``state.extras`` under the names in ``frames``.
+Known frames are extras too (fixed unless the user frees them), so one code path serves known and unknown.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar, Mapping
+
+import numpy as np
+
+from kincal.data import Dataset
+from kincal.experiments._kernel import ARM_PARTS, arm_tool
+from kincal.kinematics import chain
+from kincal.params import State
+
+
+@dataclass(frozen=True)
+class Residual:
+    """``r`` (N, k); ``jac[block]`` (N, k, d) for parameter blocks (``right.offsets``, ``fixture``, ...);
+    ``jq[arm]`` (N, k, n): derivative w.r.t. the joint readings, for propagating encoder noise."""
+
+    r: np.ndarray
+    jac: Mapping[str, np.ndarray]
+    jq: Mapping[str, np.ndarray]
+
+
+@dataclass(frozen=True, eq=False)
+class Experiment:
+    """Base class; subclasses set KIND, ROLES (role -> key in ``dataset.known``) and COMPONENTS."""
+
+    dataset: Dataset
+    frames: Mapping[str, str]  # role -> name of the state extra holding it
+
+    KIND: ClassVar[str] = ""
+    ROLES: ClassVar[Mapping[str, str]] = {}
+    COMPONENTS: ClassVar[tuple[str, ...]] = ()
+
+    @property
+    def name(self) -> str:
+        return self.dataset.name
+
+    @property
+    def kind_name(self) -> str:
+        return self.KIND
+
+    @property
+    def kind(self) -> str:
+        return self.KIND
+
+    @property
+    def arms(self) -> tuple[str, ...]:
+        return self.dataset.arms
+
+    @property
+    def size(self) -> int:
+        return self.dataset.size
+
+    def components(self) -> tuple[str, ...]:
+        """Per residual column: 'position' (m) or 'orientation' (rad)."""
+        return self.COMPONENTS
+
+    def residual(self, state: State, want=None) -> Residual:
+        raise NotImplementedError
+
+    def initial(self, state: State, known: Mapping[str, object]) -> dict[str, object]:
+        """Initial values for the roles absent from ``known``, from the state's (nominal) arms."""
+        raise NotImplementedError
+
+    def check(self) -> None:
+        """Raise on data this kind cannot use (beyond what Dataset checks)."""
+
+    def increment_frames(self, state: State) -> dict[str, np.ndarray]:
+        """World pose of the frame in which each pose role's left increment is expressed (first sample)."""
+        return {role: np.eye(4) for role in self.frames}
+
+    # helpers
+    def _parts(self, arm: str, want) -> tuple[str, ...]:
+        return tuple(p for p in ARM_PARTS if want is None or f"{arm}.{p}" in want)
+
+    def _wanted(self, role: str, want) -> bool:
+        return role in self.frames and (want is None or self.frames[role] in want)
+
+    def _arm(self, state: State, arm: str, want):
+        return arm_tool(state.arms[arm], self.dataset.q[arm], self._parts(arm, want))
+
+    def _fk(self, state: State, arm: str) -> np.ndarray:
+        a = state.arms[arm]
+        return chain(a.screws, self.dataset.q[arm] + a.offsets, a.base, a.home, a.tool).tool
+
+
+def chain_rule(G: np.ndarray, arm: str, blocks: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """``{arm.part: G @ J_part}`` for a gap Jacobian G (N, k, 6) and pose Jacobians J_part (N, 6, d)."""
+    return {f"{arm}.{p}": G @ J for p, J in blocks.items()}

@@ -1,0 +1,57 @@
+"""External marker positions (partial pose): a tracker measures m points fixed to the tool, no orientation.
+
+Residual (N, 3m), metres, world coordinates: ``T_world_tool(q) x_j - T_world_tracker y_ij`` with x_j the
+marker positions in the tool frame (``p_tool_marker``) and y_ij the measured ``p_tracker_marker``.
+Optional ``wrench_tool`` loads are not used here (no compliance model in this residual).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kincal.experiments._kernel import fit_transform, point_jacobian
+from kincal.experiments.base import Experiment, Residual
+from kincal.lie import se3
+
+
+class MarkersExperiment(Experiment):
+    KIND = "markers"
+    ROLES = {"tracker": "T_world_tracker", "markers": "p_tool_marker"}
+
+    def components(self):
+        return ("position",) * (3 * self.dataset.measured["p_tracker_marker"].shape[1])
+
+    def residual(self, state, want=None) -> Residual:
+        arm = self.arms[0]
+        W = state.extras[self.frames["tracker"]]
+        x = np.asarray(state.extras[self.frames["markers"]])
+        y = self.dataset.measured["p_tracker_marker"]
+        N, m = y.shape[:2]
+        kin, J, jq = self._arm(state, arm, want)
+        F = kin.tool
+        pA = se3.transform_points(F[:, None], x)  # (N, m, 3)
+        pB = se3.transform_points(W, y)
+        GA = point_jacobian(pA)  # (N, m, 3, 6)
+        jac = {f"{arm}.{p}": np.einsum("nmij,njk->nmik", GA, Jp).reshape(N, 3 * m, -1) for p, Jp in J.items()}
+        if self._wanted("markers", want):
+            Jx = np.zeros((N, m, 3, m, 3))
+            for j in range(m):  # loop over markers, not samples
+                Jx[:, j, :, j, :] = F[:, :3, :3]
+            jac[self.frames["markers"]] = Jx.reshape(N, 3 * m, 3 * m)
+        if self._wanted("tracker", want):
+            jac[self.frames["tracker"]] = -point_jacobian(pB).reshape(N, 3 * m, 6)
+        jqm = np.einsum("nmij,njk->nmik", GA, jq).reshape(N, 3 * m, -1)
+        return Residual((pA - pB).reshape(N, 3 * m), jac, {arm: jqm})
+
+    def initial(self, state, known):
+        F = self._fk(state, self.arms[0])
+        y = self.dataset.measured["p_tracker_marker"]
+        out = {}
+        x = np.asarray(known["markers"]) if "markers" in known else np.zeros(y.shape[1:])
+        W = known.get("tracker")
+        if W is None:
+            W = fit_transform(y.reshape(-1, 3), se3.transform_points(F[:, None], x).reshape(-1, 3))
+            out["tracker"] = W
+        if "markers" not in known:
+            out["markers"] = np.mean(se3.transform_points(se3.inverse(F)[:, None], se3.transform_points(W, y)), axis=0)
+        return out

@@ -1,0 +1,41 @@
+"""A tool point touching a plane ``n . p = d`` (1 constraint per configuration).
+
+Residual (N, 1), metres: ``n . p_world_tool(q) - d``. An unknown plane is a parameter: its normal moves in
+its 2-dimensional tangent (``plane.n_1``, ``plane.n_2``), its offset by ``plane.d``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kincal.experiments._kernel import point_jacobian
+from kincal.experiments.base import Experiment, Residual
+from kincal.params import Plane
+
+
+class PlaneExperiment(Experiment):
+    KIND = "plane"
+    ROLES = {"plane": "plane_world"}
+    COMPONENTS = ("position",)
+
+    def residual(self, state, want=None) -> Residual:
+        arm = self.arms[0]
+        pl = state.extras[self.frames["plane"]]
+        n, d = pl.unit()
+        kin, J, jq = self._arm(state, arm, want)
+        p = kin.tool[:, :3, 3]
+        G = n @ point_jacobian(p)  # (N, 6)
+        G = G[:, None, :]
+        jac = {f"{arm}.{k}": G @ v for k, v in J.items()}
+        if self._wanted("plane", want):
+            dn = (p @ (np.eye(3) - np.outer(n, n)) / np.linalg.norm(pl.normal)) @ pl.U  # (N, 2)
+            jac[self.frames["plane"]] = np.concatenate([dn, -np.ones((len(p), 1))], axis=-1)[:, None, :]
+        return Residual((p @ n - d)[:, None], jac, {arm: G @ jq})
+
+    def initial(self, state, known):
+        if "plane" in known:
+            return {}
+        p = self._fk(state, self.arms[0])[:, :3, 3]
+        c = p.mean(axis=0)
+        n = np.linalg.svd(p - c)[2][-1]
+        return {"plane": np.append(n, n @ c)}

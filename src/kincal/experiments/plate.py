@@ -1,0 +1,45 @@
+"""A plate with K fixtures at known relative transforms; sample i is clamped at fixture k_i.
+
+Residual (N, 6): pose gap between ``T_world_tool(q_i)`` and ``T_world_plate @ T_plate_fixture[k_i]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kincal.errors import DegenerateExperimentError
+from kincal.experiments._kernel import pose_gap, pose_mean
+from kincal.experiments.base import Experiment, Residual, chain_rule
+from kincal.lie import se3
+
+
+class PlateExperiment(Experiment):
+    KIND = "plate"
+    ROLES = {"plate": "T_world_plate"}
+    COMPONENTS = ("position",) * 3 + ("orientation",) * 3
+
+    def check(self):
+        k = self.dataset.measured["fixture"]
+        K = self.dataset.known["T_plate_fixture"].shape[0]
+        bad = np.flatnonzero((k < 0) | (k >= K) | (k != np.round(k)))
+        if len(bad):
+            raise DegenerateExperimentError(
+                f"data set '{self.name}': sample {bad[0]} field 'fixture' is {k[bad[0]]}, expected an integer in [0, {K})"
+            )
+
+    def _fixtures(self):
+        return self.dataset.known["T_plate_fixture"][self.dataset.measured["fixture"].astype(int)]
+
+    def residual(self, state, want=None) -> Residual:
+        arm = self.arms[0]
+        kin, J, jq = self._arm(state, arm, want)
+        r, GA, GB = pose_gap(kin.tool, state.extras[self.frames["plate"]] @ self._fixtures())
+        jac = chain_rule(GA, arm, J)
+        if self._wanted("plate", want):
+            jac[self.frames["plate"]] = GB
+        return Residual(r, jac, {arm: GA @ jq})
+
+    def initial(self, state, known):
+        if "plate" in known:
+            return {}
+        return {"plate": pose_mean(self._fk(state, self.arms[0]) @ se3.inverse(self._fixtures()))}

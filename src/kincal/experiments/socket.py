@@ -1,0 +1,30 @@
+"""The tool point held in a socket (ball joint): position constrained (3), orientation free.
+
+Residual (N, 3), metres: ``p_world_tool(q) - p_world_socket``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kincal.experiments._kernel import point_jacobian
+from kincal.experiments.base import Experiment, Residual
+
+
+class SocketExperiment(Experiment):
+    KIND = "socket"
+    ROLES = {"socket": "p_world_socket"}
+    COMPONENTS = ("position",) * 3
+
+    def residual(self, state, want=None) -> Residual:
+        arm = self.arms[0]
+        kin, J, jq = self._arm(state, arm, want)
+        p = kin.tool[:, :3, 3]
+        G = point_jacobian(p)
+        jac = {f"{arm}.{k}": G @ v for k, v in J.items()}
+        if self._wanted("socket", want):
+            jac[self.frames["socket"]] = np.broadcast_to(-np.eye(3), (len(p), 3, 3))
+        return Residual(p - state.extras[self.frames["socket"]], jac, {arm: G @ jq})
+
+    def initial(self, state, known):
+        return {} if "socket" in known else {"socket": self._fk(state, self.arms[0])[:, :3, 3].mean(axis=0)}

@@ -1,0 +1,186 @@
+"""Calibration job files (YAML, ``format: kincal-job``) <-> ``Job``; see docs/job-format.md.
+
+Paths in a job are relative to the job file. Units appear only here, in suffixed keys
+(``sigma_deg``, ``position_mm``); everything is converted to SI on reading.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+from kincal.data import Dataset
+from kincal.errors import DataFormatError
+from kincal.estimation import Noise
+from kincal.io import units
+from kincal.io.datasets import load_dataset
+from kincal.io.models import load_robot
+from kincal.kinematics import Robot
+from kincal.params import LEVELS, Prior
+
+_TOP = {"format", "version", "name", "model", "data", "validation", "free", "fixed", "priors", "gauge", "solver",
+        "description"}
+_SOLVER = {"method", "loss", "f_scale", "max_outer", "rank_rtol", "correlation_threshold"}
+_LOSSES = ("linear", "huber", "soft_l1", "cauchy", "arctan")
+_NOISE = {"position": "length", "orientation": "angle", "joint": "angle"}
+
+
+@dataclass(frozen=True, eq=False)
+class Job:
+    """A parsed job: the nominal robot, data sets (loaded), and every calibration option (SI)."""
+
+    path: Path
+    name: str
+    robot: Robot
+    datasets: tuple[Dataset, ...]
+    validation: tuple[Dataset, ...] = ()
+    free: str | tuple[str, ...] = "offsets"
+    fixed: tuple[str, ...] = ()
+    priors: Mapping[str, Prior] = field(default_factory=dict)
+    noise: Mapping[str, Noise] = field(default_factory=dict)
+    gauge: str | tuple[str, ...] = "min-change"
+    method: str = "kincal"
+    options: Mapping[str, Any] = field(default_factory=dict)  # loss, f_scale, max_outer, rank_rtol, ...
+
+
+def load_job(path) -> Job:
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise DataFormatError(f"{path}: cannot read job file: {exc.strerror or exc}") from None
+    try:
+        top = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise DataFormatError(f"{path}: not valid YAML: {exc}") from None
+    f = str(path)
+    if not isinstance(top, dict):
+        raise DataFormatError(f"{f}: expected a mapping at the top level, found {type(top).__name__}")
+    unknown = set(top) - _TOP
+    if unknown:
+        raise DataFormatError(f"{f}: unknown field(s) {sorted(unknown)}; expected some of {sorted(_TOP)}")
+    if top.get("format", "kincal-job") != "kincal-job":
+        raise DataFormatError(f"{f}: field 'format' must be 'kincal-job', found {top.get('format')!r}")
+    if top.get("version", 1) != 1:
+        raise DataFormatError(f"{f}: field 'version' must be 1, found {top.get('version')!r}")
+    if "model" not in top:
+        raise DataFormatError(f"{f}: field 'model' is required (a built-in robot name or a model file path)")
+    model = str(top["model"])
+    local = path.parent / model
+    robot = load_robot(local if local.exists() else model)
+    datasets, noise = _data(f, path.parent, top.get("data"), "data", robot, required=True)
+    validation, _ = _data(f, path.parent, top.get("validation") or [], "validation", robot, required=False)
+    free = top.get("free", "offsets")
+    if isinstance(free, str):
+        if free not in LEVELS:
+            raise DataFormatError(f"{f}: field 'free' is {free!r}; expected {' or '.join(LEVELS)} or a list of names")
+    elif isinstance(free, list) and all(isinstance(x, str) for x in free):
+        free = tuple(free)
+    else:
+        raise DataFormatError(f"{f}: field 'free' must be a level word or a list of names/globs, found {free!r}")
+    fixed = _strings(f, top.get("fixed") or [], "fixed")
+    gauge = top.get("gauge", "min-change")
+    if not (gauge == "min-change" or isinstance(gauge, list)):
+        raise DataFormatError(f"{f}: field 'gauge' must be 'min-change' or a list of globs, found {gauge!r}")
+    gauge = gauge if isinstance(gauge, str) else _strings(f, gauge, "gauge")
+    priors = {k: _prior(f, k, v) for k, v in (top.get("priors") or {}).items()}
+    solver = top.get("solver") or {}
+    if not isinstance(solver, dict) or set(solver) - _SOLVER:
+        raise DataFormatError(f"{f}: field 'solver' must be a mapping with keys among {sorted(_SOLVER)}, found {solver!r}")
+    method = solver.get("method", "kincal")
+    if method not in ("kincal", "thesis"):
+        raise DataFormatError(f"{f}: field solver.method is {method!r}; expected 'kincal' or 'thesis'")
+    if solver.get("loss", "linear") not in _LOSSES:
+        raise DataFormatError(f"{f}: field solver.loss is {solver.get('loss')!r}; expected one of {', '.join(_LOSSES)}")
+    options = {k: v for k, v in solver.items() if k != "method"}
+    for k in ("f_scale", "rank_rtol", "correlation_threshold", "max_outer"):
+        if k in options and not (isinstance(options[k], (int, float)) and options[k] > 0):
+            raise DataFormatError(f"{f}: field solver.{k} must be a positive number, found {options[k]!r}")
+    return Job(path, str(top.get("name", path.stem)), robot, datasets, validation, free, fixed, priors, noise, gauge,
+               method, options)
+
+
+def _strings(f, x, key) -> tuple[str, ...]:
+    if not isinstance(x, list) or not all(isinstance(s, str) for s in x):
+        raise DataFormatError(f"{f}: field '{key}' must be a list of strings, found {x!r}")
+    return tuple(x)
+
+
+def _data(f, base: Path, entries, key, robot, required):
+    if not isinstance(entries, list) or (required and not entries):
+        raise DataFormatError(f"{f}: field '{key}' must be a non-empty list of data sets ({{manifest: path}})")
+    datasets, noise = [], {}
+    for i, e in enumerate(entries):
+        where = f"{f}: {key}[{i}]"
+        if isinstance(e, str):
+            e = {"manifest": e}
+        if not isinstance(e, dict) or "manifest" not in e or set(e) - {"manifest", "noise"}:
+            raise DataFormatError(f"{where}: expected a manifest path or {{manifest: path, noise: {{...}}}}, found {e!r}")
+        ds = load_dataset(base / str(e["manifest"]), robot)
+        datasets.append(ds)
+        noise[ds.name] = _noise(where, e.get("noise"), ds)
+    return tuple(datasets), noise
+
+
+def _noise(where, data, ds: Dataset) -> Noise:
+    """Job noise (position_mm, orientation_deg, joint_deg, ...) over the data set's own stated noise."""
+    stated = dict(ds.meta.get("noise") or {})
+    si = {"sigma_position": stated.get("tracker_m", 0.0), "sigma_orientation": stated.get("tracker_rad", 0.0),
+          "sigma_joint": stated.get("joint_rad", 0.0)}
+    for k, v in (data or {}).items():
+        base, _, unit = str(k).rpartition("_")
+        if base not in _NOISE:
+            raise DataFormatError(f"{where}: noise key {k!r}; expected position_<m|mm>, orientation_<rad|deg>, "
+                                  f"joint_<rad|deg>")
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            raise DataFormatError(f"{where}: noise.{k} must be a finite number >= 0, found {v!r}")
+        si[f"sigma_{base}"] = float(v) * units.factor(_NOISE[base], unit, f"{where}: noise.{k}")
+    return Noise(**si)
+
+
+def _prior(f, name, spec) -> Prior:
+    where = f"{f}: priors['{name}']"
+    if not isinstance(spec, dict) or len([k for k in spec if k.startswith("sigma")]) != 1:
+        raise DataFormatError(f"{where}: expected {{sigma_<unit>: value}} with optional mean_<unit>, found {spec!r}")
+    out = {}
+    for k, v in spec.items():
+        base, _, unit = k.partition("_")
+        if base not in ("sigma", "mean"):
+            raise DataFormatError(f"{where}: unknown key {k!r}; expected sigma_<unit> and optional mean_<unit>")
+        kind = "angle" if unit in units.ANGLE else "length"
+        if not (isinstance(v, (int, float)) and math.isfinite(v)):
+            raise DataFormatError(f"{where}: {k} must be a finite number, found {v!r}")
+        out[base] = float(v) * units.factor(kind, unit, f"{where}: {k}")
+    if out["sigma"] <= 0:
+        raise DataFormatError(f"{where}: sigma must be positive, found {spec}")
+    return Prior(out["sigma"], out.get("mean", 0.0))
+
+
+def run_job(job: Job, progress=None):
+    """Run the job's solver: kincal's (a ``Result``) or the thesis baseline (a ``BaselineResult``)."""
+    if job.method == "thesis":
+        return _thesis(job)
+    from kincal.estimation import calibrate
+
+    return calibrate(job.robot, job.datasets, job.free, fixed=job.fixed, priors=job.priors, noise=job.noise,
+                     gauge=job.gauge, validation=job.validation, progress=progress, **job.options)
+
+
+def _thesis(job: Job):
+    from kincal.baselines import thesis
+
+    if len(job.datasets) != 1:
+        raise DataFormatError(f"{job.path}: solver.method 'thesis' takes exactly one data set, found {len(job.datasets)}")
+    ds = job.datasets[0]
+    level = job.free if isinstance(job.free, str) else None
+    method = {"clamp": "single_offsets", "plate": "several_points"}.get(ds.kind)
+    if ds.kind == "dual":
+        method = "dual_kinematic" if level == "kinematic" else "dual_offsets"
+    if method is None:
+        raise DataFormatError(f"{job.path}: the thesis has no method for '{ds.kind}' data sets "
+                              "(clamp, plate and dual only)")
+    return thesis.run(method, ds, job.robot)

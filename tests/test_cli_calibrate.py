@@ -1,0 +1,37 @@
+"""``kincal demo`` and ``kincal calibrate``: end to end, JSON output, never overwriting."""
+
+import json
+
+import yaml
+
+from kincal.cli import main
+
+
+def test_demo_then_calibrate_its_job(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "-o", str(out), "-n", "40", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["status"] == "converged" and report["rank"] == 14
+    for v in report["validation"]:
+        assert v["position_mm_rms_after"] < 0.1 * v["position_mm_rms_before"]
+    assert (out / "model.yaml").exists() and (out / "result.yaml").exists() and (out / "job.yaml").exists()
+    saved = yaml.safe_load((out / "result.yaml").read_text())
+    assert saved["estimates"][0]["name"] == "right.j1.offset" or saved["estimates"][0]["name"].endswith(".offset")
+
+    # refusing to overwrite: one clear line, exit code 2
+    assert main(["demo", "-o", str(out), "-n", "40", "--quiet"]) == 2
+    assert "file exists; not overwritten" in capsys.readouterr().err
+
+    out2 = tmp_path / "again"
+    assert main(["calibrate", str(out / "job.yaml"), "-o", str(out2)]) == 0
+    text = capsys.readouterr().out
+    assert "converged" in text and "validation on held-out configurations" in text
+    assert main(["calibrate", str(out / "job.yaml"), "-o", str(out2), "--quiet"]) == 2
+
+
+def test_calibrate_reports_bad_job(tmp_path, capsys):
+    job = tmp_path / "job.yaml"
+    job.write_text("format: kincal-job\nversion: 1\nmodel: frida\ndata: [{manifest: missing.yaml}]\n")
+    assert main(["calibrate", str(job), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("kincal: error:") and "missing.yaml" in err

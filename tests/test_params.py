@@ -1,0 +1,67 @@
+"""Parameter names, levels, globs, status, retraction and displacement."""
+
+import numpy as np
+import pytest
+
+from kincal.errors import ModelError
+from kincal.kinematics import Robot
+from kincal.params import Prior, State, build_layout, displacement, recentre, retract, scale_direction
+from kincal.testing import random_arm, random_pose
+
+
+@pytest.fixture
+def state(rng):
+    robot = Robot("r", {"right": random_arm(rng, 7, name="right"), "left": random_arm(rng, 3, (1,), name="left")})
+    return State.from_robot(robot, {"clamp": random_pose(rng), "markers": rng.normal(size=(2, 3))})
+
+
+def test_stable_names_and_units(state):
+    lay = build_layout(state, "offsets")
+    for name in ("right.j3.offset", "right.j2.xi.shift_1", "right.j2.xi.tilt_2", "right.home.w_z", "left.base.v_x",
+                 "left.tool.w_y", "clamp.w_z", "markers.m2.x", "left.j2.xi.tilt_1"):
+        assert name in lay.names
+    assert "left.j2.xi.shift_1" not in lay.names  # prismatic: 2 tilt coordinates only
+    assert lay.units[lay.index("left.j2.offset")] == "m" and lay.units[lay.index("right.j2.offset")] == "rad"
+    assert lay.size == 7 + 28 + 18 + 3 + 10 + 18 + 6 + 6
+
+
+def test_levels_globs_and_status(state):
+    off = build_layout(state, "offsets", free_extras=[])
+    assert off.free_names == [f"right.j{i}.offset" for i in range(1, 8)] + [f"left.j{i}.offset" for i in range(1, 4)]
+    kin = build_layout(state, "kinematic", free_extras=[])
+    assert "right.j4.xi.tilt_1" in kin.free_names and "right.home.v_y" in kin.free_names
+    assert "right.base.v_x" not in kin.free_names
+    lay = build_layout(state, ["right.j*.offset", "left.j2.xi.v_x", "clamp"], fixed=["right.j1.*"], free_extras=[])
+    assert "right.j1.offset" not in lay.free_names and "right.j2.offset" in lay.free_names
+    assert {"left.j2.xi.tilt_1", "left.j2.xi.tilt_2"} <= set(lay.free_names)  # a joint's twist moves as a whole
+    assert {f"clamp.{c}" for c in ("v_x", "w_z")} <= set(lay.free_names)
+    lay = build_layout(state, [], priors={"right.j3.offset": Prior(0.01, 0.002)}, free_extras=[])
+    i = lay.index("right.j3.offset")
+    assert lay.free_names == ["right.j3.offset"] and lay.prior_sigma[i] == 0.01 and lay.prior_mean[i] == 0.002
+    with pytest.raises(ModelError, match="matches no parameter"):
+        build_layout(state, ["right.j9.offset"])
+    with pytest.raises(ModelError, match="unknown level"):
+        level = "geometry"
+        build_layout(state, level)
+
+
+def test_retract_recentre_and_displacement(state, rng):
+    lay = build_layout(state, ["right.*", "left.*", "clamp", "markers"])
+    d = rng.normal(scale=1e-3, size=lay.size)
+    moved = retract(state, lay, d)
+    disp, _ = displacement(moved, state, lay)
+    np.testing.assert_allclose(disp, d, atol=1e-12)
+    again = recentre(moved)
+    w = again.arms["right"].screws[:, 3:]
+    np.testing.assert_allclose(np.linalg.norm(w, axis=1), 1.0, atol=1e-15)
+    np.testing.assert_allclose(np.sum(w * again.arms["right"].screws[:, :3], axis=1), 0.0, atol=1e-15)
+    disp2, _ = displacement(again, state, lay)
+    np.testing.assert_allclose(disp2, d, atol=1e-5)  # conformation moves twists at second order only
+
+
+def test_scale_direction_scales_translations(state):
+    lay = build_layout(state, "offsets")
+    s = scale_direction(state, lay)
+    b = lay.block("clamp")
+    np.testing.assert_allclose(s[b.start: b.start + 3], state.extras["clamp"][:3, 3])
+    np.testing.assert_allclose(s[b.start + 3: b.stop], 0.0)

@@ -1,0 +1,139 @@
+"""Every experiment kind: residual is zero at the truth, analytic Jacobians match central differences."""
+
+import numpy as np
+import pytest
+
+from kincal import experiments
+from kincal.data import Dataset
+from kincal.errors import DataFormatError, DegenerateExperimentError
+from kincal.experiments._kernel import pose_gap
+from kincal.kinematics import Robot, forward_kinematics
+from kincal.lie import se3
+from kincal.params import State, build_layout, retract
+from kincal.testing import numerical_jacobian, random_arm, random_pose
+
+
+def _robot(rng, prismatic=()):
+    return Robot("r", {"a": random_arm(rng, 6, prismatic, name="a"), "b": random_arm(rng, 7, name="b")})
+
+
+def _case(kind, rng, robot):
+    """A data set of ``kind`` that is exactly consistent with ``robot`` (no inverse kinematics needed)."""
+    a, b = robot["a"], robot["b"]
+    qa = lambda n: rng.uniform(-2, 2, (n, a.dof))  # noqa: E731
+    qb = lambda n: rng.uniform(-2, 2, (n, b.dof))  # noqa: E731
+    W = random_pose(rng)
+    if kind == "pose":
+        q = qa(5)
+        return Dataset("pose", "r", ("a",), {"a": q}, {"T_tracker_tool": se3.inverse(W) @ forward_kinematics(a, q)},
+                       {"T_world_tracker": W})
+    if kind == "markers":
+        q, x = qa(5), rng.uniform(-0.1, 0.1, (3, 3))
+        y = se3.transform_points(se3.inverse(W), se3.transform_points(forward_kinematics(a, q)[:, None], x))
+        return Dataset("markers", "r", ("a",), {"a": q}, {"p_tracker_marker": y},
+                       {"T_world_tracker": W, "p_tool_marker": x})
+    if kind == "clamp":
+        q = qa(1)
+        return Dataset("clamp", "r", ("a",), {"a": q}, known={"T_world_fixture": forward_kinematics(a, q)[0]})
+    if kind == "plate":
+        q = qa(4)
+        X = se3.inverse(W) @ forward_kinematics(a, q)
+        return Dataset("plate", "r", ("a",), {"a": q}, {"fixture": np.arange(4)},
+                       {"T_plate_fixture": X, "T_world_plate": W})
+    if kind == "dual":
+        q1, q2 = qa(1), qb(1)
+        C = se3.inverse(forward_kinematics(a, q1)) @ forward_kinematics(b, q2)
+        return Dataset("dual", "r", ("a", "b"), {"a": q1, "b": q2}, known={"T_toolA_toolB": C[0]})
+    if kind == "socket":
+        q = qa(1)
+        return Dataset("socket", "r", ("a",), {"a": q}, known={"p_world_socket": forward_kinematics(a, q)[0, :3, 3]})
+    if kind == "distance":
+        q1, q2 = qa(1), qb(1)
+        d = np.linalg.norm(forward_kinematics(a, q1)[0, :3, 3] - forward_kinematics(b, q2)[0, :3, 3])
+        return Dataset("distance", "r", ("a", "b"), {"a": q1, "b": q2}, known={"distance": d})
+    if kind == "plane":
+        q = qa(3)
+        p = forward_kinematics(a, q)[:, :3, 3]
+        n = np.cross(p[1] - p[0], p[2] - p[0])
+        n /= np.linalg.norm(n)
+        return Dataset("plane", "r", ("a",), {"a": q}, known={"plane_world": np.append(n, n @ p[0])})
+    raise AssertionError(kind)
+
+
+def _assemble(res, layout, N):
+    k = res.r.shape[1]
+    J = np.zeros((N, k, layout.size))
+    for b in layout.blocks:
+        if b.name in res.jac:
+            J[:, :, b.start: b.stop] = res.jac[b.name]
+    return J
+
+
+@pytest.mark.parametrize("kind", sorted(experiments.KINDS))
+@pytest.mark.parametrize("prismatic", [(), (2,)])
+def test_residual_zero_at_truth_and_jacobian_matches_differences(rng, kind, prismatic):
+    robot = _robot(rng, prismatic)
+    ds = _case(kind, rng, robot)
+    state = State.from_robot(robot)
+    exps, extras, unknown = experiments.build([ds], state)
+    assert unknown == []
+    state = State(state.arms, extras)
+    exp = exps[0]
+    np.testing.assert_allclose(exp.residual(state).r, 0.0, atol=1e-12)
+
+    # Away from the truth (non-zero residual), with more samples and every parameter block.
+    layout = build_layout(state, [f"{a}.*" for a in ds.arms] + list(extras))
+    state = retract(state, layout, rng.normal(scale=0.05, size=layout.size))
+    n = 3
+    q = {arm: rng.uniform(-2, 2, (n, state.arms[arm].dof)) for arm in ds.arms}
+    measured = {k: np.repeat(v[:1], n, axis=0) for k, v in ds.measured.items()}
+    if kind == "plate":
+        measured["fixture"] = np.array([0, 2, 1])
+    exp = type(exp)(Dataset(kind, "r", ds.arms, q, measured, dict(ds.known), ds.name), exp.frames)
+    res = exp.residual(state)
+    J = _assemble(res, layout, n)
+    num = numerical_jacobian(lambda d: exp.residual(retract(state, layout, d)).r, np.zeros(layout.size))
+    np.testing.assert_allclose(J, num, atol=1e-7, rtol=1e-6)
+    assert set(res.jac) == {b.name for b in layout.blocks if b.arm in ds.arms or b.name in extras}
+
+    for arm in ds.arms:
+        def f(x, arm=arm):
+            qq = dict(q)
+            qq[arm] = x.reshape(q[arm].shape)
+            return type(exp)(Dataset(kind, "r", ds.arms, qq, measured, dict(ds.known), ds.name), exp.frames).residual(
+                state).r
+        num_q = numerical_jacobian(f, q[arm].ravel()).reshape(res.r.shape + q[arm].shape)
+        # d r_i / d q_i only: take each sample's own block
+        num_q = np.stack([num_q[i, :, i, :] for i in range(n)])
+        np.testing.assert_allclose(res.jq[arm], num_q, atol=1e-7, rtol=1e-6)
+
+
+def test_only_wanted_blocks_are_computed(rng):
+    robot = _robot(rng)
+    state = State.from_robot(robot)
+    exps, extras, _ = experiments.build([_case("dual", rng, robot)], state)
+    res = exps[0].residual(State(state.arms, extras), want={"a.offsets"})
+    assert set(res.jac) == {"a.offsets"}
+
+
+def test_pose_gap_is_position_then_rotation(rng):
+    TA, TB = random_pose(rng, (4,)), random_pose(rng, (4,))
+    r, _, _ = pose_gap(TA, TB)
+    np.testing.assert_allclose(r[:, :3], TA[:, :3, 3] - TB[:, :3, 3])
+    np.testing.assert_allclose(se3.exp(se3.join(np.zeros(3), r[:, 3:]))[:, :3, :3] @ TB[:, :3, :3], TA[:, :3, :3],
+                               atol=1e-12)
+
+
+def test_bad_data_sets_are_named(rng):
+    robot = _robot(rng)
+    state = State.from_robot(robot)
+    ds = Dataset("clamp", "r", ("a",), {"a": rng.normal(size=(5, 7))})
+    with pytest.raises(DataFormatError, match=r"data set 'experiment': field q\[a\] has 7 joints per sample, expected 6"):
+        experiments.build([ds], state)
+    ds = Dataset("clamp", "r", ("z",), {"z": rng.normal(size=(5, 6))})
+    with pytest.raises(DataFormatError, match="arm 'z' is not in the model"):
+        experiments.build([ds], state)
+    ds = Dataset("plate", "r", ("a",), {"a": rng.normal(size=(3, 6))}, {"fixture": np.array([0, 1, 5])},
+                 {"T_plate_fixture": np.stack([np.eye(4)] * 2)})
+    with pytest.raises(DegenerateExperimentError, match="sample 2 field 'fixture' is 5"):
+        experiments.build([ds], state)

@@ -1,0 +1,96 @@
+"""The solver on tracker data (forward kinematics only): recovery, robust loss, priors, bad input, degeneracy."""
+
+import numpy as np
+import pytest
+
+from kincal.data import Dataset
+from kincal.errors import DataFormatError, DegenerateExperimentError, ModelError
+from kincal.estimation import Noise, calibrate
+from kincal.kinematics import Robot, forward_kinematics
+from kincal.lie import se3
+from kincal.params import Prior
+from kincal.testing import random_arm
+
+
+def _pose_data(rng, arm, n=40, W=np.eye(4)):
+    q = rng.uniform(-2, 2, (n, arm.dof))
+    return Dataset("pose", "r", ("arm",), {"arm": q}, {"T_tracker_tool": se3.inverse(W) @ forward_kinematics(arm, q)},
+                   {"T_world_tracker": W})
+
+
+def _markers_data(rng, arm, x, n=40):
+    q = rng.uniform(-2, 2, (n, arm.dof))
+    p = se3.transform_points(forward_kinematics(arm, q)[:, None], x)
+    return Dataset("markers", "r", ("arm",), {"arm": q}, {"p_tracker_marker": p}, {"T_world_tracker": np.eye(4)})
+
+
+def test_markers_full_kinematic_recovery(rng):
+    """Partial pose (3 markers, positions only, metres; marker offsets unknown): twists, home and offsets up to
+    the POE redundancy (6) and the markers' rigid motion in the tool frame, which the home pose absorbs (6)."""
+    true = random_arm(rng, 6, name="arm")
+    x = rng.uniform(-0.1, 0.1, (3, 3))
+    nominal = true.replace(offsets=np.zeros(6), home=se3.exp(np.full(6, 0.01)) @ true.home)
+    res = calibrate(Robot("r", {"arm": nominal}), [_markers_data(rng, true, x)], "kinematic")
+    assert res.status == "converged" and res.identifiability.deficiency == 12
+    assert "markers.m1.x" in res.layout.names
+    q = rng.uniform(-2, 2, (50, 6))
+    predicted = se3.transform_points(forward_kinematics(res.robot["arm"], q)[:, None], res.extras["markers"])
+    np.testing.assert_allclose(predicted, se3.transform_points(forward_kinematics(true, q)[:, None], x), atol=1e-9)
+
+
+def test_robust_loss_resists_outliers(rng):
+    true = random_arm(rng, 6, name="arm")
+    ds = _pose_data(rng, true, n=60)
+    T = np.array(ds.measured["T_tracker_tool"])
+    T[:3, :3, 3] += 0.05  # three gross outliers (5 cm)
+    bad = Dataset("pose", "r", ("arm",), ds.q, {"T_tracker_tool": T}, ds.known)
+    nominal = Robot("r", {"arm": true.replace(offsets=np.zeros(6))})
+    noise = Noise(1e-5, 1e-5, 0.0)
+    plain = calibrate(nominal, [bad], "offsets", noise=noise)
+    robust = calibrate(nominal, [bad], "offsets", noise=noise, loss="soft_l1", f_scale=3.0)
+    err = lambda r: np.max(np.abs([r.estimate(f"arm.j{i}.offset").value for i in range(1, 7)] - true.offsets))  # noqa
+    assert err(robust) < 1e-5 and err(plain) > 100 * err(robust)
+
+
+def test_prior_pulls_an_unidentifiable_parameter(rng):
+    true = random_arm(rng, 6, name="arm")
+    ds = _pose_data(rng, true)
+    nominal = Robot("r", {"arm": true.replace(offsets=np.zeros(6))})
+    res = calibrate(nominal, [ds], ["arm.*.offset", "arm.base"], priors={"arm.base": Prior(1e-3)})
+    assert res.identifiability.deficiency == 0  # the prior makes the base identifiable
+    assert res.status == "converged"
+
+
+def test_bad_input_gives_clear_errors(rng):
+    true = random_arm(rng, 6, name="arm")
+    robot = Robot("r", {"arm": true})
+    ds = _pose_data(rng, true, n=5)
+    with pytest.raises(DegenerateExperimentError, match="every parameter is fixed"):
+        calibrate(robot, [ds], [])
+    with pytest.raises(DegenerateExperimentError, match="30 equations for 36 unknowns"):
+        calibrate(robot, [ds], "kinematic")
+    clamp3 = Dataset("clamp", "r", ("arm",), {"arm": rng.uniform(-1, 1, (3, 6))})
+    with pytest.raises(DegenerateExperimentError, match="18 equations for 42 unknowns"):
+        calibrate(robot, [clamp3], "kinematic")
+    wrong = Dataset("clamp", "r", ("arm",), {"arm": rng.uniform(-1, 1, (10, 7))})
+    with pytest.raises(DataFormatError, match=r"q\[arm\] has 7 joints per sample, expected 6"):
+        calibrate(robot, [wrong], "offsets")
+    T = np.array(ds.measured["T_tracker_tool"])
+    T[2, 1, 3] = np.nan
+    nan = Dataset("pose", "r", ("arm",), ds.q, {"T_tracker_tool": T}, ds.known)
+    with pytest.raises(DataFormatError, match=r"sample 2 field measured\['T_tracker_tool'\] .* is nan"):
+        calibrate(robot, [nan], "offsets")
+    with pytest.raises(ModelError, match="unknown .* cannot be fixed"):
+        calibrate(robot, [Dataset("clamp", "r", ("arm",), {"arm": rng.uniform(-1, 1, (10, 6))})], "offsets",
+                  fixed=["fixture"])
+
+
+def test_degenerate_experiment_is_reported_not_converged(rng):
+    """Every sample in the same configuration, fixture unknown: nothing about the arm can be learnt."""
+    true = random_arm(rng, 6, name="arm")
+    q = np.repeat(rng.uniform(-1, 1, (1, 6)), 10, axis=0)
+    ds = Dataset("clamp", "r", ("arm",), {"arm": q})
+    res = calibrate(Robot("r", {"arm": true}), [ds], "offsets")
+    assert res.status == "degenerate" and not res.success
+    assert any("degenerate experiment" in m for m in res.messages)
+    assert all(np.isnan(e.std) for e in res.estimates)
