@@ -185,3 +185,14 @@ def test_model_is_immutable(rng):
 def test_arm_model_from_plain_lists():
     arm = ArmModel("planar", [[0, 0, 0, 0, 0, 1], [0, -1, 0, 0, 0, 1]], np.eye(4))
     assert arm.dof == 2 and arm.joint_names == ("j1", "j2") and arm.joint_types == ("revolute", "revolute")
+
+
+def test_tangent_generators_retract_exactly(rng):
+    from kincal.kinematics import tangent_generators
+
+    arm = random_arm(rng, 4, prismatic=(1,))
+    for xi, kind in zip(arm.screws, arm.joint_types):
+        G = tangent_generators(xi, kind)
+        np.testing.assert_allclose(-se3.ad(xi) @ G, tangent_basis(xi, kind), atol=1e-15)
+        moved = se3.adjoint(se3.exp(G @ rng.normal(scale=0.5, size=G.shape[1]))) @ xi
+        np.testing.assert_allclose(conform_twists(moved[None], [kind])[0], moved, atol=1e-14)

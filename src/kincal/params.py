@@ -7,9 +7,11 @@ inner solve); what the solver moves are *local coordinates* around a linearizati
 block           local coordinates (stable names)            retraction ``retract(state, delta)``
 ==============  ==========================================  =====================================================
 joint offsets   ``right.j3.offset``                         ``o + d``
-joint twists    ``right.j3.xi.shift_1, shift_2, tilt_1,     ``xi + B d`` with ``B = tangent_basis(xi)`` (4 per
-                tilt_2`` (prismatic: ``tilt_1, tilt_2``)    revolute joint, 2 per prismatic); re-conformed and
-                                                            re-linearized between outer iterations
+joint twists    ``right.j3.xi.shift_1, shift_2, tilt_1,     ``Ad(exp(G d)) xi``: a rigid motion of the joint axis
+                tilt_2`` (prismatic: ``tilt_1, tilt_2``)    (exact: stays unit, zero pitch) with first-order basis
+                                                            ``tangent_basis(xi)`` (4 per revolute joint, 2 per
+                                                            prismatic); re-linearized between outer iterations.
+                                                            Reports and priors use the chart ``B^+ (xi - xi0)``
 home/base/tool  ``right.home.v_x .. w_z``                   ``exp(d) T`` (left increment, in the frame T maps to)
 pose nuisance   ``fixture.*, plate.*, clamp.*, tracker.*``  ``exp(d) T``
 points          ``markers.m1.x``, ``socket.x``              ``p + d``
@@ -31,7 +33,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from kincal.errors import ModelError
-from kincal.kinematics import PRISMATIC, REVOLUTE, ArmModel, Robot, conform_twists, tangent_basis
+from kincal.kinematics import PRISMATIC, REVOLUTE, ArmModel, Robot, conform_twists, tangent_basis, tangent_generators
 from kincal.kinematics.identification import TWIST_COORDS
 from kincal.lie import se3
 
@@ -49,9 +51,10 @@ class ArmValues:
     base: np.ndarray  # (4, 4) T_world_base
     home: np.ndarray  # (4, 4) T_base_flange(0)
     tool: np.ndarray  # (4, 4) T_flange_tool
-    bases: tuple  # per joint (6, k_i)
+    bases: tuple  # per joint (6, k_i): d screw / d tangent coordinates at the current values
     joint_names: tuple
     joint_types: tuple
+    generators: tuple = ()  # per joint (6, k_i): Ad(exp(G d)) retraction generators at the linearization point
 
     @property
     def dof(self) -> int:
@@ -74,11 +77,29 @@ class ArmValues:
         return ArmValues(
             np.array(model.screws), np.array(model.offsets), np.array(model.base), np.array(model.home),
             np.array(model.tool), _bases(model.screws, model.joint_types), model.joint_names, model.joint_types,
+            _generators(model.screws, model.joint_types),
         )
 
 
 def _bases(screws, types) -> tuple:
     return tuple(tangent_basis(s, t) for s, t in zip(screws, types))
+
+
+def _generators(screws, types) -> tuple:
+    return tuple(tangent_generators(s, t) for s, t in zip(screws, types))
+
+
+def _retract_twists(a: "ArmValues", d: np.ndarray) -> "ArmValues":
+    """Exact retraction of the joint screws: xi_j = Ad(exp(G_j d_j)) xi_j, which stays a valid joint screw,
+    with the basis at d: d xi_j = -ad(xi_j) J_l(G_j d_j) G_j dd_j."""
+    screws, bases, gens, c = a.screws.copy(), [], [], 0
+    for j, G in enumerate(a.generators):
+        g = G @ d[c: c + G.shape[1]]
+        c += G.shape[1]
+        screws[j] = se3.adjoint(se3.exp(g)) @ a.screws[j]
+        gens.append(se3.left_jacobian(g) @ G)  # retracting again from here keeps basis == -ad(xi) G
+        bases.append(-se3.ad(screws[j]) @ gens[-1])
+    return replace(a, screws=screws, bases=tuple(bases), generators=tuple(gens))
 
 
 @dataclass(frozen=True)
@@ -326,7 +347,7 @@ def retract(state: State, layout: Layout, delta: np.ndarray) -> State:
             if b.part == "offsets":
                 arms[b.arm] = replace(a, offsets=a.offsets + d)
             elif b.part == "twists":
-                arms[b.arm] = replace(a, screws=a.screws + (a.basis @ d).reshape(-1, 6))
+                arms[b.arm] = _retract_twists(a, d)
             else:
                 arms[b.arm] = replace(a, **{b.part: se3.exp(d) @ getattr(a, b.part)})
         elif b.kind == "pose":
@@ -343,11 +364,9 @@ def recentre(state: State) -> State:
     """Conform twists, renormalize planes, and recompute tangent bases: the next linearization point."""
     arms = {}
     for k, a in state.arms.items():
-        screws = conform_twists(a.screws, a.joint_types)
-        if np.array_equal(screws, a.screws):  # twists did not move: keep the bases
-            arms[k] = a
-            continue
-        arms[k] = replace(a, screws=screws, bases=_bases(screws, a.joint_types))
+        screws = conform_twists(a.screws, a.joint_types)  # removes round-off only: the retraction is exact
+        arms[k] = replace(a, screws=screws, bases=_bases(screws, a.joint_types),
+                          generators=_generators(screws, a.joint_types))
     extras = {k: (Plane.from_array(v.as_array()) if isinstance(v, Plane) else v) for k, v in state.extras.items()}
     return State(arms, extras)
 

@@ -169,6 +169,9 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
             V = ana.range_space
         else:
             V = np.eye(p)[:, select_columns(J0, order, ana.rank)]
+        if it > 1 and _gauss_newton_step_negligible(J0 @ V, r0):
+            status = "converged"  # the re-linearized problem asks for no further step
+            break
         cache = {}
 
         def both(z, need_jac, state=state, W=W, V=V):
@@ -182,8 +185,8 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
         method = "lm" if loss == "linear" and V.shape[1] <= len(r0) else "trf"
         sol = least_squares(
             lambda z: both(z, False)[0], np.zeros(V.shape[1]), jac=lambda z: both(z, True)[1], method=method,
-            loss=loss if method == "trf" else "linear", f_scale=f_scale, x_scale="jac",
-            ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=200 * (V.shape[1] + 1),
+            loss=loss if method == "trf" else "linear", f_scale=f_scale, x_scale=1.0,
+            ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=1000000,
         )
         evaluations += sol.nfev
         delta = V @ sol.x
@@ -194,8 +197,7 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
         log.debug("outer %d: cost %.6g, whitened step %.3g, max |delta| %.3g", it, 2 * sol.cost, step,
                   np.max(np.abs(delta), initial=0))
         # stop when the step is negligible against the residual (or, with noise, well below one sigma)
-        scatter = np.sqrt(2 * sol.cost / max(len(r0) - V.shape[1], 1))
-        if step < max(1e-6 * (1.0 + np.linalg.norm(r0)), 1e-3 * scatter) or np.max(np.abs(delta), initial=0) < 1e-13:
+        if _converged(step, r0, sol.cost, len(r0) - V.shape[1]) or np.max(np.abs(delta), initial=0) < 1e-13:
             status = "converged"
             break
 
@@ -244,6 +246,19 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
         extras=dict(state.extras),
         twists=twists,
     )
+
+
+def _converged(step: float, r0: np.ndarray, cost: float, dof: int) -> bool:
+    """A step is negligible against the residual, or (with noise) well below one sigma of scatter."""
+    scatter = np.sqrt(2 * cost / max(dof, 1))
+    return step < max(1e-6 * (1.0 + np.linalg.norm(r0)), 1e-3 * scatter)
+
+
+def _gauss_newton_step_negligible(JV: np.ndarray, r0: np.ndarray) -> bool:
+    """Convergence test at a new linearization point, from the Jacobian already evaluated there."""
+    z = np.linalg.lstsq(JV, -r0, rcond=None)[0]
+    r1 = r0 + JV @ z
+    return _converged(float(np.linalg.norm(JV @ z)), r0, 0.5 * float(r1 @ r1), len(r0) - JV.shape[1])
 
 
 def _embed(cov, problem):

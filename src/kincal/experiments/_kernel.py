@@ -17,7 +17,7 @@ ARM_PARTS = ("offsets", "twists", "home", "base", "tool")
 def arm_tool(a: ArmValues, q: np.ndarray, parts=ARM_PARTS) -> tuple[Kinematics, dict[str, np.ndarray], np.ndarray]:
     """``T_world_tool`` for q (N, n) and ``d/dparam`` of its left increment, per part: (N, 6, k).
 
-    Parts: offsets (additive), twists (tangent coordinates ``xi + B d``), home/base/tool (``exp(d) T``).
+    Parts: offsets (additive), twists (tangent coordinates, basis ``a.basis`` at the current step), home/base/tool (``exp(d) T``).
     Also returns ``J_q`` (N, 6, n), the space Jacobian w.r.t. the joint readings (equal to the offsets block).
     """
     kin = chain(a.screws, q + a.offsets, a.base, a.home, a.tool)
@@ -27,12 +27,14 @@ def arm_tool(a: ArmValues, q: np.ndarray, parts=ARM_PARTS) -> tuple[Kinematics, 
     if "offsets" in parts:
         out["offsets"] = jq
     if "twists" in parts:
+        # Column block of joint j: Ad(P_{j-1}) theta_j J_l(theta_j xi_j) B_j, all joints at once, with J_l
+        # applied to the few basis columns by brackets rather than formed as a 6x6 matrix.
         theta = kin.theta
-        A = theta[..., None, None] * se3.left_jacobian(a.screws * theta[..., None])  # (N, n, 6, 6)
-        tw = Ad[..., :-1, :, :] @ A
-        n = a.dof
-        tw = np.moveaxis(tw, -3, -2).reshape(theta.shape[:-1] + (6, 6 * n))
-        out["twists"] = tw @ a.basis
+        B, keep = _padded_bases(a.bases)  # (n, 6, k_max)
+        y = se3.left_jacobian_apply(a.screws * theta[..., None], np.broadcast_to(B, theta.shape + B.shape[1:]))
+        tw = Ad[..., :-1, :, :] @ (theta[..., None, None] * y)  # (N, n, 6, k_max)
+        tw = np.moveaxis(tw, -3, -2).reshape(theta.shape[:-1] + (6, -1))
+        out["twists"] = tw[..., keep]
     if "home" in parts:
         out["home"] = Ad[..., -1, :, :]
     if "base" in parts:
@@ -40,6 +42,17 @@ def arm_tool(a: ArmValues, q: np.ndarray, parts=ARM_PARTS) -> tuple[Kinematics, 
     if "tool" in parts:
         out["tool"] = se3.adjoint(kin.flange)
     return kin, out, jq
+
+
+def _padded_bases(bases) -> tuple[np.ndarray, np.ndarray]:
+    """Per-joint tangent bases (6, k_j) zero-padded to (n, 6, k_max), and the flat indices of real columns."""
+    k_max = max(b.shape[1] for b in bases)
+    B = np.zeros((len(bases), 6, k_max))
+    keep = []
+    for j, b in enumerate(bases):
+        B[j, :, : b.shape[1]] = b
+        keep += [j * k_max + c for c in range(b.shape[1])]
+    return B, np.array(keep)
 
 
 def pose_gap(TA: np.ndarray, TB: np.ndarray):

@@ -12,7 +12,7 @@ from kincal.kinematics.fk import (
 )
 from kincal.kinematics.identification import IdentificationJacobian, identification_jacobian
 from kincal.kinematics.model import PRISMATIC, REVOLUTE, ArmModel, Robot
-from kincal.kinematics.twists import conform_twists, tangent_basis
+from kincal.kinematics.twists import conform_twists, tangent_basis, tangent_generators
 
 __all__ = [
     "ArmModel",
@@ -31,4 +31,5 @@ __all__ = [
     "kinematics",
     "space_jacobian",
     "tangent_basis",
+    "tangent_generators",
 ]

@@ -59,3 +59,24 @@ def tangent_basis(screw: np.ndarray, kind: str) -> np.ndarray:
         u1, u2 = _perpendicular_pair(v)
         return np.stack([se3.join(u, np.zeros(3)) for u in (u1, u2)], axis=-1)
     raise ValueError(f"unknown joint type {kind!r}")
+
+
+def tangent_generators(screw: np.ndarray, kind: str) -> np.ndarray:
+    """Rigid-motion generators G (6, k) with ``-ad(xi) G = tangent_basis(xi)``.
+
+    ``Ad(exp(G d)) xi`` moves the joint screw along the tangent basis to first order and stays an exact
+    unit, zero-pitch (or unit prismatic) screw for any d: an exact retraction of joint axes.
+    Shifts are translations along u_k; tilts are rotations about w x u_k through the axis point p
+    (prismatic: rotations about v x u_k through the origin).
+    """
+    v, w = se3.split(np.asarray(screw, dtype=float))
+    if kind == REVOLUTE:
+        p = np.cross(w, v)
+        u1, u2 = _perpendicular_pair(w)
+        cols = [se3.join(u, np.zeros(3)) for u in (u1, u2)]
+        cols += [se3.join(-np.cross(np.cross(w, u), p), np.cross(w, u)) for u in (u1, u2)]
+        return np.stack(cols, axis=-1)
+    if kind == PRISMATIC:
+        u1, u2 = _perpendicular_pair(v)
+        return np.stack([se3.join(np.zeros(3), np.cross(v, u)) for u in (u1, u2)], axis=-1)
+    raise ValueError(f"unknown joint type {kind!r}")
