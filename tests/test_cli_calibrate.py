@@ -35,3 +35,14 @@ def test_calibrate_reports_bad_job(tmp_path, capsys):
     assert main(["calibrate", str(job), "-o", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("kincal: error:") and "missing.yaml" in err
+
+
+def test_demo_without_output_picks_a_free_directory_and_reports_recovery(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "kincal-demo-out").mkdir()
+    (tmp_path / "kincal-demo-out" / "result.yaml").write_text("someone else's\n")
+    assert main(["demo", "-n", "40"]) == 0
+    out = capsys.readouterr().out
+    assert (tmp_path / "kincal-demo-out" / "result.yaml").read_text() == "someone else's\n"
+    assert (tmp_path / "kincal-demo-out-2" / "model.yaml").exists()
+    assert "recovery of the simulated truth" in out and "left.j7.offset" in out

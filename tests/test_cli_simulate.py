@@ -79,3 +79,11 @@ def test_bad_scenario_names_the_field(tmp_path):
     (tmp_path / "s.yaml").write_text(SMALL_DUAL.replace("kind: dual", "kind: laser"))
     with pytest.raises(DataFormatError, match="experiment.kind: expected one of"):
         load_scenario(tmp_path / "s.yaml")
+
+
+def test_simulate_accepts_builtin_scenario_names(tmp_path, capsys):
+    from kincal.io.datasets import scenario_path
+
+    assert scenario_path("frida_plate4").name == "frida_plate4.yaml"
+    assert main(["simulate", "nosuch", "-o", str(tmp_path / "x")]) == 2
+    assert "not a built-in scenario (frida_clamp_one, frida_dual_bracket" in capsys.readouterr().err

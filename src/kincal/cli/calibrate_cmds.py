@@ -132,13 +132,14 @@ def _refuse_existing(out: Path, names) -> None:
 
 
 @click.command("demo")
-@click.option("-o", "--output", "out", default="kincal-demo-out", show_default=True,
-              type=click.Path(file_okay=False, path_type=Path), help="Output directory (must not hold results).")
+@click.option("-o", "--output", "out", default=None, type=click.Path(file_okay=False, path_type=Path),
+              help="Output directory (must not hold results). Default: the first free of ./kincal-demo-out, "
+                   "./kincal-demo-out-2, ...")
 @click.option("-n", "--samples", default=200, show_default=True, type=click.IntRange(20, 5000),
               help="Clamped configurations to simulate.")
 @click.option("--quiet", is_flag=True, help="Print nothing but errors.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
-def demo_cmd(out: Path, samples: int, quiet: bool, as_json: bool) -> None:
+def demo_cmd(out: Path | None, samples: int, quiet: bool, as_json: bool) -> None:
     """Frida's arms clamped tool to tool (thesis Fig. 3.5): simulate, calibrate joint offsets, validate, write.
 
     Writes the simulated data (data.yaml, truth/, validation/), a job file (job.yaml) that re-runs the
@@ -150,6 +151,7 @@ def demo_cmd(out: Path, samples: int, quiet: bool, as_json: bool) -> None:
 
     console = _console()
     say = (lambda msg: None) if (quiet or as_json) else (lambda msg: console.print(msg))
+    out = _free_directory(Path("kincal-demo-out")) if out is None else out
     _refuse_existing(out, ("data.yaml", "job.yaml", "model.yaml", "result.yaml", "truth", "validation"))
     t0 = time.perf_counter()
     scenario = load_scenario(DEMO_SCENARIO)
@@ -173,10 +175,34 @@ def demo_cmd(out: Path, samples: int, quiet: bool, as_json: bool) -> None:
     else:
         if not quiet:
             print_summary(console, result, "demo")
+            console.print(_recovery_table(result, true))
         say(f"wrote {paths['model']}, {paths['result']} and the simulated data in {out} "
             f"({time.perf_counter() - t0:.1f} s)")
     if result.status != "converged":
         raise SystemExit(1)
+
+
+def _free_directory(base: Path) -> Path:
+    k = 1
+    while (candidate := base if k == 1 else base.with_name(f"{base.name}-{k}")).exists():
+        k += 1
+    return candidate
+
+
+def _recovery_table(result, true_robot) -> Table:
+    """The demo knows the truth: estimated vs true joint offsets, and the error in reported standard deviations."""
+    t = Table(title="recovery of the simulated truth (joint offsets, deg)")
+    for c in ("parameter", "estimate", "true", "error", "error / std"):
+        t.add_column(c, justify="left" if c == "parameter" else "right")
+    for e in result.estimates:
+        arm, joint, kind = e.name.split(".")
+        if kind != "offset":
+            continue
+        truth = float(true_robot[arm].offsets[true_robot[arm].joint_names.index(joint)])
+        err = e.value - truth
+        t.add_row(e.name, _num(e.value, DEG, 6), _num(truth, DEG, 6), _num(err, DEG, 3),
+                  _num(err / e.std if e.identifiable and e.std > 0 else float("nan"), digits=3))
+    return t
 
 
 def register(group: click.Group) -> None:

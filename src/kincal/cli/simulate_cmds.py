@@ -18,13 +18,13 @@ def register(group: click.Group) -> None:
 
 
 @click.command()
-@click.argument("scenario", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("scenario")
 @click.option("-o", "--output", "output", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Directory for data.yaml/data.csv, truth/ and validation/.")
 @click.option("--seed", type=int, default=None, help="Override the scenario's seed.")
 @click.option("--overwrite", is_flag=True, help="Replace files already in the output directory.")
 @click.option("--quiet", is_flag=True, help="No progress bar or summary.")
-def simulate(scenario: Path, output: Path, seed: int | None, overwrite: bool, quiet: bool) -> None:
+def simulate(scenario: str, output: Path, seed: int | None, overwrite: bool, quiet: bool) -> None:
     """Simulate the experiment of SCENARIO.yaml (examples: kincal/scenarios/*.yaml)."""
     from dataclasses import replace
 

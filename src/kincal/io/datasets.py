@@ -474,13 +474,28 @@ def _si_key(ctx, key: str, value: Any, path: str) -> tuple[str, float]:
     raise ctx.fail(path, f"key must end in a unit ({', '.join(list(units.LENGTH) + list(units.ANGLE))}), found {key!r}")
 
 
+BUILTIN_SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
+
+
+def scenario_path(name_or_path) -> Path:
+    """A scenario file path, or the built-in scenario of that name (``frida_dual_bracket``)."""
+    path = Path(name_or_path)
+    if path.exists() or path.suffix:
+        return path
+    builtin = BUILTIN_SCENARIOS / f"{name_or_path}.yaml"
+    if builtin.exists():
+        return builtin
+    names = ", ".join(sorted(p.stem for p in BUILTIN_SCENARIOS.glob("*.yaml")))
+    raise DataFormatError(f"{name_or_path}: no such scenario file, and not a built-in scenario ({names})")
+
+
 def load_scenario(path):
     """Read a scenario file (docs/simulation.md) into a ``kincal.simulate.scenario.Scenario``."""
     from kincal.simulate.noise import Noise
     from kincal.simulate.perturb import Perturbation, perturbation
     from kincal.simulate.scenario import Scenario
 
-    path = Path(path)
+    path = scenario_path(path)
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except OSError as exc:
