@@ -134,10 +134,3 @@ def test_hat_vee_roundtrip(rng):
     np.testing.assert_allclose(np.einsum("...ij,...j->...i", so3.hat(w), b), np.cross(w, b), atol=1e-15)
     np.testing.assert_array_equal(so3.vee(so3.hat(w)), w)
 
-
-def test_left_jacobian_apply_and_bracket(rng):
-    xi = se3.join(rng.normal(size=(5, 3)), rng.uniform(-2, 2, (5, 3)))
-    xi[0, 3:] = 1e-9  # the Taylor branch
-    Y = rng.normal(size=(5, 6, 4))
-    np.testing.assert_allclose(se3.bracket(xi, Y), se3.ad(xi) @ Y, atol=1e-15)
-    np.testing.assert_allclose(se3.left_jacobian_apply(xi, Y), se3.left_jacobian(xi) @ Y, atol=1e-13)

@@ -27,11 +27,10 @@ def arm_tool(a: ArmValues, q: np.ndarray, parts=ARM_PARTS) -> tuple[Kinematics, 
     if "offsets" in parts:
         out["offsets"] = jq
     if "twists" in parts:
-        # Column block of joint j: Ad(P_{j-1}) theta_j J_l(theta_j xi_j) B_j, all joints at once, with J_l
-        # applied to the few basis columns by brackets rather than formed as a 6x6 matrix.
+        # Column block of joint j: Ad(P_{j-1}) theta_j J_l(theta_j xi_j) B_j, all joints at once.
         theta = kin.theta
         B, keep = _padded_bases(a.bases)  # (n, 6, k_max)
-        y = se3.left_jacobian_apply(a.screws * theta[..., None], np.broadcast_to(B, theta.shape + B.shape[1:]))
+        y = se3.left_jacobian(a.screws * theta[..., None]) @ B
         tw = Ad[..., :-1, :, :] @ (theta[..., None, None] * y)  # (N, n, 6, k_max)
         tw = np.moveaxis(tw, -3, -2).reshape(theta.shape[:-1] + (6, -1))
         out["twists"] = tw[..., keep]

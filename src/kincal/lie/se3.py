@@ -126,30 +126,6 @@ def left_jacobian(xi: np.ndarray) -> np.ndarray:
     return np.eye(6) + a1 * X + a2 * X2 + a3 * X3 + a4 * (X2 @ X2)
 
 
-def bracket(xi: np.ndarray, Y: np.ndarray) -> np.ndarray:
-    """ad(xi) @ Y for Y (..., 6, k) without forming ad: (w x a + v x b, w x b) per column (a, b)."""
-    v, w = split(np.asarray(xi, dtype=float))
-    a, b = Y[..., :3, :], Y[..., 3:, :]
-    return np.concatenate([_cross_cols(w, a) + _cross_cols(v, b), _cross_cols(w, b)], axis=-2)
-
-
-def _cross_cols(u: np.ndarray, Z: np.ndarray) -> np.ndarray:
-    """u x Z[..., :, j] for every column j: u (..., 3), Z (..., 3, k)."""
-    u0, u1, u2 = (u[..., i, None] for i in range(3))
-    z0, z1, z2 = Z[..., 0, :], Z[..., 1, :], Z[..., 2, :]
-    return np.stack([u1 * z2 - u2 * z1, u2 * z0 - u0 * z2, u0 * z1 - u1 * z0], axis=-2)
-
-
-def left_jacobian_apply(xi: np.ndarray, Y: np.ndarray) -> np.ndarray:
-    """J_l(xi) @ Y for Y (..., 6, k), by repeated brackets: cheaper than forming J_l when k < 6."""
-    xi = np.asarray(xi, dtype=float)
-    a1, a2, a3, a4 = (c[..., None, None] for c in se3_jl_coeffs(so3.angle(split(xi)[1])))
-    X1 = bracket(xi, Y)
-    X2 = bracket(xi, X1)
-    X3 = bracket(xi, X2)
-    return Y + a1 * X1 + a2 * X2 + a3 * X3 + a4 * bracket(xi, X3)
-
-
 def left_jacobian_inv(xi: np.ndarray) -> np.ndarray:
     """Inverse of J_l from its block structure [[J, Q], [0, J]]^-1 = [[J^-1, -J^-1 Q J^-1], [0, J^-1]]."""
     xi = np.asarray(xi, dtype=float)
