@@ -165,6 +165,7 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
             if _degenerate(problem, ana):
                 status = "degenerate"
                 break
+            _require_redundancy(problem, len(r0), ana.rank)
         if isinstance(gauge, str):
             V = ana.range_space
         else:
@@ -259,6 +260,21 @@ def _gauss_newton_step_negligible(JV: np.ndarray, r0: np.ndarray) -> bool:
     z = np.linalg.lstsq(JV, -r0, rcond=None)[0]
     r1 = r0 + JV @ z
     return _converged(float(np.linalg.norm(JV @ z)), r0, 0.5 * float(r1 @ r1), len(r0) - JV.shape[1])
+
+
+def _require_redundancy(problem, m: int, rank: int) -> None:
+    """At least as many residual degrees of freedom as identifiable parameters.
+
+    The standard deviations are scaled by the residual variance; with fewer redundant equations than
+    parameters that scale (and any check of the model against the data) rests on too little.
+    """
+    if m - rank < rank:
+        per = ", ".join(f"'{e.name}' ({e.kind_name}): {e.size} configurations" for e in problem.experiments)
+        need = ", ".join(f"'{e.name}'" for e in problem.experiments)
+        raise DegenerateExperimentError(
+            f"{m} equations for {rank} identifiable parameters: too few configurations to calibrate and check "
+            f"the result (at least {2 * rank} equations needed; {per}); measure more configurations in {need}"
+        )
 
 
 def _embed(cov, problem):
