@@ -127,3 +127,23 @@ def test_dual_both_arms_unknown(frida, true_full):
     fresh = Dataset("dual", fresh.robot, fresh.arms, fresh.q, {}, {"T_toolA_toolB": res.extras["clamp"]}, "fresh")
     stats = evaluate(res.robot, [fresh])[0]
     assert stats["position_max"] < EXACT and stats["orientation_max"] < EXACT
+
+
+@pytest.mark.parametrize("markers,rank", [(1, 27), (3, 33)])
+def test_tracker_markers_unknown_tracker_and_markers(markers, rank):
+    """UR10 seen by a tracker (partial pose, seed 001): all geometric parameters + unknown tracker and markers.
+
+    The gauge (whole arm moved rigidly with the tracker; with one marker, the tool frame's rotation about it)
+    is exact in the tracker-frame residual: an exact rank, no 'weakly identifiable' noise directions.
+    """
+    from kincal.simulate.generators import generate_markers
+
+    ur = load("ur10")
+    true = perturb_robot(ur, "fine", 3)
+    ds, _, val = generate_markers(true, n=200, rng=4, markers=markers)
+    res = calibrate(ur, [ds], "kinematic", validation=list(val.values()))
+    assert res.status == "converged"
+    assert res.identifiability.rank == rank
+    assert not any("weakly identifiable" in m for m in res.messages)
+    v = res.validation[0]
+    assert v["position_rms_before"] > 1e-3 and v["position_max_after"] < EXACT

@@ -162,7 +162,7 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
         ana = analyse(J0, names, rtol=rank_rtol, priority=order)
         if id_before is None:
             id_before = _analyse_named(problem, state, J0, rank_rtol, order, describe_ctx)
-            if _degenerate(problem, ana):
+            if _degenerate(problem, J0, ana):
                 status = "degenerate"
                 break
             _require_redundancy(problem, len(r0), ana.rank)
@@ -283,12 +283,23 @@ def _embed(cov, problem):
     return full
 
 
-def _degenerate(problem, ana) -> bool:
-    """No free arm coordinate is identifiable (only experiment frames move, or nothing does)."""
-    arm_cols = [k for k, i in enumerate(problem.free_idx) if _block(problem, i).arm is not None]
+def _degenerate(problem, J, ana) -> bool:
+    """No combination of free arm coordinates is identifiable: the arm columns add no rank to the columns of
+    the experiment frames (only frames move, or nothing does). Judged on subspaces, not single coordinates,
+    so an exact gauge (e.g. the whole arm moving with an unknown tracker) does not make data look useless."""
     if ana.rank == 0:
         return True
-    return bool(arm_cols) and not ana.identifiable[arm_cols].any()
+    arm = np.array([_block(problem, i).arm is not None for i in problem.free_idx])
+    if not arm.any():
+        return False
+    if arm.all():
+        return False
+    c = np.linalg.norm(J, axis=0)
+    Js = J / np.where(c > 0, c, 1.0)
+    s_all = np.linalg.svd(Js, compute_uv=False)
+    s_frames = np.linalg.svd(Js[:, ~arm], compute_uv=False)
+    tol = ana.rtol * s_all[0]
+    return int(np.sum(s_frames > tol)) >= int(np.sum(s_all > tol))
 
 
 def _block(problem, i):

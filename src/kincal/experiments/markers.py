@@ -1,7 +1,10 @@
 """External marker positions (partial pose): a tracker measures m points fixed to the tool, no orientation.
 
-Residual (N, 3m), metres, world coordinates: ``T_world_tool(q) x_j - T_world_tracker y_ij`` with x_j the
-marker positions in the tool frame (``p_tool_marker``) and y_ij the measured ``p_tracker_marker``.
+Residual (N, 3m), metres, in the tracker frame (where the noise is stated and isotropic):
+``T_world_tracker^-1 T_world_tool(q) x_j - y_ij`` with x_j the marker positions in the tool frame
+(``p_tool_marker``) and y_ij the measured ``p_tracker_marker``. In the tracker frame a rigid motion of the
+whole arm together with the tracker leaves the residual exactly unchanged, so that gauge shows up as an
+exact null direction rather than a residual-sized "weak" one.
 Optional ``wrench_tool`` loads are not used here (no compliance model in this residual).
 """
 
@@ -29,19 +32,21 @@ class MarkersExperiment(Experiment):
         N, m = y.shape[:2]
         kin, J, jq = self._arm(state, arm, want)
         F = kin.tool
-        pA = se3.transform_points(F[:, None], x)  # (N, m, 3)
-        pB = se3.transform_points(W, y)
-        GA = point_jacobian(pA)  # (N, m, 3, 6)
+        pA = se3.transform_points(F[:, None], x)  # (N, m, 3) world
+        Rt = W[:3, :3].T
+        GA = np.einsum("ij,nmjk->nmik", Rt, point_jacobian(pA))  # (N, m, 3, 6)
         jac = {f"{arm}.{p}": np.einsum("nmij,njk->nmik", GA, Jp).reshape(N, 3 * m, -1) for p, Jp in J.items()}
         if self._wanted("markers", want):
             Jx = np.zeros((N, m, 3, m, 3))
+            RtR = Rt @ F[:, :3, :3]
             for j in range(m):  # loop over markers, not samples
-                Jx[:, j, :, j, :] = F[:, :3, :3]
+                Jx[:, j, :, j, :] = RtR
             jac[self.frames["markers"]] = Jx.reshape(N, 3 * m, 3 * m)
         if self._wanted("tracker", want):
-            jac[self.frames["tracker"]] = -point_jacobian(pB).reshape(N, 3 * m, 6)
+            jac[self.frames["tracker"]] = -GA.reshape(N, 3 * m, 6)
         jqm = np.einsum("nmij,njk->nmik", GA, jq).reshape(N, 3 * m, -1)
-        return Residual((pA - pB).reshape(N, 3 * m), jac, {arm: jqm})
+        r = se3.transform_points(se3.inverse(W), pA) - y
+        return Residual(r.reshape(N, 3 * m), jac, {arm: jqm})
 
     def initial(self, state, known):
         F = self._fk(state, self.arms[0])

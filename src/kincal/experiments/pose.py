@@ -1,7 +1,8 @@
 """External full-pose measurements: a tracker measures ``T_tracker_tool``.
 
-Residual (N, 6): ``[p_pred - p_meas, log(R_pred R_meas^T)]`` in world coordinates, with
-``T_pred = T_world_tool(q)`` and ``T_meas = T_world_tracker @ T_tracker_tool``.
+Residual (N, 6): ``[p_pred - p_meas, log(R_pred R_meas^T)]`` in the tracker frame (where the noise is
+stated), with ``T_pred = T_world_tracker^-1 T_world_tool(q)`` and ``T_meas = T_tracker_tool``. A rigid motion
+of the whole arm together with the tracker is then an exact null direction.
 """
 
 from __future__ import annotations
@@ -20,10 +21,12 @@ class PoseExperiment(Experiment):
         arm = self.arms[0]
         W = state.extras[self.frames["tracker"]]
         kin, J, jq = self._arm(state, arm, want)
-        r, GA, GB = pose_gap(kin.tool, W @ self.dataset.measured["T_tracker_tool"])
+        Wi = se3.inverse(W)
+        r, GA, _ = pose_gap(Wi @ kin.tool, self.dataset.measured["T_tracker_tool"])
+        GA = GA @ se3.adjoint(Wi)  # world left increments of the tool -> tracker-frame increments
         jac = chain_rule(GA, arm, J)
         if self._wanted("tracker", want):
-            jac[self.frames["tracker"]] = GB
+            jac[self.frames["tracker"]] = -GA  # W -> exp(d) W moves W^-1 T by exp(-Ad(W^-1) d)
         return Residual(r, jac, {arm: GA @ jq})
 
     def initial(self, state, known):

@@ -211,7 +211,14 @@ def generate_markers(
     ds = Dataset("markers", robot.name, (arm,), _noisy({arm: q}, noise, rng),
                  {"p_tracker_marker": tracker_points(p, noise, rng)}, known, "markers", _meta("markers", noise))
     truth = Truth(robot, {"T_world_tracker": T_wt, "p_tool_marker": p_tm}, {arm: q}, noise, {"generator": "markers"})
-    return ds, truth, validation_set(robot, (arm,), n_validation, rng)
+    # Validate what this experiment observes: marker positions at fresh configurations, noise-free, with the
+    # tracker frame and marker offsets left unknown (refitted), not the world-frame tool pose (which a partial
+    # pose measurement does not determine: the tracker gauge, and with one marker the tool orientation).
+    qv = random_configurations(model, n_validation, rng, margin)
+    pv = se3.transform_points((se3.inverse(T_wt) @ forward_kinematics(model, qv))[:, None], p_tm[None])
+    validation = {arm: Dataset("markers", robot.name, (arm,), {arm: qv}, {"p_tracker_marker": pv}, {},
+                               f"validation-{arm}", {"noise_free": True})}
+    return ds, truth, validation
 
 
 # ------------------------------------------------------------------------------------- clamped experiments
