@@ -153,6 +153,7 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
     id_before = None
     evaluations = 0
     status = "not converged"
+    linearized_at_final = False
     it = 0
     for it in range(1, max_outer + 1):
         W = problem.whiteners(state)
@@ -161,9 +162,9 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
             raise DegenerateExperimentError("residuals or Jacobian are not finite at the starting values")
         ana = analyse(J0, names, rtol=rank_rtol, priority=order)
         if id_before is None:
-            id_before = _analyse_named(problem, state, J0, rank_rtol, order, describe_ctx)
+            id_before = _analyse_named(problem, state, J0, rank_rtol, order, describe_ctx, W)
             if _degenerate(problem, J0, ana):
-                status = "degenerate"
+                status, linearized_at_final = "degenerate", True
                 break
             _require_redundancy(problem, len(r0), ana.rank)
         if isinstance(gauge, str):
@@ -171,9 +172,9 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
         else:
             V = np.eye(p)[:, select_columns(J0, order, ana.rank)]
         if it > 1 and _gauss_newton_step_negligible(J0 @ V, r0):
-            status = "converged"  # the re-linearized problem asks for no further step
+            status, linearized_at_final = "converged", True  # the re-linearized problem asks for no step
             break
-        cache = {}
+        cache = {np.zeros(V.shape[1]).tobytes(): (r0, J0 @ V)}  # LM starts where we just linearized
 
         def both(z, need_jac, state=state, W=W, V=V):
             key = z.tobytes()
@@ -187,7 +188,7 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
         sol = least_squares(
             lambda z: both(z, False)[0], np.zeros(V.shape[1]), jac=lambda z: both(z, True)[1], method=method,
             loss=loss if method == "trf" else "linear", f_scale=f_scale, x_scale=1.0,
-            ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=1000000,
+            ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=200 * (V.shape[1] + 1),
         )
         evaluations += sol.nfev
         delta = V @ sol.x
@@ -202,9 +203,12 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
             status = "converged"
             break
 
-    W = problem.whiteners(state)
-    r, J = problem.evaluate(state, np.zeros(p), W)
-    ana = _analyse_named(problem, state, J, rank_rtol, order, describe_ctx)
+    if linearized_at_final:
+        r, J = r0, J0  # the loop stopped at a fresh linearization of the final state: reuse it
+    else:
+        W = problem.whiteners(state)
+        r, J = problem.evaluate(state, np.zeros(p), W)
+    ana = _analyse_named(problem, state, J, rank_rtol, order, describe_ctx, W)
     if status == "degenerate":
         messages.append("degenerate experiment: no arm parameter can be identified from these data; "
                         "nothing was estimated")
@@ -336,7 +340,7 @@ def _context(problem):
     return "; ".join(parts)
 
 
-def _analyse_named(problem, state, J, rtol, order, context):
+def _analyse_named(problem, state, J, rtol, order, context, whiteners):
     layout = problem.layout
     axes, frames = {}, {}
     for e in problem.experiments:
@@ -376,11 +380,11 @@ def _analyse_named(problem, state, J, rtol, order, context):
                          "about that joint's axis")
         return "; ".join(words)
 
-    return analyse(J, problem.free_names, rtol=rtol, scale=_scale_null(problem, state, J), priority=order,
+    return analyse(J, problem.free_names, rtol=rtol, scale=_scale_null(problem, state, J, whiteners), priority=order,
                    describe=describe, context=context)
 
 
-def _scale_null(problem, state, J):
+def _scale_null(problem, state, J, whiteners):
     """The free direction equivalent to scaling every length, if the data cannot see scale; else None.
 
     Scale is unidentifiable when (1) scaling every length, fixed ones included, leaves the residuals unchanged
@@ -393,7 +397,7 @@ def _scale_null(problem, state, J):
         return None  # no free length, nothing to scale
     every = Problem(problem.experiments, replace(layout, free=np.ones(layout.size, bool)), problem.nominal,
                     problem.noise)
-    _, Ja = every.evaluate(state, np.zeros(layout.size), problem.whiteners(state))
+    _, Ja = every.evaluate(state, np.zeros(layout.size), whiteners)
     s = scale_direction(state, layout)
     g = Ja @ s
     if np.linalg.norm(g) > 1e-6 * np.sum(np.linalg.norm(Ja, axis=0) * np.abs(s)):
