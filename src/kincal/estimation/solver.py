@@ -330,8 +330,7 @@ def _estimates(problem, state, std, ok):
 
 
 def _context(problem):
-    """Axes of every joint (world twists at each arm's first sample) and increment frames of experiment poses."""
-    state = problem.nominal
+    """Which experiments, with their free frames, for the words of identifiability messages."""
     parts = []
     for e in problem.experiments:
         unknown = [n for r, n in e.frames.items()

@@ -10,7 +10,6 @@ import numpy as np
 
 from kincal.experiments._kernel import point_jacobian
 from kincal.experiments.base import Experiment, Residual
-from kincal.params import Plane
 
 
 class PlaneExperiment(Experiment):

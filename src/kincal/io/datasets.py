@@ -32,6 +32,7 @@ from kincal.errors import DataFormatError, KincalError
 from kincal.io import units
 from kincal.io.models import _Ctx, _mapping, _matrix, _number, _pose, _vector, load_robot, save_robot
 from kincal.io.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix
+from kincal.io.yamlfile import read_yaml
 from kincal.kinematics import PRISMATIC, Robot
 from kincal.lie import se3
 
@@ -61,16 +62,7 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
     ``model`` (built-in name or a path relative to the manifest).
     """
     manifest = Path(manifest)
-    try:
-        text = manifest.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise DataFormatError(f"{manifest}: cannot read data set manifest: {exc.strerror or exc}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
-        raise DataFormatError(f"{manifest}: not valid YAML{where}: {getattr(exc, 'problem', None) or exc}") from None
+    data = read_yaml(manifest, "data set manifest")
     ctx = _Ctx(str(manifest))
     top = _mapping(ctx, data, "(top level)", _TOP_KEYS, ("format", "version", "kind", "model", "arms", "data", "units"))
     if top["format"] != FORMAT:
@@ -407,7 +399,7 @@ def write_truth(truth, directory, dataset: Dataset, *, overwrite: bool = False) 
 def read_truth_values(path) -> dict[str, np.ndarray]:
     """The ``values`` block of a ``truth.yaml`` as arrays (SI)."""
     path = Path(path)
-    data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    data = read_yaml(path, "truth file")
     ctx = _Ctx(str(path))
     out = {}
     for k, v in (data.get("values") or {}).items():
@@ -496,12 +488,7 @@ def load_scenario(path):
     from kincal.simulate.scenario import Scenario
 
     path = scenario_path(path)
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise DataFormatError(f"{path}: cannot read scenario: {exc.strerror or exc}") from None
-    except yaml.YAMLError as exc:
-        raise DataFormatError(f"{path}: not valid YAML: {getattr(exc, 'problem', None) or exc}") from None
+    data = read_yaml(path, "scenario")
     ctx = _Ctx(str(path))
     top = _mapping(ctx, data, "(top level)", _SCENARIO_KEYS, ("format", "version", "model", "experiment"))
     if top["format"] != SCENARIO_FORMAT:

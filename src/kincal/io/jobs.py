@@ -11,7 +11,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-import yaml
 
 from kincal.data import Dataset
 from kincal.errors import DataFormatError
@@ -19,6 +18,7 @@ from kincal.estimation import Noise
 from kincal.io import units
 from kincal.io.datasets import load_dataset
 from kincal.io.models import load_robot
+from kincal.io.yamlfile import read_yaml
 from kincal.kinematics import Robot
 from kincal.params import LEVELS, Prior
 
@@ -49,14 +49,7 @@ class Job:
 
 def load_job(path) -> Job:
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise DataFormatError(f"{path}: cannot read job file: {exc.strerror or exc}") from None
-    try:
-        top = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise DataFormatError(f"{path}: not valid YAML: {exc}") from None
+    top = read_yaml(path, "job file")
     f = str(path)
     if not isinstance(top, dict):
         raise DataFormatError(f"{f}: expected a mapping at the top level, found {type(top).__name__}")

@@ -21,6 +21,7 @@ import yaml
 from kincal.errors import DataFormatError, KincalError, ModelError
 from kincal.io import units
 from kincal.io.rotations import quat_wxyz_to_matrix, rpy_to_matrix
+from kincal.io.yamlfile import parse_yaml, read_text
 from kincal.kinematics.model import PRISMATIC, REVOLUTE, ArmModel, Robot
 from kincal.lie import se3, so3
 
@@ -70,24 +71,12 @@ def load_robot(source) -> Robot:
 
 def read_robot(path) -> Robot:
     """Read and validate one model file."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise DataFormatError(f"{path}: cannot read model file: {exc.strerror or exc}") from None
-    return parse_robot(text, str(path))
+    return parse_robot(read_text(path, "model file"), str(path))
 
 
 def parse_robot(text: str, file: str = "<string>") -> Robot:
     """Validate the YAML text of a model file; ``file`` names it in error messages."""
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc)
-        raise DataFormatError(f"{file}: not valid YAML{where}: {problem}") from None
-    return robot_from_dict(data, file)
+    return robot_from_dict(parse_yaml(text, file), file)
 
 
 def robot_from_dict(data: Any, file: str = "<dict>") -> Robot:
