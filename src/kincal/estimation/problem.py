@@ -43,6 +43,16 @@ class Problem:
         object.__setattr__(self, "prior_idx", np.flatnonzero(prior))
         want = {b.name for b in self.layout.blocks if self.layout.free[b.start: b.stop].any()}
         object.__setattr__(self, "want", want)
+        object.__setattr__(self, "_plain", (None, None))  # (state, residuals without Jacobians) of the last call
+
+    def _residuals(self, state: State):
+        """Residuals (with ``jq``, no parameter Jacobians) at ``state``; whitening and statistics ask for the
+        same state in turn, so the last one is kept (states are immutable)."""
+        cached_state, res = self._plain
+        if cached_state is not state:
+            res = [exp.residual(state, want=set()) for exp in self.experiments]
+            object.__setattr__(self, "_plain", (state, res))
+        return res
 
     @property
     def free_names(self) -> list[str]:
@@ -59,8 +69,7 @@ class Problem:
     def whiteners(self, state: State) -> list[np.ndarray]:
         """Per experiment (N, k, k) inverse Cholesky factors of the residual covariance at ``state``."""
         out = []
-        for exp, nz in zip(self.experiments, self.noise):
-            res = exp.residual(state, want=set())
+        for exp, nz, res in zip(self.experiments, self.noise, self._residuals(state)):
             sig = np.array([nz.sigma_position if c == "position" else nz.sigma_orientation for c in exp.components()])
             cov = np.broadcast_to(np.diag(np.maximum(sig**2, VARIANCE_FLOOR)), res.r.shape + (res.r.shape[1],)).copy()
             for jq in res.jq.values():
@@ -111,8 +120,8 @@ class Problem:
         """Per experiment: samples, position / orientation RMS and max (norm per sample), whitened chi^2."""
         W = self.whiteners(state) if whiteners is None else whiteners
         out = []
-        for exp, Wi in zip(self.experiments, W):
-            r = exp.residual(state, want=set()).r
+        for exp, Wi, res in zip(self.experiments, W, self._residuals(state)):
+            r = res.r
             comp = np.array(exp.components())
             st = {"experiment": exp.name, "kind": exp.kind, "samples": exp.size}
             st.update(residual_norms(r, comp))
