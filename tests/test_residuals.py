@@ -137,3 +137,19 @@ def test_bad_data_sets_are_named(rng):
                  {"T_plate_fixture": np.stack([np.eye(4)] * 2)})
     with pytest.raises(DegenerateExperimentError, match="sample 2 field 'fixture' is 5"):
         experiments.build([ds], state)
+
+
+def test_closed_form_twist_block_equals_general_left_jacobian(rng):
+    """theta J_l(theta xi) B in closed form (exact screws) equals the general series; unconformed -> None."""
+    from kincal.experiments._kernel import _screw_series
+
+    arm = random_arm(rng, 5, prismatic=(3,))
+    B = rng.normal(size=(5, 6, 4))
+    theta = rng.uniform(-4, 4, (7, 5))
+    E1, E2, f1, f2 = _screw_series(arm.screws, arm.joint_types, B)
+    closed = theta[..., None, None] * B + f1(theta)[..., None, None] * E1 + f2(theta)[..., None, None] * E2
+    general = theta[..., None, None] * (se3.left_jacobian(arm.screws * theta[..., None]) @ B)
+    np.testing.assert_allclose(closed, general, atol=1e-12)
+    bent = arm.screws.copy()
+    bent[0, 3:] *= 1.001
+    assert _screw_series(bent, arm.joint_types, B) is None
