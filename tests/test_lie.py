@@ -134,3 +134,16 @@ def test_hat_vee_roundtrip(rng):
     np.testing.assert_allclose(np.einsum("...ij,...j->...i", so3.hat(w), b), np.cross(w, b), atol=1e-15)
     np.testing.assert_array_equal(so3.vee(so3.hat(w)), w)
 
+
+
+def test_exp_joint_screws_matches_general_exp(rng):
+    from kincal.testing import random_arm
+
+    arm = random_arm(rng, 6, prismatic=(2,))
+    theta = np.concatenate([np.zeros((1, 6)), rng.uniform(-7, 7, (5, 6)), np.full((1, 6), 1e-9)])
+    assert se3.exact_joint_screws(arm.screws)
+    np.testing.assert_allclose(se3.exp_joint_screws(arm.screws, theta), se3.exp(arm.screws * theta[..., None]),
+                               atol=1e-14)
+    bent = arm.screws.copy()
+    bent[0, 3:] *= 1.01
+    assert not se3.exact_joint_screws(bent)

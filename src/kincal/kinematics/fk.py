@@ -56,7 +56,10 @@ def kinematics(model: ArmModel, q) -> Kinematics:
 def chain(screws, theta, base, home, tool) -> Kinematics:
     """Unvalidated POE kernel on raw arrays (screws need not be conformed): theta (..., n)."""
     theta = np.asarray(theta, dtype=float)
-    exps = se3.exp(screws * theta[..., None])
+    if se3.exact_joint_screws(screws):
+        exps = se3.exp_joint_screws(screws, theta)
+    else:  # raw twists (e.g. a finite-difference step): the general exponential
+        exps = se3.exp(screws * theta[..., None])
     n = theta.shape[-1]
     prefixes = np.empty(theta.shape[:-1] + (n + 1, 4, 4))
     prefixes[..., 0, :, :] = base

@@ -79,8 +79,17 @@ def identification_jacobian(
     batch = kin.theta.shape[:-1]
     Ad_prefix = se3.adjoint(kin.prefixes)  # (..., n+1, 6, 6)
 
-    x = model.screws * kin.theta[..., None]  # (..., n, 6)
-    A = kin.theta[..., None, None] * se3.left_jacobian(x)  # (..., n, 6, 6)
+    th = kin.theta[..., None, None]
+    if se3.exact_joint_screws(model.screws):
+        # theta J_l(theta xi) = theta I + (1 - cos theta) ad(xi) + (theta - sin theta) ad(xi)^2 for a unit
+        # revolute screw (ad^3 = -ad); for a prismatic one ad^2 = 0 and the ad term is theta^2 / 2.
+        X = se3.ad(model.screws)
+        revolute = np.sum(model.screws[:, 3:] ** 2, axis=1) > 0.5
+        f1 = np.where(revolute, 1.0 - np.cos(kin.theta), 0.5 * kin.theta**2)[..., None, None]
+        f2 = np.where(revolute, kin.theta - np.sin(kin.theta), 0.0)[..., None, None]
+        A = th * np.eye(6) + f1 * X + f2 * (X @ X)
+    else:
+        A = th * se3.left_jacobian(model.screws * kin.theta[..., None])  # (..., n, 6, 6)
     twists = Ad_prefix[..., :-1, :, :] @ A  # (..., n, 6, 6)
     twists = np.moveaxis(twists, -3, -2).reshape(batch + (6, 6 * n))
     offsets = np.swapaxes(np.einsum("...kij,kj->...ki", Ad_prefix[..., :-1, :, :], model.screws), -1, -2)

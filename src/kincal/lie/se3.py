@@ -69,6 +69,43 @@ def exp(xi: np.ndarray) -> np.ndarray:
     return make(so3.exp(w), p)
 
 
+def exp_joint_screws(screws: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """exp(hat(xi_j) theta_j) for exact joint screws: (n, 6) and theta (..., n) -> (..., n, 4, 4).
+
+    Revolute (unit w, zero pitch, axis through p = w x v): R = cos t I + sin t hat(w) + (1 - cos t) w w^T,
+    translation (I - R) p. Prismatic (w = 0, unit v): identity rotation, translation t v. No series
+    branches: the screws are unit, so sin and cos of the joint angle are all that is needed.
+    """
+    screws = np.asarray(screws, dtype=float)
+    theta = np.asarray(theta, dtype=float)
+    v, w = screws[:, :3], screws[:, 3:]
+    revolute = np.sum(w * w, axis=1) > 0.5
+    c, s = np.cos(theta), np.sin(theta)
+    c = np.where(revolute, c, 1.0)
+    s = np.where(revolute, s, 0.0)
+    k = 1.0 - c
+    x, y, z = w[:, 0], w[:, 1], w[:, 2]
+    out = np.zeros(theta.shape + (4, 4))
+    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = c + k * x * x, k * x * y - s * z, k * x * z + s * y
+    out[..., 1, 0], out[..., 1, 1], out[..., 1, 2] = k * x * y + s * z, c + k * y * y, k * y * z - s * x
+    out[..., 2, 0], out[..., 2, 1], out[..., 2, 2] = k * x * z - s * y, k * y * z + s * x, c + k * z * z
+    p = np.cross(w, v)  # (n, 3): the axis point nearest the origin (revolute)
+    R = out[..., :3, :3]
+    rot_t = p - np.einsum("...ij,...j->...i", R, np.broadcast_to(p, theta.shape + (3,)))
+    out[..., :3, 3] = np.where(revolute[:, None], rot_t, theta[..., None] * v)
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def exact_joint_screws(screws: np.ndarray, tol: float = 1e-12) -> bool:
+    """True when every screw is a unit zero-pitch revolute screw or a unit prismatic one."""
+    v, w = np.asarray(screws[:, :3]), np.asarray(screws[:, 3:])
+    ww, vv, wv = np.sum(w * w, axis=1), np.sum(v * v, axis=1), np.sum(w * v, axis=1)
+    revolute = ww > 0.5
+    return bool(np.all(np.where(revolute, np.abs(ww - 1) <= tol, (ww <= tol**2) & (np.abs(vv - 1) <= tol))
+                       & (np.abs(wv) <= tol)))
+
+
 def log(T: np.ndarray) -> np.ndarray:
     """Twist with rotation angle in [0, pi]: (..., 4, 4) -> (..., 6)."""
     T = np.asarray(T, dtype=float)
