@@ -88,7 +88,7 @@ class Problem:
         rs, Js = [], []
         for exp, W in zip(self.experiments, whiteners):
             res = exp.residual(state, want=self.want if jac else set())
-            rs.append(np.einsum("nij,nj->ni", W, res.r).ravel())
+            rs.append((W @ res.r[:, :, None]).ravel())
             if not jac:
                 continue
             N, k = res.r.shape

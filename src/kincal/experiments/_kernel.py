@@ -22,7 +22,7 @@ def arm_tool(a: ArmValues, q: np.ndarray, parts=ARM_PARTS) -> tuple[Kinematics, 
     """
     kin = chain(a.screws, q + a.offsets, a.base, a.home, a.tool)
     Ad = se3.adjoint(kin.prefixes)  # (N, n+1, 6, 6)
-    jq = np.einsum("...kij,kj->...ik", Ad[..., :-1, :, :], a.screws)
+    jq = np.swapaxes((Ad[..., :-1, :, :] @ a.screws[:, :, None])[..., 0], -1, -2)  # (N, 6, n)
     out = {}
     if "offsets" in parts:
         out["offsets"] = jq

@@ -34,8 +34,8 @@ class MarkersExperiment(Experiment):
         F = kin.tool
         pA = se3.transform_points(F[:, None], x)  # (N, m, 3) world
         Rt = W[:3, :3].T
-        GA = np.einsum("ij,nmjk->nmik", Rt, point_jacobian(pA))  # (N, m, 3, 6)
-        jac = {f"{arm}.{p}": np.einsum("nmij,njk->nmik", GA, Jp).reshape(N, 3 * m, -1) for p, Jp in J.items()}
+        GA = Rt @ point_jacobian(pA)  # (N, m, 3, 6)
+        jac = {f"{arm}.{p}": (GA @ Jp[:, None]).reshape(N, 3 * m, -1) for p, Jp in J.items()}
         if self._wanted("markers", want):
             Jx = np.zeros((N, m, 3, m, 3))
             RtR = Rt @ F[:, :3, :3]
@@ -44,7 +44,7 @@ class MarkersExperiment(Experiment):
             jac[self.frames["markers"]] = Jx.reshape(N, 3 * m, 3 * m)
         if self._wanted("tracker", want):
             jac[self.frames["tracker"]] = -GA.reshape(N, 3 * m, 6)
-        jqm = np.einsum("nmij,njk->nmik", GA, jq).reshape(N, 3 * m, -1)
+        jqm = (GA @ jq[:, None]).reshape(N, 3 * m, -1)
         r = se3.transform_points(se3.inverse(W), pA) - y
         return Residual(r.reshape(N, 3 * m), jac, {arm: jqm})
 

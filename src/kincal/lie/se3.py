@@ -91,7 +91,7 @@ def exp_joint_screws(screws: np.ndarray, theta: np.ndarray) -> np.ndarray:
     out[..., 2, 0], out[..., 2, 1], out[..., 2, 2] = k * x * z - s * y, k * y * z + s * x, c + k * z * z
     p = np.cross(w, v)  # (n, 3): the axis point nearest the origin (revolute)
     R = out[..., :3, :3]
-    rot_t = p - np.einsum("...ij,...j->...i", R, np.broadcast_to(p, theta.shape + (3,)))
+    rot_t = p - (R @ p[:, :, None])[..., 0]
     out[..., :3, 3] = np.where(revolute[:, None], rot_t, theta[..., None] * v)
     out[..., 3, 3] = 1.0
     return out
@@ -187,4 +187,4 @@ def right_jacobian_inv(xi: np.ndarray) -> np.ndarray:
 def transform_points(T: np.ndarray, p: np.ndarray) -> np.ndarray:
     """T @ p for points (..., 3)."""
     T = np.asarray(T, dtype=float)
-    return np.einsum("...ij,...j->...i", T[..., :3, :3], p) + T[..., :3, 3]
+    return (T[..., :3, :3] @ np.asarray(p, dtype=float)[..., None])[..., 0] + T[..., :3, 3]
