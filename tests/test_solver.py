@@ -94,3 +94,18 @@ def test_degenerate_experiment_is_reported_not_converged(rng):
     assert res.status == "degenerate" and not res.success
     assert any("degenerate experiment" in m for m in res.messages)
     assert all(np.isnan(e.std) for e in res.estimates)
+
+
+def test_model_that_cannot_explain_the_data_is_reported_and_settles():
+    """Offsets only, but the true arm also has thesis-size twist errors: the loop must settle (whitening is
+    held after the first estimate) and the result must say the model does not fit, not just 'converged'."""
+    from kincal.robots import load
+    from kincal.simulate.generators import generate_clamp
+    from kincal.simulate.perturb import perturb_robot
+
+    frida = load("frida")
+    ds, _, _ = generate_clamp(perturb_robot(frida, "thesis", 3), "right", n=40, rng=1, known_fixture=False)
+    res = calibrate(frida, [ds], "offsets")
+    assert res.status == "converged" and res.iterations <= 5
+    assert res.sigma2 > 100
+    assert res.messages[0].startswith("the model does not explain the data")

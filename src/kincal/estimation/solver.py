@@ -37,6 +37,9 @@ from kincal.params import (
 
 log = logging.getLogger(__name__)
 
+# Residual variance factor above which the fit is reported as not explaining the data (RMS 10x the noise).
+MISFIT_VARIANCE_FACTOR = 100.0
+
 _PART_RANK = {"offsets": 0, "twists": 1, "home": 2, "base": 3, "tool": 4}
 
 
@@ -156,7 +159,10 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
     linearized_at_final = False
     it = 0
     for it in range(1, max_outer + 1):
-        W = problem.whiteners(state)
+        # Whiten at the start and once more at the first estimate, then hold: when the model cannot explain
+        # the data, re-whitening at every estimate moves the optimum each time and the loop never settles.
+        if it <= 2:
+            W = problem.whiteners(state)
         r0, J0 = problem.evaluate(state, np.zeros(p), W)
         if not np.all(np.isfinite(r0)) or not np.all(np.isfinite(J0)):
             raise DegenerateExperimentError("residuals or Jacobian are not finite at the starting values")
@@ -229,6 +235,12 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
     if dof <= 0:
         messages.append("as many equations as identifiable parameters: no residual variance, standard deviations "
                         "are not scaled")
+    elif sigma2 > MISFIT_VARIANCE_FACTOR:
+        messages.insert(0, (
+            f"the model does not explain the data: residuals are {np.sqrt(sigma2):.3g} times the stated noise "
+            f"(residual variance factor {sigma2:.3g}); the estimates absorb what the free parameters cannot model "
+            "and their standard deviations assume a model that fits. Free more parameters (e.g. 'kinematic'), "
+            "check the stated noise, or look for outliers (a robust loss)"))
     tw_names, tw_vals, tw_cov = twist_coordinates(state, problem.layout, _embed(cov, problem))
     twists = (tuple(tw_names), tw_vals, np.sqrt(np.clip(np.diag(tw_cov), 0, None)) if tw_cov is not None else None)
     return Result(
