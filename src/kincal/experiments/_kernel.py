@@ -104,6 +104,20 @@ def pose_gap(TA: np.ndarray, TB: np.ndarray):
     return np.concatenate([pA - pB, rw], axis=-1), GA, GB
 
 
+def pose_gap_in_b(TA: np.ndarray, TB: np.ndarray):
+    """The gap of ``pose_gap(TB^-1 TA, I)``, i.e. expressed in B's frame, and its derivatives w.r.t. the world
+    left increments of A and of B.
+
+    Written in the frame of the fixed side (fixture, plate fixture, the other arm's tool), a common rigid
+    motion of both sides leaves the residual unchanged even when it is not zero, so such gauges are exact
+    null directions of noisy data, not residual-sized "weak" ones.
+    """
+    Bi = se3.inverse(TB)
+    r, G, _ = pose_gap(Bi @ TA, np.eye(4))
+    G = G @ se3.adjoint(Bi)
+    return r, G, -G
+
+
 def point_jacobian(p: np.ndarray) -> np.ndarray:
     """d p / d(left increment of the frame carrying p): [I, -hat(p)], (..., 3, 6)."""
     out = np.zeros(p.shape[:-1] + (3, 6))

@@ -1,12 +1,12 @@
 """One arm clamped to a fixture: every configuration puts the tool at the same pose ``T_world_fixture``.
 
-Residual (N, 6): ``[p_tool - p_fixture, log(R_tool R_fixture^T)]``, world coordinates. With the fixture
+Residual (N, 6): the pose gap of the tool from the fixture, in the fixture frame (``pose_gap_in_b``). With the fixture
 unknown its pose is a parameter (not a mean of uncalibrated poses).
 """
 
 from __future__ import annotations
 
-from kincal.experiments._kernel import pose_gap, pose_mean
+from kincal.experiments._kernel import pose_gap_in_b, pose_mean
 from kincal.experiments.base import Experiment, Residual, chain_rule
 
 
@@ -18,7 +18,7 @@ class ClampExperiment(Experiment):
     def residual(self, state, want=None) -> Residual:
         arm = self.arms[0]
         kin, J, jq = self._arm(state, arm, want)
-        r, GA, GB = pose_gap(kin.tool, state.extras[self.frames["fixture"]])
+        r, GA, GB = pose_gap_in_b(kin.tool, state.extras[self.frames["fixture"]])
         jac = chain_rule(GA, arm, J)
         if self._wanted("fixture", want):
             jac[self.frames["fixture"]] = GB

@@ -1,14 +1,14 @@
 """Two arms clamped tool to tool: ``T_world_toolA(q_A) @ T_toolA_toolB = T_world_toolB(q_B)``.
 
 One residual per configuration over both arms' parameters and the clamp (no halving of the error):
-pose gap (N, 6) between ``T_world_toolA @ T_toolA_toolB`` and ``T_world_toolB``. The clamp's left increment
+pose gap (N, 6) between ``T_world_toolA @ T_toolA_toolB`` and ``T_world_toolB``, in arm B's tool frame. The clamp's left increment
 is expressed in arm A's tool frame. Using one arm as the measuring device of the other is this residual with
 that arm's parameters fixed.
 """
 
 from __future__ import annotations
 
-from kincal.experiments._kernel import pose_gap, pose_mean
+from kincal.experiments._kernel import pose_gap_in_b, pose_mean
 from kincal.experiments.base import Experiment, Residual, chain_rule
 from kincal.lie import se3
 
@@ -23,7 +23,7 @@ class DualExperiment(Experiment):
         C = state.extras[self.frames["clamp"]]
         kinA, JA, jqA = self._arm(state, a, want)
         kinB, JB, jqB = self._arm(state, b, want)
-        r, GA, GB = pose_gap(kinA.tool @ C, kinB.tool)
+        r, GA, GB = pose_gap_in_b(kinA.tool @ C, kinB.tool)
         jac = {**chain_rule(GA, a, JA), **chain_rule(GB, b, JB)}
         if self._wanted("clamp", want):
             jac[self.frames["clamp"]] = GA @ se3.adjoint(kinA.tool)

@@ -1,6 +1,7 @@
 """A plate with K fixtures at known relative transforms; sample i is clamped at fixture k_i.
 
-Residual (N, 6): pose gap between ``T_world_tool(q_i)`` and ``T_world_plate @ T_plate_fixture[k_i]``.
+Residual (N, 6): pose gap between ``T_world_tool(q_i)`` and ``T_world_plate @ T_plate_fixture[k_i]``, in
+that fixture's frame (``pose_gap_in_b``).
 """
 
 from __future__ import annotations
@@ -8,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from kincal.errors import DegenerateExperimentError
-from kincal.experiments._kernel import pose_gap, pose_mean
+from kincal.experiments._kernel import pose_gap_in_b, pose_mean
 from kincal.experiments.base import Experiment, Residual, chain_rule
 from kincal.lie import se3
 
@@ -33,7 +34,7 @@ class PlateExperiment(Experiment):
     def residual(self, state, want=None) -> Residual:
         arm = self.arms[0]
         kin, J, jq = self._arm(state, arm, want)
-        r, GA, GB = pose_gap(kin.tool, state.extras[self.frames["plate"]] @ self._fixtures())
+        r, GA, GB = pose_gap_in_b(kin.tool, state.extras[self.frames["plate"]] @ self._fixtures())
         jac = chain_rule(GA, arm, J)
         if self._wanted("plate", want):
             jac[self.frames["plate"]] = GB
