@@ -19,6 +19,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from kincal.analysis.covariance import right_svd
+
 IDENTIFIABLE_TOL = 1e-6  # a parameter is identifiable when its row of the (scaled) null basis is below this
 
 
@@ -76,7 +78,7 @@ def analyse(
     c = np.linalg.norm(J, axis=0)
     c_safe = np.where(c > 0, c, 1.0)
     Js = J / c_safe
-    _, S, Vt = np.linalg.svd(Js, full_matrices=m < p)
+    S, Vt = right_svd(Js) if m >= p else np.linalg.svd(Js, full_matrices=True)[1:]  # all p rows of Vt
     S_full = np.zeros(p)
     S_full[: len(S)] = S
     smax = S_full[0] if p else 0.0

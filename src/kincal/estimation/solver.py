@@ -17,6 +17,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from kincal.analysis import analyse, correlated_pairs, covariance, select_columns
+from kincal.analysis.covariance import right_svd
 from kincal.data import Dataset
 from kincal.errors import DegenerateExperimentError, ModelError
 from kincal.estimation.problem import Noise, Problem, residual_norms
@@ -312,8 +313,8 @@ def _degenerate(problem, J, ana) -> bool:
         return False
     c = np.linalg.norm(J, axis=0)
     Js = J / np.where(c > 0, c, 1.0)
-    s_all = np.linalg.svd(Js, compute_uv=False)
-    s_frames = np.linalg.svd(Js[:, ~arm], compute_uv=False)
+    s_all = right_svd(Js)[0]
+    s_frames = right_svd(Js[:, ~arm])[0]
     tol = ana.rtol * s_all[0]
     return int(np.sum(s_frames > tol)) >= int(np.sum(s_all > tol))
 
