@@ -106,23 +106,58 @@ def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool) -> None:
 
 
 def _write_thesis(res, job, out: Path, console, quiet, as_json) -> None:
+    """Write and print a thesis baseline's result, validated on the job's held-out sets like kincal's."""
+    from kincal.estimation import evaluate
     from kincal.io.models import save_robot
 
     robot = job.robot
     for arm, model in res.models.items():
         robot = robot.replace_arm(arm, model)
+    validation = []
+    if job.validation:
+        for b, a in zip(evaluate(job.robot, job.validation), evaluate(robot, job.validation)):
+            row = {"experiment": b["experiment"], "samples": b["samples"]}
+            for k in ("position_rms", "position_max", "orientation_rms", "orientation_max"):
+                if k in b:
+                    row[f"{k}_before"], row[f"{k}_after"] = b[k], a[k]
+            validation.append(row)
     out.mkdir(parents=True, exist_ok=True)
     save_robot(robot, out / "model.yaml")
     report = {"format": "kincal-result", "version": 1, "method": res.method, "converged": bool(res.converged),
-              "iterations": int(res.iterations),
-              "estimates": {n: float(v) for n, v in zip(res.parameter_names, res.estimate)}}
+              "iterations": res.iterations_label,
+              "eval_error_before": {"translation_m": float(res.history[0][0]), "rotation_rad": float(res.history[0][1])},
+              "eval_error_after": {"translation_m": float(res.history[-1][0]), "rotation_rad": float(res.history[-1][1])},
+              "estimates": {n: float(v) for n, v in zip(res.parameter_names, res.estimate)},
+              "validation": validation}
     with open(out / "result.yaml", "x", encoding="utf-8") as fh:
         yaml.safe_dump(report, fh, sort_keys=False)
     if as_json:
         click.echo(json.dumps(report))
-    elif not quiet:
-        console.print(f"thesis baseline {res.method}: converged={res.converged} after {res.iterations} iterations")
-        console.print(f"wrote {out / 'model.yaml'} and {out / 'result.yaml'}")
+        return
+    if quiet:
+        return
+    console.print(f"thesis baseline {res.method}: {'converged' if res.converged else 'stopped on the iteration budget'}"
+                  f" after {res.iterations_label} iterations (thesis notation: run(accepted)); Eval_error "
+                  f"{res.history[0][0] * 1e3:.4g} mm / {res.history[0][1] * DEG:.4g} deg -> "
+                  f"{res.history[-1][0] * 1e3:.4g} mm / {res.history[-1][1] * DEG:.4g} deg")
+    console.print("no identifiability analysis or standard deviations: the thesis' method has none")
+    if validation:
+        t = Table(title="validation on held-out configurations (position mm, orientation deg)")
+        for c in ("set", "samples", "pos RMS before", "pos RMS after", "rot RMS before", "rot RMS after"):
+            t.add_column(c, justify="left" if c == "set" else "right")
+        for v in validation:
+            t.add_row(v["experiment"], str(v["samples"]), _num(v.get("position_rms_before"), 1e3),
+                      _num(v.get("position_rms_after"), 1e3), _num(v.get("orientation_rms_before"), DEG),
+                      _num(v.get("orientation_rms_after"), DEG))
+        console.print(t)
+    t = Table(title="estimates (deg for offsets and angles, mm for lengths)")
+    for c in ("parameter", "value"):
+        t.add_column(c, justify="left" if c == "parameter" else "right")
+    for n, v in zip(res.parameter_names, res.estimate):
+        scale = 1e3 if n.split(".")[-1].startswith("v_") else DEG
+        t.add_row(n, _num(float(v), scale, 6))
+    console.print(t)
+    console.print(f"wrote {out / 'model.yaml'} and {out / 'result.yaml'}")
 
 
 def _refuse_existing(out: Path, names) -> None:
