@@ -94,6 +94,8 @@ def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool) -> None:
     result = run_job(j, _progress(console, quiet or as_json))
     if j.method == "thesis":
         _write_thesis(result, j, out, console, quiet or as_json, as_json)
+        if not result.converged:
+            raise SystemExit(1)
         return
     paths = write_results(result, out)
     if as_json:
