@@ -13,37 +13,12 @@ from kincal.kinematics.dh import from_dh
 from kincal.kinematics.urdf import from_urdf, to_urdf
 from kincal.testing import random_arm
 
+from reference_dh import dh_fk, tr
+
 pin = pytest.importorskip("pinocchio")
 pytest.importorskip("yourdfpy")
 
 DATASETS = Path(__file__).resolve().parents[2] / "shared" / "datasets"
-
-
-def _rx(t):
-    c, s = np.cos(t), np.sin(t)
-    return np.array([[1, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1]])
-
-
-def _rz(t):
-    c, s = np.cos(t), np.sin(t)
-    return np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
-
-
-def _tr(x, z):
-    return np.array([[1, 0, 0, x], [0, 1, 0, 0], [0, 0, 1, z], [0, 0, 0, 1.0]])
-
-
-def _dh_fk(q, a, alpha, d, theta, prismatic, modified):
-    out = np.empty((len(q), 4, 4))
-    for k, qk in enumerate(q):
-        T = np.eye(4)
-        for i in range(len(a)):
-            th = theta[i] + (0 if prismatic[i] else qk[i])
-            di = d[i] + (qk[i] if prismatic[i] else 0)
-            T = T @ (_rx(alpha[i]) @ _tr(a[i], 0) @ _rz(th) @ _tr(0, di) if modified
-                     else _rz(th) @ _tr(0, di) @ _tr(a[i], 0) @ _rx(alpha[i]))
-        out[k] = T
-    return out
 
 
 @pytest.mark.parametrize("modified", [False, True])
@@ -55,12 +30,12 @@ def test_random_dh_tables_with_prismatic_joints(rng, modified):
     types = ["prismatic" if p else "revolute" for p in prismatic]
     model = from_dh(a, alpha, d, theta, modified=modified, joint_types=types)
     q = rng.uniform(-2, 2, (50, n))
-    np.testing.assert_allclose(forward_kinematics(model, q), _dh_fk(q, a, alpha, d, theta, prismatic, modified),
+    np.testing.assert_allclose(forward_kinematics(model, q), dh_fk(q, a, alpha, d, theta, prismatic, modified),
                                atol=1e-13)
 
 
 def test_dh_flange_and_model_fields():
-    model = from_dh([0, 0.5], [0, 0], [0.1, 0], modified=True, flange=_tr(0, 0.2), name="two", lower=[-1, -2],
+    model = from_dh([0, 0.5], [0, 0], [0.1, 0], modified=True, flange=tr(0, 0.2), name="two", lower=[-1, -2],
                     upper=[1, 2], joint_names=("a", "b"))
     np.testing.assert_allclose(model.home[:3, 3], [0.5, 0, 0.3])
     assert model.name == "two" and model.joint_names == ("a", "b") and model.lower.tolist() == [-1, -2]

@@ -9,6 +9,7 @@ from kincal.errors import DataFormatError
 from kincal.io import load_robot
 from kincal.kinematics import forward_kinematics
 from kincal.kinematics.urdf import to_urdf
+from reference_dh import dh_fk
 
 pin = pytest.importorskip("pinocchio")
 
@@ -191,29 +192,6 @@ def test_frida_fk_matches_table_a1_by_pinocchio_and_sequential_rotations(arm, rn
 # ------------------------------------------------------------------------------------ DH / MDH / eq. 21
 
 
-def _dh_fk(q, a, alpha, d, modified=False, flange=None):
-    """Plain per-link matrix products of the published tables."""
-    def rx(t):
-        c, s = np.cos(t), np.sin(t)
-        return np.array([[1, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1]])
-
-    def rz(t):
-        c, s = np.cos(t), np.sin(t)
-        return np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])
-
-    def tr(x, z):
-        return np.array([[1, 0, 0, x], [0, 1, 0, 0], [0, 0, 1, z], [0, 0, 0, 1.0]])
-
-    out = np.empty((len(q), 4, 4))
-    for k, qk in enumerate(q):
-        T = np.eye(4)
-        for i in range(len(a)):
-            T = T @ (rx(alpha[i]) @ tr(a[i], 0) @ rz(qk[i]) @ tr(0, d[i]) if modified
-                     else rz(qk[i]) @ tr(0, d[i]) @ tr(a[i], 0) @ rx(alpha[i]))
-        out[k] = T if flange is None else T @ flange
-    return out
-
-
 UR10_DH = dict(a=[0, -0.6127, -0.5716, 0, 0, 0], alpha=[np.pi / 2, 0, 0, np.pi / 2, -np.pi / 2, 0],
                d=[0.118, 0, 0, 0.1639, 0.1157, 0.0922])
 PANDA_MDH = dict(a=[0, 0, 0, 0.0825, -0.0825, 0, 0.088],
@@ -254,7 +232,7 @@ def test_ur10_matches_published_dh_and_pinocchio(rng):
     model = robots.load("ur10")["arm"]
     q = _configs(model, rng)
     T = forward_kinematics(model, q)
-    _assert_poses_equal(T, _dh_fk(q, **UR10_DH))
+    _assert_poses_equal(T, dh_fk(q, **UR10_DH))
     _assert_poses_equal(T, _pinocchio_fk(_dh_urdf(UR10_DH, False), "tip", {f"q{i + 1}": q[:, i] for i in range(6)}))
 
 
@@ -262,7 +240,7 @@ def test_panda_matches_published_mdh_and_pinocchio(rng):
     model = robots.load("panda")["arm"]
     q = _configs(model, rng)
     T = forward_kinematics(model, q)
-    _assert_poses_equal(T, _dh_fk(q, **PANDA_MDH, modified=True, flange=PANDA_FLANGE))
+    _assert_poses_equal(T, dh_fk(q, **PANDA_MDH, modified=True, flange=PANDA_FLANGE))
     ref = _pinocchio_fk(_dh_urdf(PANDA_MDH, True, PANDA_FLANGE), "tip", {f"q{i + 1}": q[:, i] for i in range(7)})
     _assert_poses_equal(T, ref)
 
