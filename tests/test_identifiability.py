@@ -60,3 +60,15 @@ def test_priority_gauge_holds_the_named_parameters(rng):
     nominal = Robot("r", {"arm": true.replace(offsets=np.zeros(6))})
     res = calibrate(nominal, [ds], "kinematic", gauge=["*.offset"])
     np.testing.assert_allclose([res.estimate(f"arm.j{i}.offset").value for i in range(1, 7)], true.offsets, atol=1e-9)
+
+
+def test_weak_directions_below_a_singular_value_gap_are_reported():
+    """A cluster far below the rest (400x gap, below 1e-3) is weak even above the fixed 1e-5 threshold."""
+    rng = np.random.default_rng(3)
+    U, _ = np.linalg.qr(rng.normal(size=(40, 5)))
+    V, _ = np.linalg.qr(rng.normal(size=(5, 5)))
+    names = [f"p{i}" for i in range(5)]
+    gap = analyse(U @ np.diag([1.0, 0.5, 0.03, 7e-5, 2e-5]) @ V.T, names)
+    assert gap.rank == 5 and len(gap.weak) == 2
+    smooth = analyse(U @ np.diag([1.0, 0.1, 1e-2, 1e-3, 1e-4]) @ V.T, names)
+    assert smooth.rank == 5 and len(smooth.weak) == 0

@@ -4,7 +4,9 @@ Rank: singular values of the whitened Jacobian after scaling every column to uni
 the size of a parameter's effect do not matter). A direction is unidentifiable when its singular value is
 below ``rtol * sigma_max`` (default ``rtol = 1e-9``: exact symmetries of noise-free data sit at ~1e-15,
 badly excited but identifiable directions well above). Directions below ``weak_rtol`` (1e-5) but above
-``rtol`` are reported as weakly identifiable.
+``rtol`` are reported as weakly identifiable, and so are the directions below a gap of more than
+``WEAK_GAP`` (100x) between consecutive singular values when they lie below 1e-3 of the largest: such a
+cluster is determined by little more than the noise even if no fixed threshold catches it.
 
 Null directions are presented in reduced row-echelon form over the parameters in priority order
 (arm offsets, twists, home, base, tool, then experiment frames): each has one *pivot* parameter with
@@ -87,7 +89,7 @@ def analyse(
     identifiable = np.linalg.norm(Ns, axis=1) < IDENTIFIABLE_TOL
     N = _orth(Ns / c_safe[:, None])
     R = _complement(N, p)
-    weak_idx = np.flatnonzero((S_full > rtol * smax) & (S_full < weak_rtol * smax))
+    weak_idx = np.flatnonzero((S_full > rtol * smax) & (S_full < _weak_limit(S_full[:rank], weak_rtol) * smax))
     weak = tuple(_top_names(Vt[i], names) for i in weak_idx)
 
     scale_null = False
@@ -124,9 +126,23 @@ def analyse(
         directions.append(Direction(names[piv], partners, row, words))
     messages += [d.words for d in directions]
     for w in weak:
-        messages.append(f"weakly identifiable direction (singular value below {weak_rtol:g} of the largest): {w}")
+        messages.append(f"weakly identifiable direction (singular value far below the others; its estimate rests "
+                        f"on little more than the noise): {w}")
     return Identifiability(names, rank, S_full, rtol, N, R, identifiable, scale_null, tuple(directions),
                            weak, tuple(messages))
+
+
+WEAK_GAP = 100.0
+
+
+def _weak_limit(s: np.ndarray, weak_rtol: float) -> float:
+    """Relative singular value below which identifiable directions count as weak (see the module docstring)."""
+    if len(s) < 2 or s[0] <= 0:
+        return weak_rtol
+    rel = s / s[0]
+    ratios = rel[:-1] / np.maximum(rel[1:], 1e-300)
+    gaps = np.flatnonzero((ratios > WEAK_GAP) & (rel[1:] < 1e-3))
+    return max(weak_rtol, float(rel[gaps[0] + 1]) * (1 + 1e-12)) if len(gaps) else weak_rtol
 
 
 def select_columns(J: np.ndarray, order: Sequence[int], rank: int, tol: float = 1e-6) -> list[int]:
