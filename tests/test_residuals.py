@@ -139,17 +139,16 @@ def test_bad_data_sets_are_named(rng):
         experiments.build([ds], state)
 
 
-def test_closed_form_twist_block_equals_general_left_jacobian(rng):
-    """theta J_l(theta xi) B in closed form (exact screws) equals the general series; unconformed -> None."""
-    from kincal.experiments._kernel import _screw_series
 
+def test_closed_form_twist_block_equals_general_left_jacobian(rng):
+    """theta J_l(theta xi) in closed form (exact screws) equals the general series; unconformed is not exact."""
     arm = random_arm(rng, 5, prismatic=(3,))
-    B = rng.normal(size=(5, 6, 4))
     theta = rng.uniform(-4, 4, (7, 5))
-    E1, E2, f1, f2 = _screw_series(arm.screws, arm.joint_types, B)
-    closed = theta[..., None, None] * B + f1(theta)[..., None, None] * E1 + f2(theta)[..., None, None] * E2
-    general = theta[..., None, None] * (se3.left_jacobian(arm.screws * theta[..., None]) @ B)
+    f1, f2 = (f[..., None, None] for f in se3.joint_screw_jacobian_coeffs(arm.screws, theta))
+    X = se3.ad(arm.screws)
+    closed = theta[..., None, None] * np.eye(6) + f1 * X + f2 * (X @ X)
+    general = theta[..., None, None] * se3.left_jacobian(arm.screws * theta[..., None])
     np.testing.assert_allclose(closed, general, atol=1e-12)
     bent = arm.screws.copy()
     bent[0, 3:] *= 1.001
-    assert _screw_series(bent, arm.joint_types, B) is None
+    assert se3.exact_joint_screws(arm.screws) and not se3.exact_joint_screws(bent)

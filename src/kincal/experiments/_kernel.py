@@ -30,12 +30,14 @@ def arm_tool(a: ArmValues, q: np.ndarray, parts=ARM_PARTS) -> tuple[Kinematics, 
         # Column block of joint j: Ad(P_{j-1}) theta_j J_l(theta_j xi_j) B_j, all joints at once.
         theta = kin.theta
         B, keep = _padded_bases(a.bases)  # (n, 6, k_max)
-        closed = _screw_series(a.screws, a.joint_types, B)
-        if closed is None:  # screws not exactly conformed: the general left Jacobian
+        if se3.exact_joint_screws(a.screws):
+            # theta J_l(theta xi) B = theta B + f1 ad(xi) B + f2 ad(xi)^2 B: constant matrices, scalar weights
+            X = se3.ad(a.screws)
+            E1 = X @ B
+            f1, f2 = (f[..., None, None] for f in se3.joint_screw_jacobian_coeffs(a.screws, theta))
+            y = theta[..., None, None] * B + f1 * E1 + f2 * (X @ E1)
+        else:  # raw twists (e.g. a finite-difference step): the general left Jacobian
             y = theta[..., None, None] * (se3.left_jacobian(a.screws * theta[..., None]) @ B)
-        else:
-            E1, E2, f1, f2 = closed
-            y = theta[..., None, None] * B + f1(theta)[..., None, None] * E1 + f2(theta)[..., None, None] * E2
         tw = Ad[..., :-1, :, :] @ y  # (N, n, 6, k_max)
         tw = np.moveaxis(tw, -3, -2).reshape(theta.shape[:-1] + (6, -1))
         out["twists"] = tw[..., keep]
@@ -46,33 +48,6 @@ def arm_tool(a: ArmValues, q: np.ndarray, parts=ARM_PARTS) -> tuple[Kinematics, 
     if "tool" in parts:
         out["tool"] = se3.adjoint(kin.flange)
     return kin, out, jq
-
-
-def _screw_series(screws, types, B):
-    """``theta J_l(theta xi) B = theta B + f1(theta) E1 + f2(theta) E2`` for exact joint screws, or None.
-
-    Revolute (unit w, zero pitch, axis through p): J_l(theta xi) = Ad(T_p) diag(J, J) Ad(T_p)^-1 with
-    theta J(theta w) = theta I + (1 - cos theta) hat(w) + (theta - sin theta) hat(w)^2, so E1 = ad(xi) B and
-    E2 = ad(xi)^2 B (ad(xi) = Ad(T_p) diag(hat w, hat w) Ad(T_p)^-1). Prismatic (w = 0, unit v): ad(xi)^2 = 0,
-    f1 = theta^2 / 2. Screws off their manifold (not conformed) return None: use the general J_l.
-    """
-    v, w = screws[:, :3], screws[:, 3:]
-    revolute = np.array([t == "revolute" for t in types])
-    unit = np.where(revolute, np.sum(w * w, axis=1), np.sum(v * v, axis=1))
-    pitch = np.sum(w * v, axis=1)
-    if np.abs(unit - 1).max() > 1e-12 or np.abs(pitch).max() > 1e-12 or np.abs(w[~revolute]).max(initial=0) > 1e-12:
-        return None
-    X = se3.ad(screws)  # (n, 6, 6)
-    E1 = X @ B
-    E2 = X @ E1
-
-    def f1(t):
-        return np.where(revolute, 1.0 - np.cos(t), 0.5 * t * t)
-
-    def f2(t):
-        return np.where(revolute, t - np.sin(t), 0.0)
-
-    return E1, E2, f1, f2
 
 
 def _padded_bases(bases) -> tuple[np.ndarray, np.ndarray]:

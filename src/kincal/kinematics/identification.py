@@ -81,12 +81,8 @@ def identification_jacobian(
 
     th = kin.theta[..., None, None]
     if se3.exact_joint_screws(model.screws):
-        # theta J_l(theta xi) = theta I + (1 - cos theta) ad(xi) + (theta - sin theta) ad(xi)^2 for a unit
-        # revolute screw (ad^3 = -ad); for a prismatic one ad^2 = 0 and the ad term is theta^2 / 2.
         X = se3.ad(model.screws)
-        revolute = np.sum(model.screws[:, 3:] ** 2, axis=1) > 0.5
-        f1 = np.where(revolute, 1.0 - np.cos(kin.theta), 0.5 * kin.theta**2)[..., None, None]
-        f2 = np.where(revolute, kin.theta - np.sin(kin.theta), 0.0)[..., None, None]
+        f1, f2 = (f[..., None, None] for f in se3.joint_screw_jacobian_coeffs(model.screws, kin.theta))
         A = th * np.eye(6) + f1 * X + f2 * (X @ X)
     else:
         A = th * se3.left_jacobian(model.screws * kin.theta[..., None])  # (..., n, 6, 6)

@@ -97,6 +97,20 @@ def exp_joint_screws(screws: np.ndarray, theta: np.ndarray) -> np.ndarray:
     return out
 
 
+def joint_screw_jacobian_coeffs(screws: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(f1, f2), each (..., n), with ``theta J_l(theta xi) = theta I + f1 ad(xi) + f2 ad(xi)^2`` for exact joint
+    screws (see ``exact_joint_screws``).
+
+    Revolute (unit w, zero pitch): ad(xi)^3 = -ad(xi), so f1 = 1 - cos theta, f2 = theta - sin theta (no series
+    needed at small theta: both terms are simply small). Prismatic: ad(xi)^2 = 0 and f1 = theta^2 / 2.
+    """
+    theta = np.asarray(theta, dtype=float)
+    revolute = np.sum(np.asarray(screws)[:, 3:] ** 2, axis=1) > 0.5
+    f1 = np.where(revolute, 1.0 - np.cos(theta), 0.5 * theta * theta)
+    f2 = np.where(revolute, theta - np.sin(theta), 0.0)
+    return f1, f2
+
+
 def exact_joint_screws(screws: np.ndarray, tol: float = 1e-12) -> bool:
     """True when every screw is a unit zero-pitch revolute screw or a unit prismatic one."""
     v, w = np.asarray(screws[:, :3]), np.asarray(screws[:, 3:])
