@@ -152,3 +152,19 @@ def test_closed_form_twist_block_equals_general_left_jacobian(rng):
     bent = arm.screws.copy()
     bent[0, 3:] *= 1.001
     assert se3.exact_joint_screws(arm.screws) and not se3.exact_joint_screws(bent)
+
+
+def test_twist_block_generator_identity(rng):
+    """The kernel's twist block rests on theta J_l(theta xi) (-ad(xi) G) = G - Ad(exp(theta xi)) G for any
+    twist (exact or not), and on the tangent basis being -ad(xi) G for the axis generators G."""
+    from kincal.kinematics import tangent_basis, tangent_generators
+
+    arm = random_arm(rng, 5, prismatic=(3,))
+    for xi, kind in zip(arm.screws, arm.joint_types):
+        np.testing.assert_allclose(-se3.ad(xi) @ tangent_generators(xi, kind), tangent_basis(xi, kind), atol=1e-14)
+    theta = rng.uniform(-4, 4, (7, 5))
+    for xi in list(arm.screws) + [arm.screws[0] * 1.01 + 0.02]:  # the last one is no exact joint screw
+        G = rng.normal(size=(6, 4))
+        lhs = theta[..., None, None] * se3.left_jacobian(xi * theta[..., None]) @ (-se3.ad(xi) @ G)
+        rhs = G - se3.adjoint(se3.exp(xi * theta[..., None])) @ G
+        np.testing.assert_allclose(lhs, rhs, atol=1e-11)

@@ -45,12 +45,17 @@ class Problem:
         object.__setattr__(self, "want", want)
         object.__setattr__(self, "_plain", (None, None))  # (state, residuals without Jacobians) of the last call
 
+    @property
+    def joint_noise(self) -> bool:
+        """Whether any experiment states encoder noise (whitening then depends on the state through J_q)."""
+        return any(nz.sigma_joint > 0 for nz in self.noise)
+
     def _residuals(self, state: State):
-        """Residuals (with ``jq``, no parameter Jacobians) at ``state``; whitening and statistics ask for the
-        same state in turn, so the last one is kept (states are immutable)."""
+        """Residuals (with ``jq`` when encoder noise is stated, no parameter Jacobians) at ``state``; whitening and
+        statistics ask for the same state in turn, so the last one is kept (states are immutable)."""
         cached_state, res = self._plain
         if cached_state is not state:
-            res = [exp.residual(state, want=set()) for exp in self.experiments]
+            res = [exp.residual(state, want=set(), jq=self.joint_noise) for exp in self.experiments]
             object.__setattr__(self, "_plain", (state, res))
         return res
 
@@ -68,31 +73,61 @@ class Problem:
 
     def whiteners(self, state: State) -> list[np.ndarray]:
         """Per experiment (N, k, k) inverse Cholesky factors of the residual covariance at ``state``."""
+        return self._whiteners_of(self._residuals(state))
+
+    def _whiteners_of(self, residuals) -> list[np.ndarray]:
         out = []
-        for exp, nz, res in zip(self.experiments, self.noise, self._residuals(state)):
+        for exp, nz, res in zip(self.experiments, self.noise, residuals):
             sig = np.array([nz.sigma_position if c == "position" else nz.sigma_orientation for c in exp.components()])
-            cov = np.broadcast_to(np.diag(np.maximum(sig**2, VARIANCE_FLOOR)), res.r.shape + (res.r.shape[1],)).copy()
-            for jq in res.jq.values():
-                cov += nz.sigma_joint**2 * (jq @ np.swapaxes(jq, -1, -2))
-            L = np.linalg.cholesky(cov)
-            out.append(np.linalg.inv(L))
+            var = np.maximum(sig**2, VARIANCE_FLOOR)
+            if nz.sigma_joint > 0:
+                cov = np.broadcast_to(np.diag(var), res.r.shape + (res.r.shape[1],)).copy()
+                for jq in res.jq.values():
+                    cov += nz.sigma_joint**2 * (jq @ np.swapaxes(jq, -1, -2))
+                out.append(np.linalg.inv(np.linalg.cholesky(cov)))
+            else:  # constant: a diagonal, broadcast over samples
+                out.append(np.broadcast_to(np.diag(1.0 / np.sqrt(var)), res.r.shape + (res.r.shape[1],)))
         return out
+
+    def linearize(self, state: State, whiteners=None, every: bool = False):
+        """Whitened residual (m,) and Jacobian at ``state`` in one evaluation of the experiments.
+
+        ``every``: Jacobian columns for every coordinate of the layout (fixed ones too, for the scale test),
+        else for the free ones. ``whiteners=None``: whiten at ``state`` from the same evaluation's ``J_q``.
+        Returns ``(r, J, whiteners)``.
+        """
+        want = {b.name for b in self.layout.blocks} if every else self.want
+        fresh = whiteners is None
+        res = [exp.residual(state, want=want, jq=fresh and self.joint_noise) for exp in self.experiments]
+        W = self._whiteners_of(res) if fresh else whiteners
+        cols = np.arange(self.layout.size) if every else self.free_idx
+        r, J = self._stack(state, res, W, cols, {})
+        return r, J, W
 
     def evaluate(self, state0: State, delta_free: np.ndarray, whiteners, jac: bool = True):
         """Whitened stacked residual (m,) at ``retract(state0, delta)`` and, if asked, its Jacobian (m, p_free)."""
         delta = self.full_delta(delta_free)
         state = retract(state0, self.layout, delta)
-        Rl = {k: v for k, v in pose_retraction_jacobians(self.layout, delta).items() if k in self.want} if jac else {}
+        if not jac:
+            res = [exp.residual(state, want=set(), jq=False) for exp in self.experiments]
+            return self._stack(state, res, whiteners, None, {})[0], None
+        Rl = {k: v for k, v in pose_retraction_jacobians(self.layout, delta).items() if k in self.want}
+        res = [exp.residual(state, want=self.want, jq=False) for exp in self.experiments]
+        return self._stack(state, res, whiteners, self.free_idx, Rl)
+
+    def _stack(self, state, residuals, whiteners, cols, Rl):
+        """Whiten and stack residuals and (``cols`` not None) the Jacobian columns ``cols`` of the layout;
+        ``Rl``: retraction Jacobians of pose blocks stepped away from their linearization point."""
         col = np.full(self.layout.size, -1)
-        col[self.free_idx] = np.arange(len(self.free_idx))
+        if cols is not None:
+            col[cols] = np.arange(len(cols))
         rs, Js = [], []
-        for exp, W in zip(self.experiments, whiteners):
-            res = exp.residual(state, want=self.want if jac else set())
+        for res, W in zip(residuals, whiteners):
             rs.append((W @ res.r[:, :, None]).ravel())
-            if not jac:
+            if cols is None:
                 continue
             N, k = res.r.shape
-            J = np.zeros((N, k, len(self.free_idx)))
+            J = np.zeros((N, k, len(cols)))
             for b in self.layout.blocks:
                 Jb = res.jac.get(b.name)
                 if Jb is None:
@@ -107,14 +142,14 @@ class Problem:
             disp, D = displacement(state, self.nominal, self.layout)
             sig = self.layout.prior_sigma[self.prior_idx]
             rs.append((disp[self.prior_idx] - self.layout.prior_mean[self.prior_idx]) / sig)
-            if jac:
+            if cols is not None:
                 Dfull = D[self.prior_idx]
                 for name, Jl in Rl.items():
                     b = self.layout.block(name)
                     Dfull[:, b.start: b.stop] = Dfull[:, b.start: b.stop] @ Jl
-                Js.append(Dfull[:, self.free_idx] / sig[:, None])
+                Js.append(Dfull[:, cols] / sig[:, None])
         r = np.concatenate(rs)
-        return (r, np.concatenate(Js, axis=0)) if jac else (r, None)
+        return (r, np.concatenate(Js, axis=0)) if cols is not None else (r, None)
 
     def statistics(self, state: State, whiteners=None) -> list[dict]:
         """Per experiment: samples, position / orientation RMS and max (norm per sample), whitened chi^2."""

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import fnmatch
 import logging
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
@@ -144,6 +144,50 @@ def _priority(problem: Problem, gauge) -> list[int]:
     return order + [k for k in default if k not in order]
 
 
+@dataclass(frozen=True)
+class _Linearization:
+    """One evaluation at a state, reduced to the small triangular factor of ``[J_free | J_fixed | r]``.
+
+    Everything the solver asks of a linearization (rank, null space, gauge, covariance, the Gauss-Newton
+    convergence test, the scale test) depends on the tall whitened Jacobian only through its Gram matrix, so
+    one QR per linearization serves them all: ``R[:p, :p]`` stands in for ``J_free``, the next columns for
+    the fixed coordinates (used only by the scale test), the last for the residual.
+    """
+
+    r: np.ndarray  # (m,) whitened residual
+    J: np.ndarray  # (m, p) whitened Jacobian of the free coordinates
+    R: np.ndarray  # (q, P + 1) triangular factor, columns ordered free, fixed, residual
+    W: list
+    p: int
+
+    @property
+    def Rf(self) -> np.ndarray:
+        return self.R[: self.p, : self.p]
+
+    @property
+    def qtr(self) -> np.ndarray:
+        return self.R[: self.p, -1]
+
+    @property
+    def cost2(self) -> float:
+        return float(self.r @ self.r)
+
+
+def _linearize(problem: Problem, state: State, W, every: bool) -> _Linearization:
+    r, J, W = problem.linearize(state, W, every=every)
+    if not np.all(np.isfinite(r)) or not np.all(np.isfinite(J)):
+        raise DegenerateExperimentError("residuals or Jacobian are not finite at the starting values")
+    p = len(problem.free_idx)
+    if every:
+        fixed = np.flatnonzero(~problem.layout.free)
+        A = np.column_stack([J[:, problem.free_idx], J[:, fixed], r])
+        J = J[:, problem.free_idx]
+    else:
+        A = np.column_stack([J, r])
+    R = np.linalg.qr(A, mode="r")
+    return _Linearization(r, J, R, W, p)
+
+
 def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_threshold, progress, quiet=False):
     if not (gauge == "min-change" or not isinstance(gauge, str)):
         raise ModelError(f"gauge must be 'min-change' or a list of parameter globs in priority order, got {gauge!r}")
@@ -152,36 +196,38 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
     order = _priority(problem, gauge)
     state = problem.nominal
     describe_ctx = _context(problem)
-    before = problem.statistics(state)
+    every = any(problem.layout.units[i] == "m" for i in problem.free_idx)  # the scale test needs every column
     messages: list[str] = []
     id_before = None
     evaluations = 0
     status = "not converged"
-    linearized_at_final = False
+    lin = None
     it = 0
+    W = None
     for it in range(1, max_outer + 1):
         # Whiten at the start and once more at the first estimate, then hold: when the model cannot explain
         # the data, re-whitening at every estimate moves the optimum each time and the loop never settles.
-        if it <= 2:
-            W = problem.whiteners(state)
-        r0, J0 = problem.evaluate(state, np.zeros(p), W)
-        if not np.all(np.isfinite(r0)) or not np.all(np.isfinite(J0)):
-            raise DegenerateExperimentError("residuals or Jacobian are not finite at the starting values")
-        ana = analyse(J0, names, rtol=rank_rtol, priority=order)
-        if id_before is None:
-            id_before = _analyse_named(problem, state, J0, rank_rtol, order, describe_ctx, W)
-            if _degenerate(problem, J0, ana):
-                status, linearized_at_final = "degenerate", True
+        # Without encoder noise the whitening does not depend on the state: whiten once.
+        if it <= 2 and (W is None or problem.joint_noise):
+            W = None
+        first = id_before is None
+        lin = _linearize(problem, state, W, every)
+        W = lin.W
+        if first:
+            before = problem.statistics(state, W)
+        ana = analyse(lin.Rf, names, rtol=rank_rtol, priority=order)
+        if first:
+            id_before = _analyse_named(problem, state, lin, rank_rtol, order, describe_ctx)
+            if _degenerate(problem, lin.Rf, ana):
+                status = "degenerate"
                 break
-            _require_redundancy(problem, len(r0), ana.rank)
-        if isinstance(gauge, str):
-            V = ana.range_space
-        else:
-            V = np.eye(p)[:, select_columns(J0, order, ana.rank)]
-        if it > 1 and _gauss_newton_step_negligible(J0 @ V, r0):
-            status, linearized_at_final = "converged", True  # the re-linearized problem asks for no step
+            _require_redundancy(problem, len(lin.r), ana.rank)
+        V = _gauge_basis(lin.Rf, ana, gauge, order)
+        if it > 1 and _gauss_newton_step_negligible(lin, V):
+            status = "converged"  # the re-linearized problem asks for no step
             break
-        cache = {np.zeros(V.shape[1]).tobytes(): (r0, J0 @ V)}  # LM starts where we just linearized
+        J0V = lin.J @ V
+        cache = {np.zeros(V.shape[1]).tobytes(): (lin.r, J0V)}  # LM starts where we just linearized
 
         def both(z, need_jac, state=state, W=W, V=V):
             key = z.tobytes()
@@ -191,7 +237,7 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
                 cache[key] = (r, None if J is None else J @ V)
             return cache[key]
 
-        method = "lm" if loss == "linear" and V.shape[1] <= len(r0) else "trf"
+        method = "lm" if loss == "linear" and V.shape[1] <= len(lin.r) else "trf"
         sol = least_squares(
             lambda z: both(z, False)[0], np.zeros(V.shape[1]), jac=lambda z: both(z, True)[1], method=method,
             loss=loss if method == "trf" else "linear", f_scale=f_scale, x_scale=1.0,
@@ -199,35 +245,34 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
         )
         evaluations += sol.nfev
         delta = V @ sol.x
-        step = float(np.linalg.norm(J0 @ delta))
+        step = float(np.linalg.norm(lin.Rf @ delta))
         state = recentre(retract(state, problem.layout, problem.full_delta(delta)))
         if progress:
             progress(it, float(2 * sol.cost))
         log.debug("outer %d: cost %.6g, whitened step %.3g, max |delta| %.3g", it, 2 * sol.cost, step,
                   np.max(np.abs(delta), initial=0))
+        r0_norm, m = np.sqrt(lin.cost2), len(lin.r)
+        lin = None  # the state moved
         # stop when the step is negligible against the residual (or, with noise, well below one sigma)
-        if _converged(step, r0, sol.cost, len(r0) - V.shape[1]) or np.max(np.abs(delta), initial=0) < 1e-13:
+        if _converged(step, r0_norm, sol.cost, m - V.shape[1]) or np.max(np.abs(delta), initial=0) < 1e-13:
             status = "converged"
             break
 
-    if linearized_at_final:
-        r, J = r0, J0  # the loop stopped at a fresh linearization of the final state: reuse it
-    else:
-        W = problem.whiteners(state)
-        r, J = problem.evaluate(state, np.zeros(p), W)
-    ana = _analyse_named(problem, state, J, rank_rtol, order, describe_ctx, W)
+    if lin is None:  # the loop stopped after a step: linearize the final state
+        if problem.joint_noise:
+            W = None
+        lin = _linearize(problem, state, W, every)
+        W = lin.W
+    ana = _analyse_named(problem, state, lin, rank_rtol, order, describe_ctx)
     if status == "degenerate":
         messages.append("degenerate experiment: no arm parameter can be identified from these data; "
                         "nothing was estimated")
     elif status == "not converged":
         messages.append(f"did not converge in {max_outer} outer iterations")
-    dof = len(r) - ana.rank
-    sigma2 = float(r @ r / dof) if dof > 0 else float("nan")
-    if isinstance(gauge, str):
-        V = ana.range_space
-    else:
-        V = np.eye(p)[:, select_columns(J, order, ana.rank)]
-    cov = covariance(J, V, sigma2 if np.isfinite(sigma2) else 1.0) if V.shape[1] else np.zeros((p, p))
+    dof = len(lin.r) - ana.rank
+    sigma2 = lin.cost2 / dof if dof > 0 else float("nan")
+    V = _gauge_basis(lin.Rf, ana, gauge, order)
+    cov = covariance(lin.Rf, V, sigma2 if np.isfinite(sigma2) else 1.0) if V.shape[1] else np.zeros((p, p))
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
     ok = ana.identifiable & (status != "degenerate")
     std = np.where(ok, std, np.nan)
@@ -266,17 +311,28 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
     )
 
 
-def _converged(step: float, r0: np.ndarray, cost: float, dof: int) -> bool:
+def _gauge_basis(Rf, ana, gauge, order) -> np.ndarray:
+    """Columns spanning the coordinates the solver moves: the identifiable subspace (min-change) or the
+    identifiable parameters first in the user's priority order (the rest held)."""
+    if isinstance(gauge, str):
+        return ana.range_space
+    return np.eye(Rf.shape[1])[:, select_columns(Rf, order, ana.rank)]
+
+
+def _converged(step: float, r0_norm: float, cost: float, dof: int) -> bool:
     """A step is negligible against the residual, or (with noise) well below one sigma of scatter."""
     scatter = np.sqrt(2 * cost / max(dof, 1))
-    return step < max(1e-6 * (1.0 + np.linalg.norm(r0)), 1e-3 * scatter)
+    return step < max(1e-6 * (1.0 + r0_norm), 1e-3 * scatter)
 
 
-def _gauss_newton_step_negligible(JV: np.ndarray, r0: np.ndarray) -> bool:
-    """Convergence test at a new linearization point, from the Jacobian already evaluated there."""
-    z = np.linalg.lstsq(JV, -r0, rcond=None)[0]
-    r1 = r0 + JV @ z
-    return _converged(float(np.linalg.norm(JV @ z)), r0, 0.5 * float(r1 @ r1), len(r0) - JV.shape[1])
+def _gauss_newton_step_negligible(lin: _Linearization, V: np.ndarray) -> bool:
+    """Convergence test at a new linearization point, from its triangular factor: with ``J = Q R`` the step
+    ``z = argmin |R V z + Q^T r|`` and the residual after it follow without touching the tall matrices."""
+    RV = lin.Rf @ V
+    z = np.linalg.lstsq(RV, -lin.qtr, rcond=None)[0]
+    dz = RV @ z
+    r1 = lin.cost2 - float(lin.qtr @ lin.qtr) + float((lin.qtr + dz) @ (lin.qtr + dz))
+    return _converged(float(np.linalg.norm(dz)), np.sqrt(lin.cost2), 0.5 * max(r1, 0.0), len(lin.r) - V.shape[1])
 
 
 def _require_redundancy(problem, m: int, rank: int) -> None:
@@ -352,7 +408,7 @@ def _context(problem):
     return "; ".join(parts)
 
 
-def _analyse_named(problem, state, J, rtol, order, context, whiteners):
+def _analyse_named(problem, state, lin, rtol, order, context):
     layout = problem.layout
     axes, frames = {}, {}
     for e in problem.experiments:
@@ -392,37 +448,41 @@ def _analyse_named(problem, state, J, rtol, order, context, whiteners):
                          "about that joint's axis")
         return "; ".join(words)
 
-    return analyse(J, problem.free_names, rtol=rtol, scale=_scale_null(problem, state, J, whiteners), priority=order,
+    return analyse(lin.Rf, problem.free_names, rtol=rtol, scale=_scale_null(problem, state, lin), priority=order,
                    describe=describe, context=context)
 
 
-def _scale_null(problem, state, J, whiteners):
+def _scale_null(problem, state, lin: _Linearization):
     """The free direction equivalent to scaling every length, if the data cannot see scale; else None.
 
     Scale is unidentifiable when (1) scaling every length, fixed ones included, leaves the residuals unchanged
     to first order (no measured length: ``J_all s_all = 0``), and (2) the fixed length coordinates add no rank
     to the free ones (e.g. a fixed base is absorbed by free twists and home). The direction is then
     ``s_free + u`` with ``J u = J_fixed s_fixed`` (free parameters standing in for the fixed lengths).
+    Everything is read off the linearization's triangular factor (columns free, fixed, residual).
     """
     layout = problem.layout
+    p = lin.p
     if not any(layout.units[i] == "m" for i in problem.free_idx):
         return None  # no free length, nothing to scale
-    every = Problem(problem.experiments, replace(layout, free=np.ones(layout.size, bool)), problem.nominal,
-                    problem.noise)
-    _, Ja = every.evaluate(state, np.zeros(layout.size), whiteners)
-    s = scale_direction(state, layout)
-    g = Ja @ s
-    if np.linalg.norm(g) > 1e-6 * np.sum(np.linalg.norm(Ja, axis=0) * np.abs(s)):
+    fixed = np.flatnonzero(~layout.free)
+    Ra = lin.R[:, :-1]  # (q, P): every coordinate, free first
+    if Ra.shape[1] != layout.size:
+        raise AssertionError("the scale test needs a linearization with every column")
+    s_all = scale_direction(state, layout)
+    s = np.concatenate([s_all[problem.free_idx], s_all[fixed]])
+    colnorm = np.linalg.norm(Ra, axis=0)
+    if np.linalg.norm(Ra @ s) > 1e-6 * np.sum(colnorm * np.abs(s)):
         return None
-    fixed = ~layout.free
-    lengths = np.flatnonzero(fixed & (np.array(layout.units) == "m") & (np.linalg.norm(Ja, axis=0) > 0))
+    units = np.array(layout.units)[fixed]
+    lengths = np.flatnonzero((units == "m") & (colnorm[p:] > 0))
     if len(lengths):
-        A = Ja[:, lengths]
-        R = A - J @ np.linalg.lstsq(J, A, rcond=None)[0]
-        if np.max(np.linalg.norm(R, axis=0) / np.linalg.norm(A, axis=0)) > 1e-6:
+        # the part of a fixed length's column outside the free columns' range sits below row p of R
+        outside = np.linalg.norm(Ra[p:, p + lengths], axis=0) / colnorm[p + lengths]
+        if np.max(outside) > 1e-6:
             return None
-    u = np.linalg.lstsq(J, Ja[:, fixed] @ s[fixed], rcond=None)[0]
-    d = s[problem.free_idx] + u
+    u = np.linalg.lstsq(lin.Rf, Ra[:p, p:] @ s[p:], rcond=None)[0]
+    d = s[:p] + u
     return d if np.linalg.norm(d) > 0 else None
 
 

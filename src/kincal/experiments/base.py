@@ -13,15 +13,16 @@ from typing import ClassVar, Mapping
 import numpy as np
 
 from kincal.data import Dataset
-from kincal.experiments._kernel import ARM_PARTS, arm_tool
-from kincal.kinematics import chain
+from kincal.experiments._kernel import ARM_PARTS, arm_jacobians
+from kincal.kinematics import Kinematics, chain
 from kincal.params import State
 
 
 @dataclass(frozen=True)
 class Residual:
     """``r`` (N, k); ``jac[block]`` (N, k, d) for parameter blocks (``right.offsets``, ``fixture``, ...);
-    ``jq[arm]`` (N, k, n): derivative w.r.t. the joint readings, for propagating encoder noise."""
+    ``jq[arm]`` (N, k, n): derivative w.r.t. the joint readings, for propagating encoder noise (empty when
+    not asked for)."""
 
     r: np.ndarray
     jac: Mapping[str, np.ndarray]
@@ -63,7 +64,8 @@ class Experiment:
         """Per residual column: 'position' (m) or 'orientation' (rad)."""
         return self.COMPONENTS
 
-    def residual(self, state: State, want=None) -> Residual:
+    def residual(self, state: State, want=None, jq: bool = True) -> Residual:
+        """Residual at ``state``; Jacobians of the blocks in ``want`` (None: every block), and ``jq`` if asked."""
         raise NotImplementedError
 
     def initial(self, state: State, known: Mapping[str, object]) -> dict[str, object]:
@@ -84,14 +86,21 @@ class Experiment:
     def _wanted(self, role: str, want) -> bool:
         return role in self.frames and (want is None or self.frames[role] in want)
 
-    def _arm(self, state: State, arm: str, want):
-        return arm_tool(state.arms[arm], self.dataset.q[arm], self._parts(arm, want))
+    def _kin(self, state: State, arm: str) -> Kinematics:
+        a = state.arms[arm]
+        return chain(a.screws, self.dataset.q[arm] + a.offsets, a.base, a.home, a.tool)
 
     def _fk(self, state: State, arm: str) -> np.ndarray:
-        a = state.arms[arm]
-        return chain(a.screws, self.dataset.q[arm] + a.offsets, a.base, a.home, a.tool).tool
+        return self._kin(state, arm).tool
 
-
-def chain_rule(G: np.ndarray, arm: str, blocks: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
-    """``{arm.part: G @ J_part}`` for a gap Jacobian G (N, k, 6) and pose Jacobians J_part (N, 6, d)."""
-    return {f"{arm}.{p}": G @ J for p, J in blocks.items()}
+    def _arm_jac(self, state: State, arm: str, kin: Kinematics, G: np.ndarray, want, jq: bool, out: dict,
+                 jqs: dict) -> None:
+        """Add ``{arm.part: G @ J_part}`` to ``out`` and ``G @ J_q`` to ``jqs[arm]`` (if asked); G (N, k, 6) is
+        the residual's derivative w.r.t. the left increment of ``T_world_tool``."""
+        parts = self._parts(arm, want)
+        if not parts and not jq:
+            return
+        blocks, gq = arm_jacobians(state.arms[arm], kin, G, parts, with_jq=jq)
+        out.update({f"{arm}.{p}": J for p, J in blocks.items()})
+        if jq:
+            jqs[arm] = gq

@@ -7,7 +7,7 @@ unknown its pose is a parameter (not a mean of uncalibrated poses).
 from __future__ import annotations
 
 from kincal.experiments._kernel import pose_gap_in_b, pose_mean
-from kincal.experiments.base import Experiment, Residual, chain_rule
+from kincal.experiments.base import Experiment, Residual
 
 
 class ClampExperiment(Experiment):
@@ -15,14 +15,15 @@ class ClampExperiment(Experiment):
     ROLES = {"fixture": "T_world_fixture"}
     COMPONENTS = ("position",) * 3 + ("orientation",) * 3
 
-    def residual(self, state, want=None) -> Residual:
+    def residual(self, state, want=None, jq=True) -> Residual:
         arm = self.arms[0]
-        kin, J, jq = self._arm(state, arm, want)
+        kin = self._kin(state, arm)
         r, GA, GB = pose_gap_in_b(kin.tool, state.extras[self.frames["fixture"]])
-        jac = chain_rule(GA, arm, J)
+        jac, jqs = {}, {}
+        self._arm_jac(state, arm, kin, GA, want, jq, jac, jqs)
         if self._wanted("fixture", want):
             jac[self.frames["fixture"]] = GB
-        return Residual(r, jac, {arm: GA @ jq})
+        return Residual(r, jac, jqs)
 
     def initial(self, state, known):
         return {} if "fixture" in known else {"fixture": pose_mean(self._fk(state, self.arms[0]))}

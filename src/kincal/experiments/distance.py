@@ -16,18 +16,16 @@ class DistanceExperiment(Experiment):
     ROLES = {}
     COMPONENTS = ("position",)
 
-    def residual(self, state, want=None) -> Residual:
+    def residual(self, state, want=None, jq=True) -> Residual:
         a, b = self.arms
-        kinA, JA, jqA = self._arm(state, a, want)
-        kinB, JB, jqB = self._arm(state, b, want)
+        kinA, kinB = self._kin(state, a), self._kin(state, b)
         diff = kinA.tool[:, :3, 3] - kinB.tool[:, :3, 3]
         dist = np.linalg.norm(diff, axis=-1, keepdims=True)
         u = (diff / dist)[:, None, :]  # (N, 1, 3)
-        GA = u @ point_jacobian(kinA.tool[:, :3, 3])
-        GB = -(u @ point_jacobian(kinB.tool[:, :3, 3]))
-        jac = {f"{a}.{k}": GA @ v for k, v in JA.items()}
-        jac.update({f"{b}.{k}": GB @ v for k, v in JB.items()})
-        return Residual(dist - self.dataset.known["distance"], jac, {a: GA @ jqA, b: GB @ jqB})
+        jac, jqs = {}, {}
+        self._arm_jac(state, a, kinA, u @ point_jacobian(kinA.tool[:, :3, 3]), want, jq, jac, jqs)
+        self._arm_jac(state, b, kinB, -(u @ point_jacobian(kinB.tool[:, :3, 3])), want, jq, jac, jqs)
+        return Residual(dist - self.dataset.known["distance"], jac, jqs)
 
     def initial(self, state, known):
         return {}

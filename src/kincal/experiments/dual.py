@@ -9,7 +9,7 @@ that arm's parameters fixed.
 from __future__ import annotations
 
 from kincal.experiments._kernel import pose_gap_in_b, pose_mean
-from kincal.experiments.base import Experiment, Residual, chain_rule
+from kincal.experiments.base import Experiment, Residual
 from kincal.lie import se3
 
 
@@ -18,16 +18,17 @@ class DualExperiment(Experiment):
     ROLES = {"clamp": "T_toolA_toolB"}
     COMPONENTS = ("position",) * 3 + ("orientation",) * 3
 
-    def residual(self, state, want=None) -> Residual:
+    def residual(self, state, want=None, jq=True) -> Residual:
         a, b = self.arms
         C = state.extras[self.frames["clamp"]]
-        kinA, JA, jqA = self._arm(state, a, want)
-        kinB, JB, jqB = self._arm(state, b, want)
+        kinA, kinB = self._kin(state, a), self._kin(state, b)
         r, GA, GB = pose_gap_in_b(kinA.tool @ C, kinB.tool)
-        jac = {**chain_rule(GA, a, JA), **chain_rule(GB, b, JB)}
+        jac, jqs = {}, {}
+        self._arm_jac(state, a, kinA, GA, want, jq, jac, jqs)
+        self._arm_jac(state, b, kinB, GB, want, jq, jac, jqs)
         if self._wanted("clamp", want):
             jac[self.frames["clamp"]] = GA @ se3.adjoint(kinA.tool)
-        return Residual(r, jac, {a: GA @ jqA, b: GB @ jqB})
+        return Residual(r, jac, jqs)
 
     def initial(self, state, known):
         if "clamp" in known:

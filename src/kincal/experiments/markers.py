@@ -24,18 +24,19 @@ class MarkersExperiment(Experiment):
     def components(self):
         return ("position",) * (3 * self.dataset.measured["p_tracker_marker"].shape[1])
 
-    def residual(self, state, want=None) -> Residual:
+    def residual(self, state, want=None, jq=True) -> Residual:
         arm = self.arms[0]
         W = state.extras[self.frames["tracker"]]
         x = np.asarray(state.extras[self.frames["markers"]])
         y = self.dataset.measured["p_tracker_marker"]
         N, m = y.shape[:2]
-        kin, J, jq = self._arm(state, arm, want)
+        kin = self._kin(state, arm)
         F = kin.tool
         pA = se3.transform_points(F[:, None], x)  # (N, m, 3) world
         Rt = W[:3, :3].T
         GA = Rt @ point_jacobian(pA)  # (N, m, 3, 6)
-        jac = {f"{arm}.{p}": (GA @ Jp[:, None]).reshape(N, 3 * m, -1) for p, Jp in J.items()}
+        jac, jqs = {}, {}
+        self._arm_jac(state, arm, kin, GA.reshape(N, 3 * m, 6), want, jq, jac, jqs)
         if self._wanted("markers", want):
             Jx = np.zeros((N, m, 3, m, 3))
             RtR = Rt @ F[:, :3, :3]
@@ -44,9 +45,8 @@ class MarkersExperiment(Experiment):
             jac[self.frames["markers"]] = Jx.reshape(N, 3 * m, 3 * m)
         if self._wanted("tracker", want):
             jac[self.frames["tracker"]] = -GA.reshape(N, 3 * m, 6)
-        jqm = (GA @ jq[:, None]).reshape(N, 3 * m, -1)
         r = se3.transform_points(se3.inverse(W), pA) - y
-        return Residual(r.reshape(N, 3 * m), jac, {arm: jqm})
+        return Residual(r.reshape(N, 3 * m), jac, jqs)
 
     def initial(self, state, known):
         F = self._fk(state, self.arms[0])

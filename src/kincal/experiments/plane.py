@@ -17,19 +17,18 @@ class PlaneExperiment(Experiment):
     ROLES = {"plane": "plane_world"}
     COMPONENTS = ("position",)
 
-    def residual(self, state, want=None) -> Residual:
+    def residual(self, state, want=None, jq=True) -> Residual:
         arm = self.arms[0]
         pl = state.extras[self.frames["plane"]]
         n, d = pl.unit()
-        kin, J, jq = self._arm(state, arm, want)
+        kin = self._kin(state, arm)
         p = kin.tool[:, :3, 3]
-        G = n @ point_jacobian(p)  # (N, 6)
-        G = G[:, None, :]
-        jac = {f"{arm}.{k}": G @ v for k, v in J.items()}
+        jac, jqs = {}, {}
+        self._arm_jac(state, arm, kin, (n @ point_jacobian(p))[:, None, :], want, jq, jac, jqs)
         if self._wanted("plane", want):
             dn = (p @ (np.eye(3) - np.outer(n, n)) / np.linalg.norm(pl.normal)) @ pl.U  # (N, 2)
             jac[self.frames["plane"]] = np.concatenate([dn, -np.ones((len(p), 1))], axis=-1)[:, None, :]
-        return Residual((p @ n - d)[:, None], jac, {arm: G @ jq})
+        return Residual((p @ n - d)[:, None], jac, jqs)
 
     def initial(self, state, known):
         if "plane" in known:

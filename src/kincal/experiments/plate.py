@@ -10,7 +10,7 @@ import numpy as np
 
 from kincal.errors import DegenerateExperimentError
 from kincal.experiments._kernel import pose_gap_in_b, pose_mean
-from kincal.experiments.base import Experiment, Residual, chain_rule
+from kincal.experiments.base import Experiment, Residual
 from kincal.lie import se3
 
 
@@ -31,14 +31,15 @@ class PlateExperiment(Experiment):
     def _fixtures(self):
         return self.dataset.known["T_plate_fixture"][self.dataset.measured["fixture"].astype(int)]
 
-    def residual(self, state, want=None) -> Residual:
+    def residual(self, state, want=None, jq=True) -> Residual:
         arm = self.arms[0]
-        kin, J, jq = self._arm(state, arm, want)
+        kin = self._kin(state, arm)
         r, GA, GB = pose_gap_in_b(kin.tool, state.extras[self.frames["plate"]] @ self._fixtures())
-        jac = chain_rule(GA, arm, J)
+        jac, jqs = {}, {}
+        self._arm_jac(state, arm, kin, GA, want, jq, jac, jqs)
         if self._wanted("plate", want):
             jac[self.frames["plate"]] = GB
-        return Residual(r, jac, {arm: GA @ jq})
+        return Residual(r, jac, jqs)
 
     def initial(self, state, known):
         if "plate" in known:

@@ -8,7 +8,7 @@ of the whole arm together with the tracker is then an exact null direction.
 from __future__ import annotations
 
 from kincal.experiments._kernel import pose_gap, pose_mean
-from kincal.experiments.base import Experiment, Residual, chain_rule
+from kincal.experiments.base import Experiment, Residual
 from kincal.lie import se3
 
 
@@ -17,17 +17,18 @@ class PoseExperiment(Experiment):
     ROLES = {"tracker": "T_world_tracker"}
     COMPONENTS = ("position",) * 3 + ("orientation",) * 3
 
-    def residual(self, state, want=None) -> Residual:
+    def residual(self, state, want=None, jq=True) -> Residual:
         arm = self.arms[0]
         W = state.extras[self.frames["tracker"]]
-        kin, J, jq = self._arm(state, arm, want)
+        kin = self._kin(state, arm)
         Wi = se3.inverse(W)
         r, GA, _ = pose_gap(Wi @ kin.tool, self.dataset.measured["T_tracker_tool"])
         GA = GA @ se3.adjoint(Wi)  # world left increments of the tool -> tracker-frame increments
-        jac = chain_rule(GA, arm, J)
+        jac, jqs = {}, {}
+        self._arm_jac(state, arm, kin, GA, want, jq, jac, jqs)
         if self._wanted("tracker", want):
             jac[self.frames["tracker"]] = -GA  # W -> exp(d) W moves W^-1 T by exp(-Ad(W^-1) d)
-        return Residual(r, jac, {arm: GA @ jq})
+        return Residual(r, jac, jqs)
 
     def initial(self, state, known):
         if "tracker" in known:

@@ -16,15 +16,15 @@ class SocketExperiment(Experiment):
     ROLES = {"socket": "p_world_socket"}
     COMPONENTS = ("position",) * 3
 
-    def residual(self, state, want=None) -> Residual:
+    def residual(self, state, want=None, jq=True) -> Residual:
         arm = self.arms[0]
-        kin, J, jq = self._arm(state, arm, want)
+        kin = self._kin(state, arm)
         p = kin.tool[:, :3, 3]
-        G = point_jacobian(p)
-        jac = {f"{arm}.{k}": G @ v for k, v in J.items()}
+        jac, jqs = {}, {}
+        self._arm_jac(state, arm, kin, point_jacobian(p), want, jq, jac, jqs)
         if self._wanted("socket", want):
             jac[self.frames["socket"]] = np.broadcast_to(-np.eye(3), (len(p), 3, 3))
-        return Residual(p - state.extras[self.frames["socket"]], jac, {arm: G @ jq})
+        return Residual(p - state.extras[self.frames["socket"]], jac, jqs)
 
     def initial(self, state, known):
         return {} if "socket" in known else {"socket": self._fk(state, self.arms[0])[:, :3, 3].mean(axis=0)}

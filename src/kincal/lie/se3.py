@@ -72,28 +72,29 @@ def exp(xi: np.ndarray) -> np.ndarray:
 def exp_joint_screws(screws: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """exp(hat(xi_j) theta_j) for exact joint screws: (n, 6) and theta (..., n) -> (..., n, 4, 4).
 
-    Revolute (unit w, zero pitch, axis through p = w x v): R = cos t I + sin t hat(w) + (1 - cos t) w w^T,
-    translation (I - R) p. Prismatic (w = 0, unit v): identity rotation, translation t v. No series
-    branches: the screws are unit, so sin and cos of the joint angle are all that is needed.
+    Revolute (unit w, zero pitch, axis through p = w x v): with K = hat(w), R = I + sin t K + (1 - cos t) K^2
+    and translation (I - R) p = -(sin t K p + (1 - cos t) K^2 p). Prismatic (w = 0, unit v): K = 0 and
+    translation t v. So the top 3 x 4 block is ``[I | 0] + sin t E1 + (1 - cos t) E2 + t E3`` with constant
+    E1, E2, E3 per joint: three scaled sums, no series branches, no per-element assembly.
     """
     screws = np.asarray(screws, dtype=float)
     theta = np.asarray(theta, dtype=float)
     v, w = screws[:, :3], screws[:, 3:]
     revolute = np.sum(w * w, axis=1) > 0.5
-    c, s = np.cos(theta), np.sin(theta)
-    c = np.where(revolute, c, 1.0)
-    s = np.where(revolute, s, 0.0)
-    k = 1.0 - c
-    x, y, z = w[:, 0], w[:, 1], w[:, 2]
+    K = so3.hat(np.where(revolute[:, None], w, 0.0))
+    K2 = K @ K
+    p = np.cross(w, v)[:, :, None]  # the axis point nearest the origin (revolute)
+    E1 = np.concatenate([K, -(K @ p)], axis=-1).reshape(-1, 12)
+    E2 = np.concatenate([K2, -(K2 @ p)], axis=-1).reshape(-1, 12)
+    E3 = np.zeros((len(screws), 3, 4))
+    E3[:, :, 3] = np.where(revolute[:, None], 0.0, v)
+    top = np.sin(theta)[..., None] * E1
+    top += (1.0 - np.cos(theta))[..., None] * E2
+    top += theta[..., None] * E3.reshape(-1, 12)
     out = np.zeros(theta.shape + (4, 4))
-    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = c + k * x * x, k * x * y - s * z, k * x * z + s * y
-    out[..., 1, 0], out[..., 1, 1], out[..., 1, 2] = k * x * y + s * z, c + k * y * y, k * y * z - s * x
-    out[..., 2, 0], out[..., 2, 1], out[..., 2, 2] = k * x * z - s * y, k * y * z + s * x, c + k * z * z
-    p = np.cross(w, v)  # (n, 3): the axis point nearest the origin (revolute)
-    R = out[..., :3, :3]
-    rot_t = p - (R @ p[:, :, None])[..., 0]
-    out[..., :3, 3] = np.where(revolute[:, None], rot_t, theta[..., None] * v)
-    out[..., 3, 3] = 1.0
+    out[..., :3, :] = top.reshape(theta.shape + (3, 4))
+    for i in range(4):
+        out[..., i, i] += 1.0
     return out
 
 
