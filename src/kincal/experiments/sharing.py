@@ -36,10 +36,12 @@ def frame_names(datasets: Sequence[Dataset], arms: Sequence[str]) -> list[dict[s
         for role, name in names.items():
             first, first_role = owner.setdefault(name, (ds.name, role))
             if first_role != role:
+                # blame the data set that named the frame (the other one may just have its default name)
+                here = (ds.name, role, first, first_role)
+                mine, r, theirs, r2 = here if role in ds.frames else (first, first_role, ds.name, role)
                 raise DataFormatError(
-                    f"data set '{ds.name}': field frames.{role}: frame '{name}' is the {first_role} of data set "
-                    f"'{first}'; a {role} cannot share a frame with a {first_role} (only frames of the same role "
-                    "can be shared)"
+                    f"data set '{mine}': field frames.{r}: frame '{name}' is the {r2} of data set '{theirs}'; "
+                    f"a {r} cannot share a frame with a {r2} (only frames of the same role can be shared)"
                 )
         out.append(names)
     return out
