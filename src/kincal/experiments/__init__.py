@@ -22,8 +22,8 @@ from kincal.experiments.markers import MarkersExperiment
 from kincal.experiments.plane import PlaneExperiment
 from kincal.experiments.plate import PlateExperiment
 from kincal.experiments.pose import PoseExperiment
-from kincal.experiments.socket import SocketExperiment
 from kincal.experiments.sharing import frame_names, frame_values
+from kincal.experiments.socket import SocketExperiment
 from kincal.params import State
 
 KINDS: dict[str, type[Experiment]] = {
