@@ -22,6 +22,10 @@ kind              measured                              known (optional unless m
 
 ``arms`` lists the arms involved (two for ``dual`` and ``distance``, first is A). Unknown quantities
 (absent from ``known``) become parameters of the calibration.
+
+``frames`` (optional, role -> frame name) names the frames of the data set's roles (``ROLES``: ``tracker``,
+``markers``, ``fixture``, ``plate``, ``clamp``, ``socket``, ``plane``). Data sets that name the same frame share
+one parameter block, e.g. two marker sessions with the same tracker: ``frames={"tracker": "lab_tracker"}``.
 """
 
 from __future__ import annotations
@@ -47,6 +51,43 @@ KINDS = {
 }
 
 
+# The frames each kind names: role -> its entry in ``known``. A role is what a frame is, so only frames of the same
+# role can be shared (a tracker with a tracker, never with a fixture).
+ROLES = {
+    "pose": {"tracker": "T_world_tracker"},
+    "markers": {"tracker": "T_world_tracker", "markers": "p_tool_marker"},
+    "clamp": {"fixture": "T_world_fixture"},
+    "plate": {"plate": "T_world_plate"},
+    "dual": {"clamp": "T_toolA_toolB"},
+    "socket": {"socket": "p_world_socket"},
+    "distance": {},
+    "plane": {"plane": "plane_world"},
+}
+# frame names end up in parameter names and are matched by the globs of free/fixed/priors
+_NAME_FORBIDDEN = set("*?[] \t\n")
+
+
+def frames_problem(kind: str, frames, arms=()) -> tuple[str, str] | None:
+    """The first bad entry of a ``frames`` mapping (role -> frame name) as (field, problem), or None.
+
+    ``arms``: the model's arm names; a frame named like an arm would give parameters named like the arm's.
+    """
+    if not isinstance(frames, Mapping):
+        return "frames", f"expected a mapping role -> frame name, found {type(frames).__name__}"
+    roles = ROLES[kind]
+    for role, name in frames.items():
+        where = f"frames.{role}"
+        if role not in roles:
+            return where, (f"expected a role of kind '{kind}' ({', '.join(roles) or 'none'}), found {role!r}")
+        if not isinstance(name, str) or not name or _NAME_FORBIDDEN & set(name):
+            return where, f"expected a non-empty frame name without spaces or *?[], found {name!r}"
+        clash = next((a for a in arms if name == a or name.startswith(f"{a}.")), None)
+        if clash is not None:
+            return where, (f"expected a name that does not start with an arm of the model ('{clash}', whose "
+                           f"parameters are named '{clash}.*'), found {name!r}")
+    return None
+
+
 def _ro(a) -> np.ndarray:
     a = np.array(a)
     a.setflags(write=False)
@@ -65,6 +106,7 @@ class Dataset:
     known: Mapping[str, np.ndarray] = field(default_factory=dict)
     name: str = "experiment"
     meta: Mapping = field(default_factory=dict)
+    frames: Mapping[str, str] = field(default_factory=dict)  # role -> frame name (shared between data sets)
 
     def __post_init__(self) -> None:
         where = f"data set '{self.name}'"
@@ -106,6 +148,10 @@ class Dataset:
         object.__setattr__(self, "measured", MappingProxyType({k: _ro(v) for k, v in self.measured.items()}))
         object.__setattr__(self, "known", MappingProxyType({k: _ro(v) for k, v in self.known.items()}))
         object.__setattr__(self, "meta", MappingProxyType(dict(self.meta)))
+        bad = frames_problem(self.kind, self.frames)
+        if bad:
+            raise ShapeError(f"{where}: field {bad[0]}: {bad[1]}")
+        object.__setattr__(self, "frames", MappingProxyType(dict(self.frames)))
         n = self.size
         for k, v in self.measured.items():
             if v.shape[:1] != (n,):
@@ -128,4 +174,5 @@ class Dataset:
             dict(self.known),
             self.name,
             dict(self.meta),
+            dict(self.frames),
         )

@@ -1,7 +1,8 @@
 """Experiment kinds: pure residuals with analytic Jacobians, one module per kind.
 
 ``build(datasets, state)`` turns data sets into experiments and the state extras they read (known frames
-as given, unknown frames initialized from the nominal arms), plus the names of the unknown extras.
+as given, unknown frames initialized from the nominal arms), plus the names of the unknown extras. Data sets
+naming the same frame in ``Dataset.frames`` share it (``sharing``).
 """
 
 from __future__ import annotations
@@ -21,8 +22,9 @@ from kincal.experiments.markers import MarkersExperiment
 from kincal.experiments.plane import PlaneExperiment
 from kincal.experiments.plate import PlateExperiment
 from kincal.experiments.pose import PoseExperiment
+from kincal.experiments.sharing import frame_names, frame_values
 from kincal.experiments.socket import SocketExperiment
-from kincal.params import Plane, State
+from kincal.params import State
 
 KINDS: dict[str, type[Experiment]] = {
     cls.KIND: cls
@@ -51,26 +53,20 @@ def check_joints(ds: Dataset, state: State) -> None:
 
 def build(datasets: Sequence[Dataset], state: State) -> tuple[list[Experiment], dict[str, object], list[str]]:
     """(experiments, extras, names of unknown extras). Frame names are the role (``fixture``) when only one
-    data set has that role, else ``<data set>.<role>``."""
+    data set has that role, else ``<data set>.<role>``, unless ``Dataset.frames`` names them; data sets naming
+    the same frame share it (``kincal.experiments.sharing``)."""
     names = [d.name for d in datasets]
     dup = [n for n, c in Counter(names).items() if c > 1]
     if dup:
         raise DataFormatError(f"data set names must be unique; repeated: {', '.join(dup)}")
-    roles = Counter(r for d in datasets for r in KINDS[d.kind].ROLES)
-    experiments, extras, unknown = [], {}, []
-    for ds in datasets:
+    experiments = []
+    for ds, frames in zip(datasets, frame_names(datasets, tuple(state.arms))):
         check_joints(ds, state)
         _check_finite(ds)
-        cls = KINDS[ds.kind]
-        frames = {r: (r if roles[r] == 1 else f"{ds.name}.{r}") for r in cls.ROLES}
-        exp = cls(ds, frames)
+        exp = KINDS[ds.kind](ds, frames)
         exp.check()
-        known = {r: np.asarray(ds.known[k], dtype=float) for r, k in cls.ROLES.items() if k in ds.known}
-        guesses = exp.initial(state, known)
-        for role, value in {**known, **guesses}.items():
-            extras[frames[role]] = Plane.from_array(value) if role == "plane" else value
-        unknown += [frames[r] for r in guesses]
         experiments.append(exp)
+    extras, unknown = frame_values(experiments, state)
     return experiments, extras, unknown
 
 

@@ -12,7 +12,7 @@ from typing import ClassVar, Mapping
 
 import numpy as np
 
-from kincal.data import Dataset
+from kincal.data import ROLES, Dataset
 from kincal.experiments._kernel import ARM_PARTS, arm_jacobians
 from kincal.kinematics import Kinematics, chain
 from kincal.params import State
@@ -31,7 +31,8 @@ class Residual:
 
 @dataclass(frozen=True, eq=False)
 class Experiment:
-    """Base class; subclasses set KIND, ROLES (role -> key in ``dataset.known``) and COMPONENTS."""
+    """Base class; subclasses set KIND and COMPONENTS. ROLES (role -> key in ``dataset.known``) comes from
+    ``kincal.data.ROLES``, the one table the data layer checks ``Dataset.frames`` against."""
 
     dataset: Dataset
     frames: Mapping[str, str]  # role -> name of the state extra holding it
@@ -39,6 +40,10 @@ class Experiment:
     KIND: ClassVar[str] = ""
     ROLES: ClassVar[Mapping[str, str]] = {}
     COMPONENTS: ClassVar[tuple[str, ...]] = ()
+
+    def __init_subclass__(cls, **kwargs) -> None:
+        super().__init_subclass__(**kwargs)
+        cls.ROLES = ROLES[cls.KIND]
 
     @property
     def name(self) -> str:
@@ -74,6 +79,10 @@ class Experiment:
 
     def check(self) -> None:
         """Raise on data this kind cannot use (beyond what Dataset checks)."""
+
+    def frame_shape(self, role: str) -> tuple[int, ...]:
+        """Shape of the value of a role's frame (poses by default), to check data sets sharing it agree."""
+        return (4, 4)
 
     def increment_frames(self, state: State) -> dict[str, np.ndarray]:
         """World pose of the frame in which each pose role's left increment is expressed (first sample)."""

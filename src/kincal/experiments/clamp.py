@@ -12,7 +12,6 @@ from kincal.experiments.base import Experiment, Residual
 
 class ClampExperiment(Experiment):
     KIND = "clamp"
-    ROLES = {"fixture": "T_world_fixture"}
     COMPONENTS = ("position",) * 3 + ("orientation",) * 3
 
     def residual(self, state, want=None, jq=True) -> Residual:

@@ -13,7 +13,6 @@ from kincal.experiments.base import Experiment, Residual
 
 class DistanceExperiment(Experiment):
     KIND = "distance"
-    ROLES = {}
     COMPONENTS = ("position",)
 
     def residual(self, state, want=None, jq=True) -> Residual:

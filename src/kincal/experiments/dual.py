@@ -15,7 +15,6 @@ from kincal.lie import se3
 
 class DualExperiment(Experiment):
     KIND = "dual"
-    ROLES = {"clamp": "T_toolA_toolB"}
     COMPONENTS = ("position",) * 3 + ("orientation",) * 3
 
     def residual(self, state, want=None, jq=True) -> Residual:

@@ -19,7 +19,9 @@ from kincal.lie import se3
 
 class MarkersExperiment(Experiment):
     KIND = "markers"
-    ROLES = {"tracker": "T_world_tracker", "markers": "p_tool_marker"}
+
+    def frame_shape(self, role):
+        return (4, 4) if role == "tracker" else self.dataset.measured["p_tracker_marker"].shape[1:]
 
     def components(self):
         return ("position",) * (3 * self.dataset.measured["p_tracker_marker"].shape[1])

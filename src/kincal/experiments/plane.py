@@ -14,8 +14,10 @@ from kincal.experiments.base import Experiment, Residual
 
 class PlaneExperiment(Experiment):
     KIND = "plane"
-    ROLES = {"plane": "plane_world"}
     COMPONENTS = ("position",)
+
+    def frame_shape(self, role):
+        return (4,)  # [n, d]
 
     def residual(self, state, want=None, jq=True) -> Residual:
         arm = self.arms[0]

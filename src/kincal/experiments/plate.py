@@ -16,7 +16,6 @@ from kincal.lie import se3
 
 class PlateExperiment(Experiment):
     KIND = "plate"
-    ROLES = {"plate": "T_world_plate"}
     COMPONENTS = ("position",) * 3 + ("orientation",) * 3
 
     def check(self):

@@ -14,7 +14,6 @@ from kincal.lie import se3
 
 class PoseExperiment(Experiment):
     KIND = "pose"
-    ROLES = {"tracker": "T_world_tracker"}
     COMPONENTS = ("position",) * 3 + ("orientation",) * 3
 
     def residual(self, state, want=None, jq=True) -> Residual:

@@ -13,8 +13,10 @@ from kincal.experiments.base import Experiment, Residual
 
 class SocketExperiment(Experiment):
     KIND = "socket"
-    ROLES = {"socket": "p_world_socket"}
     COMPONENTS = ("position",) * 3
+
+    def frame_shape(self, role):
+        return (3,)
 
     def residual(self, state, want=None, jq=True) -> Residual:
         arm = self.arms[0]

@@ -3,7 +3,8 @@
 The format is documented in docs/formats.md. In short, the manifest (``format: kincal-dataset``,
 ``version: 1``) names the experiment ``kind``, the ``model`` (built-in robot name or model file path
 relative to the manifest), the ``arms``, the CSV file (``data``), the ``units`` of the CSV and of the known
-transforms, the ``known`` quantities and optional ``noise`` levels. The CSV header names its columns:
+transforms, the ``known`` quantities, optional ``noise`` levels and optional ``frames`` (role -> frame name,
+for frames shared with other data sets). The CSV header names its columns:
 
 - joints ``<arm>.<joint>`` (e.g. ``left.j1``), every joint of every arm;
 - ``pose``: ``tool.x, tool.y, tool.z, tool.qw, tool.qx, tool.qy, tool.qz`` (tracker frame);
@@ -27,7 +28,7 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from kincal.data import KINDS, Dataset
+from kincal.data import KINDS, Dataset, frames_problem
 from kincal.errors import DataFormatError, KincalError
 from kincal.io import units
 from kincal.io.models import _Ctx, _mapping, _matrix, _number, _pose, _vector, load_robot, save_robot
@@ -40,7 +41,7 @@ FORMAT = "kincal-dataset"
 VERSION = 1
 QUAT_TOL = 1e-6
 _TOP_KEYS = {"format", "version", "name", "kind", "model", "arms", "data", "units", "known", "noise", "description",
-             "meta"}
+             "meta", "frames"}
 POSE_COLUMNS = ("tool.x", "tool.y", "tool.z", "tool.qw", "tool.qx", "tool.qy", "tool.qz")
 WRENCH_COLUMNS = ("wrench.fx", "wrench.fy", "wrench.fz", "wrench.tx", "wrench.ty", "wrench.tz")
 # noise keys: base name -> quantity; the file key carries its unit, e.g. joint_sigma_deg, tracker_sigma_mm
@@ -93,6 +94,10 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
         if a not in robot.arms:
             raise ctx.fail("arms", f"model '{robot.name}' has no arm {a!r}; its arms: {', '.join(robot.arms)}")
     known = _known(ctx, kind, top.get("known") or {})
+    frames = top.get("frames") or {}
+    bad = frames_problem(kind, frames, tuple(robot.arms))
+    if bad:
+        raise ctx.fail(*bad)
     noise = _noise(ctx, top.get("noise") or {})
     csv_path = manifest.parent / str(top["data"])
     table = _read_csv(csv_path)
@@ -111,7 +116,7 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
                               f"'{kind}' with arms {arms}; expected only {', '.join(table.used)}")
     name = str(top.get("name") or manifest.stem)
     try:
-        return Dataset(kind, resolved, tuple(arms), q, measured, known, name, meta)
+        return Dataset(kind, resolved, tuple(arms), q, measured, known, name, meta, frames)
     except KincalError as exc:
         raise DataFormatError(f"{manifest}: {exc}") from None
 
@@ -304,6 +309,8 @@ def dataset_to_dict(ds: Dataset, model: str, data_file: str, angle: str = "rad",
            "arms": list(ds.arms), "data": data_file, "units": {"angle": angle, "length": length}}
     if known:
         out["known"] = known
+    if ds.frames:
+        out["frames"] = dict(ds.frames)
     noise = dict(ds.meta.get("noise") or {})
     if noise:
         out["noise"] = {f"{base}_{'rad' if q == 'angle' else 'm'}": float(noise[si])

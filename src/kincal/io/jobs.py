@@ -7,12 +7,12 @@ Paths in a job are relative to the job file. Units appear only here, in suffixed
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping
 
 
-from kincal.data import Dataset
+from kincal.data import Dataset, frames_problem
 from kincal.errors import DataFormatError
 from kincal.estimation import Noise
 from kincal.io import units
@@ -111,12 +111,23 @@ def _data(f, base: Path, entries, key, robot, required):
         where = f"{f}: {key}[{i}]"
         if isinstance(e, str):
             e = {"manifest": e}
-        if not isinstance(e, dict) or "manifest" not in e or set(e) - {"manifest", "noise"}:
-            raise DataFormatError(f"{where}: expected a manifest path or {{manifest: path, noise: {{...}}}}, found {e!r}")
+        if not isinstance(e, dict) or "manifest" not in e or set(e) - {"manifest", "noise", "frames"}:
+            raise DataFormatError(f"{where}: expected a manifest path or {{manifest: path, noise: {{...}}, "
+                                  f"frames: {{...}}}}, found {e!r}")
         ds = load_dataset(base / str(e["manifest"]), robot)
+        if e.get("frames") is not None:
+            ds = _frames(where, e["frames"], ds, robot)
         datasets.append(ds)
         noise[ds.name] = _noise(where, e.get("noise"), ds)
     return tuple(datasets), noise
+
+
+def _frames(where, frames, ds: Dataset, robot: Robot) -> Dataset:
+    """The data set with the job's frame names (role -> name) over the manifest's own."""
+    bad = frames_problem(ds.kind, frames, tuple(robot.arms))
+    if bad:
+        raise DataFormatError(f"{where}: field {bad[0]}: {bad[1]}")
+    return replace(ds, frames={**ds.frames, **frames})
 
 
 def _noise(where, data, ds: Dataset) -> Noise:

@@ -1,0 +1,106 @@
+"""Naming the frames of experiments and sharing them between data sets.
+
+A frame (tracker, fixture, plate, clamp, markers, socket, plane) is a state extra. Its name is the role
+(``tracker``) when only one data set has that role, else ``<data set>.<role>``, unless the data set's
+``frames`` names it. Data sets naming the same frame share one parameter block (one tracker seen in two
+sessions, one clamp in two dual-arm data sets): a frame known in any of them is known in all (the values must
+agree), and an unknown one starts from the first data set's initial guess.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Sequence
+
+import numpy as np
+
+from kincal.data import ROLES, Dataset, frames_problem
+from kincal.errors import DataFormatError
+from kincal.params import Plane, State
+
+KNOWN_ATOL = 1e-9  # two data sets giving a shared frame as known must agree to this (m, and rotation entries)
+
+
+def frame_names(datasets: Sequence[Dataset], arms: Sequence[str]) -> list[dict[str, str]]:
+    """Per data set, role -> frame name. A name given in ``frames`` must be valid, and a frame may only be
+    shared between data sets in which it plays the same role."""
+    # every data set with the role counts, named or not, so naming one frame never renames another's
+    count = Counter(r for d in datasets for r in ROLES[d.kind])
+    owner: dict[str, tuple[str, str]] = {}  # frame name -> (first data set, role)
+    out = []
+    for ds in datasets:
+        bad = frames_problem(ds.kind, ds.frames, arms)
+        if bad:
+            raise DataFormatError(f"data set '{ds.name}': field {bad[0]}: {bad[1]}")
+        names = {r: ds.frames.get(r) or (r if count[r] == 1 else f"{ds.name}.{r}") for r in ROLES[ds.kind]}
+        for role, name in names.items():
+            first, first_role = owner.setdefault(name, (ds.name, role))
+            if first_role != role:
+                # blame the data set that named the frame (the other one may just have its default name)
+                here = (ds.name, role, first, first_role)
+                mine, r, theirs, r2 = here if role in ds.frames else (first, first_role, ds.name, role)
+                raise DataFormatError(
+                    f"data set '{mine}': field frames.{r}: frame '{name}' is the {r2} of data set '{theirs}'; "
+                    f"a {r} cannot share a frame with a {r2} (only frames of the same role can be shared)"
+                )
+        out.append(names)
+    return out
+
+
+def frame_values(experiments, state: State) -> tuple[dict[str, object], list[str]]:
+    """(extras, names of the unknown ones): known values as given, unknown ones initialized from the nominal arms."""
+    _check_shapes(experiments)
+    values = _known(experiments)  # raw arrays by frame name; planes become ``Plane`` only in the extras
+    extras, unknown = {}, []
+    for exp in experiments:
+        given = {r: values[n] for r, n in exp.frames.items() if n in values}
+        guesses = exp.initial(state, given)
+        for role, value in {**given, **guesses}.items():
+            name = exp.frames[role]
+            if role in guesses:
+                values[name] = value
+                unknown.append(name)
+            if name not in extras:
+                extras[name] = Plane.from_array(value) if role == "plane" else value
+    return extras, unknown
+
+
+def _check_shapes(experiments) -> None:
+    """Known values have the shape their data need, and data sets sharing a frame need the same shape (for
+    example the same number of markers)."""
+    first: dict[str, tuple[tuple, str]] = {}
+    for exp in experiments:
+        for role, name in exp.frames.items():
+            shape = tuple(exp.frame_shape(role))
+            key = exp.ROLES[role]
+            if key in exp.dataset.known and np.shape(exp.dataset.known[key]) != shape:
+                raise DataFormatError(f"data set '{exp.name}': field known['{key}'] has shape "
+                                      f"{np.shape(exp.dataset.known[key])}, expected {shape}")
+            s, other = first.setdefault(name, (shape, exp.name))
+            if s != shape:
+                raise DataFormatError(
+                    f"data sets '{other}' and '{exp.name}' share frame '{name}' ({role}) but need values of "
+                    f"different shapes: {s} in '{other}', {shape} in '{exp.name}'"
+                )
+
+
+def _known(experiments) -> dict[str, np.ndarray]:
+    """Known frame values by name; data sets giving the same frame as known must agree."""
+    known, source = {}, {}
+    for exp in experiments:
+        for role, name in exp.frames.items():
+            key = exp.ROLES[role]
+            if key not in exp.dataset.known:
+                continue
+            value = np.asarray(exp.dataset.known[key], dtype=float)
+            if name not in known:
+                known[name], source[name] = value, exp.name
+                continue
+            gap = float(np.max(np.abs(value - known[name])))
+            if not gap <= KNOWN_ATOL:
+                raise DataFormatError(
+                    f"data sets '{source[name]}' and '{exp.name}' share frame '{name}' ({role}) and both give it as "
+                    f"known (known['{key}']), but the values differ by up to {gap:.3g} (tolerance {KNOWN_ATOL:g}); "
+                    "give it in one data set only, or name two frames"
+                )
+    return known
