@@ -35,7 +35,7 @@ import numpy as np
 from kincal.errors import ModelError
 from kincal.kinematics import PRISMATIC, REVOLUTE, ArmModel, Robot, conform_twists, tangent_basis, tangent_generators
 from kincal.kinematics.identification import TWIST_COORDS
-from kincal.lie import se3
+from kincal.lie import se3, so3
 
 LEVELS = ("offsets", "kinematic")
 POSE_COORDS = TWIST_COORDS
@@ -126,9 +126,9 @@ class Plane:
 
 def _perp(n: np.ndarray) -> np.ndarray:
     a = np.eye(3)[np.argmin(np.abs(n))]
-    u1 = np.cross(n, a)
+    u1 = so3.cross(n, a)
     u1 /= np.linalg.norm(u1)
-    return np.stack([u1, np.cross(n, u1)], axis=-1)
+    return np.stack([u1, so3.cross(n, u1)], axis=-1)
 
 
 @dataclass(frozen=True)

@@ -100,6 +100,8 @@ class Problem:
         fresh = whiteners is None
         res = [exp.residual(state, want=want, jq=fresh and self.joint_noise) for exp in self.experiments]
         W = self._whiteners_of(res) if fresh else whiteners
+        if fresh or not self.joint_noise:  # statistics at this state need no second evaluation
+            object.__setattr__(self, "_plain", (state, res))
         cols = np.arange(self.layout.size) if every else self.free_idx
         r, J = self._stack(state, res, W, cols, {})
         return r, J, W

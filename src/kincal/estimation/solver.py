@@ -204,11 +204,12 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
     lin = None
     it = 0
     W = None
+    fast = True  # Gauss-Newton steps first while they converge fast
     for it in range(1, max_outer + 1):
         # Whiten at the start and once more at the first estimate, then hold: when the model cannot explain
         # the data, re-whitening at every estimate moves the optimum each time and the loop never settles.
-        # Without encoder noise the whitening does not depend on the state: whiten once.
-        if it <= 2 and (W is None or problem.joint_noise):
+        # Without encoder noise the whitening does not depend on the state at all.
+        if it <= 2 and problem.joint_noise:
             W = None
         first = id_before is None
         lin = _linearize(problem, state, W, every)
@@ -223,38 +224,40 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
                 break
             _require_redundancy(problem, len(lin.r), ana.rank)
         V = _gauge_basis(lin.Rf, ana, gauge, order)
-        if it > 1 and _gauss_newton_step_negligible(lin, V):
+        z, r1sq = _gauss_newton(lin, V)
+        if it > 1 and _negligible(lin, V, z, r1sq):
             status = "converged"  # the re-linearized problem asks for no step
             break
-        J0V = lin.J @ V
-        cache = {np.zeros(V.shape[1]).tobytes(): (lin.r, J0V)}  # LM starts where we just linearized
-
-        def both(z, need_jac, state=state, W=W, V=V):
-            key = z.tobytes()
-            if key not in cache or (need_jac and cache[key][1] is None):
-                cache.clear()
-                r, J = problem.evaluate(state, V @ z, W, jac=need_jac)
-                cache[key] = (r, None if J is None else J @ V)
-            return cache[key]
-
-        method = "lm" if loss == "linear" and V.shape[1] <= len(lin.r) else "trf"
-        sol = least_squares(
-            lambda z: both(z, False)[0], np.zeros(V.shape[1]), jac=lambda z: both(z, True)[1], method=method,
-            loss=loss if method == "trf" else "linear", f_scale=f_scale, x_scale=1.0,
-            ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=200 * (V.shape[1] + 1),
-        )
-        evaluations += sol.nfev
-        delta = V @ sol.x
+        # Gauss-Newton step first (it costs one residual evaluation); least_squares (LM, or TRF with a robust
+        # loss) solves the inner problem when the full step does not reduce the cost as the linear model
+        # predicts (far from the optimum, strongly nonlinear), when Gauss-Newton has stopped converging fast,
+        # or when a robust loss is asked for.
+        accepted = False
+        if loss == "linear" and fast:
+            r_new = problem.evaluate(state, V @ z, W, jac=False)[0]
+            evaluations += 1
+            cost2_new = float(r_new @ r_new)
+            accepted = lin.cost2 - cost2_new >= 0.25 * (lin.cost2 - r1sq)
+            # Gauss-Newton is fast near a small-residual optimum (the cost falls by orders of magnitude); on
+            # a large-residual problem (a model that cannot fit) it crawls: least_squares from then on.
+            # At the noise floor (chi^2 about its degrees of freedom) the remaining steps are small either way.
+            fast = accepted and (cost2_new <= 0.1 * lin.cost2 or cost2_new <= 2.0 * (len(lin.r) - V.shape[1]))
+        if accepted:
+            x, cost = z, 0.5 * cost2_new
+        else:
+            x, cost, nfev = _inner_solve(problem, state, lin, V, loss, f_scale)
+            evaluations += nfev
+        delta = V @ x
         step = float(np.linalg.norm(lin.Rf @ delta))
         state = recentre(retract(state, problem.layout, problem.full_delta(delta)))
         if progress:
-            progress(it, float(2 * sol.cost))
-        log.debug("outer %d: cost %.6g, whitened step %.3g, max |delta| %.3g", it, 2 * sol.cost, step,
-                  np.max(np.abs(delta), initial=0))
+            progress(it, 2 * cost)
+        log.debug("outer %d (%s): cost %.6g, whitened step %.3g, max |delta| %.3g", it,
+                  "Gauss-Newton" if accepted else "least_squares", 2 * cost, step, np.max(np.abs(delta), initial=0))
         r0_norm, m = np.sqrt(lin.cost2), len(lin.r)
         lin = None  # the state moved
         # stop when the step is negligible against the residual (or, with noise, well below one sigma)
-        if _converged(step, r0_norm, sol.cost, m - V.shape[1]) or np.max(np.abs(delta), initial=0) < 1e-13:
+        if _converged(step, r0_norm, cost, m - V.shape[1]) or np.max(np.abs(delta), initial=0) < 1e-13:
             status = "converged"
             break
 
@@ -311,6 +314,42 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
     )
 
 
+# A constant residual with a zero Jacobian row, added to the inner LM problem: MINPACK's relative ftol then
+# reads as an absolute one near a perfect fit (noise-free data), where relative reductions stay large down to
+# the round-off floor and LM would spend iterations polishing digits nobody can measure.
+_COST_FLOOR = 1.0
+_INNER_FTOL = 1e-12  # change of whitened chi^2 (with the floor) below which the inner solve stops
+
+
+def _inner_solve(problem: Problem, state: State, lin: _Linearization, V: np.ndarray, loss: str, f_scale: float,
+                 jac: str = "analytic"):
+    """``scipy.optimize.least_squares`` over coordinates ``z`` of the subspace V around ``state`` with the
+    analytic Jacobian (``jac="2-point"``: scipy's finite differences instead, for bench/bench_calibrate.py);
+    the first evaluation is the linearization already at hand. Returns (z, cost, nfev), cost = 0.5 |r|^2
+    without the floor."""
+    method = "lm" if loss == "linear" and V.shape[1] <= len(lin.r) else "trf"
+    floor = np.array([_COST_FLOOR if method == "lm" else 0.0])
+    zero_row = np.zeros((1, V.shape[1]))
+    cache = {np.zeros(V.shape[1]).tobytes(): (lin.r, lin.J @ V)}
+
+    def both(z, need_jac):
+        key = z.tobytes()
+        if key not in cache or (need_jac and cache[key][1] is None):
+            cache.clear()
+            r, J = problem.evaluate(state, V @ z, lin.W, jac=need_jac)
+            cache[key] = (r, None if J is None else J @ V)
+        return cache[key]
+
+    sol = least_squares(
+        lambda z: np.concatenate([both(z, False)[0], floor]), np.zeros(V.shape[1]),
+        jac=(lambda z: np.vstack([both(z, True)[1], zero_row])) if jac == "analytic" else jac, method=method,
+        loss=loss if method == "trf" else "linear", f_scale=f_scale, x_scale=1.0,
+        ftol=_INNER_FTOL if method == "lm" else 1e-10, xtol=1e-10, gtol=1e-10, max_nfev=200 * (V.shape[1] + 1),
+    )
+    cost = float(sol.cost) - 0.5 * float(floor[0] ** 2) if method == "lm" else float(sol.cost)
+    return sol.x, max(cost, 0.0), sol.nfev
+
+
 def _gauge_basis(Rf, ana, gauge, order) -> np.ndarray:
     """Columns spanning the coordinates the solver moves: the identifiable subspace (min-change) or the
     identifiable parameters first in the user's priority order (the rest held)."""
@@ -320,19 +359,26 @@ def _gauge_basis(Rf, ana, gauge, order) -> np.ndarray:
 
 
 def _converged(step: float, r0_norm: float, cost: float, dof: int) -> bool:
-    """A step is negligible against the residual, or (with noise) well below one sigma of scatter."""
+    """A step is negligible against the residual, or (with noise) well below one sigma of scatter: the
+    whitened step |J delta| is the step's length in standard deviations of the estimate, so 1e-2 moves no
+    estimate by more than a hundredth of its standard deviation."""
     scatter = np.sqrt(2 * cost / max(dof, 1))
-    return step < max(1e-6 * (1.0 + r0_norm), 1e-3 * scatter)
+    return step < max(1e-6 * (1.0 + r0_norm), 1e-2 * scatter)
 
 
-def _gauss_newton_step_negligible(lin: _Linearization, V: np.ndarray) -> bool:
-    """Convergence test at a new linearization point, from its triangular factor: with ``J = Q R`` the step
-    ``z = argmin |R V z + Q^T r|`` and the residual after it follow without touching the tall matrices."""
+def _gauss_newton(lin: _Linearization, V: np.ndarray) -> tuple[np.ndarray, float]:
+    """Gauss-Newton step in the subspace V and the predicted |r|^2 after it, from the triangular factor alone:
+    with ``J = Q R``, ``z = argmin |R V z + Q^T r|`` and ``|r + J V z|^2 = |r|^2 - |Q^T r|^2 + |R V z + Q^T r|^2``."""
     RV = lin.Rf @ V
     z = np.linalg.lstsq(RV, -lin.qtr, rcond=None)[0]
-    dz = RV @ z
-    r1 = lin.cost2 - float(lin.qtr @ lin.qtr) + float((lin.qtr + dz) @ (lin.qtr + dz))
-    return _converged(float(np.linalg.norm(dz)), np.sqrt(lin.cost2), 0.5 * max(r1, 0.0), len(lin.r) - V.shape[1])
+    e = lin.qtr + RV @ z
+    return z, max(lin.cost2 - float(lin.qtr @ lin.qtr) + float(e @ e), 0.0)
+
+
+def _negligible(lin: _Linearization, V: np.ndarray, z: np.ndarray, r1sq: float) -> bool:
+    """Convergence test at a new linearization point: the Gauss-Newton step asked for there is negligible."""
+    step = float(np.linalg.norm(lin.Rf @ (V @ z)))
+    return _converged(step, np.sqrt(lin.cost2), 0.5 * r1sq, len(lin.r) - V.shape[1])
 
 
 def _require_redundancy(problem, m: int, rank: int) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from kincal.kinematics.model import PRISMATIC, REVOLUTE
-from kincal.lie import se3
+from kincal.lie import se3, so3
 
 
 def conform_twists(screws: np.ndarray, joint_types, mode: str = "line") -> np.ndarray:
@@ -36,9 +36,9 @@ def conform_twists(screws: np.ndarray, joint_types, mode: str = "line") -> np.nd
 
 def _perpendicular_pair(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     a = np.eye(3)[np.argmin(np.abs(d))]
-    u1 = np.cross(d, a)
+    u1 = so3.cross(d, a)
     u1 /= np.linalg.norm(u1)
-    return u1, np.cross(d, u1)
+    return u1, so3.cross(d, u1)
 
 
 def tangent_basis(screw: np.ndarray, kind: str) -> np.ndarray:
@@ -50,10 +50,10 @@ def tangent_basis(screw: np.ndarray, kind: str) -> np.ndarray:
     """
     v, w = se3.split(np.asarray(screw, dtype=float))
     if kind == REVOLUTE:
-        p = np.cross(w, v)  # point on the axis nearest the origin
+        p = so3.cross(w, v)  # point on the axis nearest the origin
         u1, u2 = _perpendicular_pair(w)
-        cols = [se3.join(-np.cross(w, u), np.zeros(3)) for u in (u1, u2)]
-        cols += [se3.join(-np.cross(u, p), u) for u in (u1, u2)]
+        cols = [se3.join(-so3.cross(w, u), np.zeros(3)) for u in (u1, u2)]
+        cols += [se3.join(-so3.cross(u, p), u) for u in (u1, u2)]
         return np.stack(cols, axis=-1)
     if kind == PRISMATIC:
         u1, u2 = _perpendicular_pair(v)
@@ -71,12 +71,12 @@ def tangent_generators(screw: np.ndarray, kind: str) -> np.ndarray:
     """
     v, w = se3.split(np.asarray(screw, dtype=float))
     if kind == REVOLUTE:
-        p = np.cross(w, v)
+        p = so3.cross(w, v)
         u1, u2 = _perpendicular_pair(w)
         cols = [se3.join(u, np.zeros(3)) for u in (u1, u2)]
-        cols += [se3.join(-np.cross(np.cross(w, u), p), np.cross(w, u)) for u in (u1, u2)]
+        cols += [se3.join(-so3.cross(so3.cross(w, u), p), so3.cross(w, u)) for u in (u1, u2)]
         return np.stack(cols, axis=-1)
     if kind == PRISMATIC:
         u1, u2 = _perpendicular_pair(v)
-        return np.stack([se3.join(np.zeros(3), np.cross(v, u)) for u in (u1, u2)], axis=-1)
+        return np.stack([se3.join(np.zeros(3), so3.cross(v, u)) for u in (u1, u2)], axis=-1)
     raise ValueError(f"unknown joint type {kind!r}")

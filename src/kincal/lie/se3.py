@@ -83,7 +83,7 @@ def exp_joint_screws(screws: np.ndarray, theta: np.ndarray) -> np.ndarray:
     revolute = np.sum(w * w, axis=1) > 0.5
     K = so3.hat(np.where(revolute[:, None], w, 0.0))
     K2 = K @ K
-    p = np.cross(w, v)[:, :, None]  # the axis point nearest the origin (revolute)
+    p = so3.cross(w, v)[:, :, None]  # the axis point nearest the origin (revolute)
     E1 = np.concatenate([K, -(K @ p)], axis=-1).reshape(-1, 12)
     E2 = np.concatenate([K2, -(K2 @ p)], axis=-1).reshape(-1, 12)
     E3 = np.zeros((len(screws), 3, 4))
