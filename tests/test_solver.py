@@ -109,3 +109,30 @@ def test_model_that_cannot_explain_the_data_is_reported_and_settles():
     assert res.status == "converged" and res.iterations <= 5
     assert res.sigma2 > 100
     assert res.messages[0].startswith("the model does not explain the data")
+
+
+def test_gauss_newton_and_least_squares_paths_agree(rng, monkeypatch, caplog):
+    """Gauss-Newton steps are the fast path; with them refused, least_squares alone reaches the same estimate."""
+    import logging
+
+    from kincal.estimation import solver
+
+    true = random_arm(rng, 6, name="arm")
+    nominal = true.replace(offsets=true.offsets + rng.normal(scale=0.05, size=6),
+                           home=se3.exp(rng.normal(scale=0.01, size=6)) @ true.home)
+    data = [_pose_data(rng, true, W=se3.exp(rng.normal(size=6)))]
+    robot = Robot("r", {"arm": nominal})
+    with caplog.at_level(logging.DEBUG, logger="kincal.estimation.solver"):
+        fast = calibrate(robot, data, "kinematic")
+    assert "Gauss-Newton" in caplog.text and "least_squares" not in caplog.text
+    caplog.clear()
+    monkeypatch.setattr(solver, "_gauss_newton", lambda lin, V: (np.zeros(V.shape[1]), 0.0))  # never helps
+    with caplog.at_level(logging.DEBUG, logger="kincal.estimation.solver"):
+        slow = calibrate(robot, data, "kinematic")
+    assert "least_squares" in caplog.text
+    assert fast.status == slow.status == "converged"
+    q = rng.uniform(-2, 2, (30, 6))
+    for res in (fast, slow):
+        T = se3.inverse(res.extras["tracker"]) @ forward_kinematics(res.robot["arm"], q)
+        np.testing.assert_allclose(T, se3.inverse(data[0].known["T_world_tracker"]) @ forward_kinematics(true, q),
+                                   atol=1e-9)
