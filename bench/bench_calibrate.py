@@ -35,7 +35,7 @@ import numpy as np  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 from scipy.optimize._numdiff import approx_derivative  # noqa: E402
 
-from kincal.estimation import calibrate, solver  # noqa: E402
+from kincal.estimation import calibrate, solver, steps  # noqa: E402
 from kincal.estimation.problem import Problem  # noqa: E402
 from kincal.params import retract  # noqa: E402
 from kincal.robots import load  # noqa: E402
@@ -62,13 +62,13 @@ def _fd_linearize(self: Problem, state, whiteners=None, every: bool = False):
 @contextlib.contextmanager
 def finite_differences():
     """Every Jacobian of ``calibrate`` by scipy's finite differences."""
-    saved = Problem.linearize, solver._inner_solve
+    saved = Problem.linearize, steps.inner_solve
     Problem.linearize = _fd_linearize
-    solver._inner_solve = functools.partial(saved[1], jac="2-point")
+    steps.inner_solve = functools.partial(saved[1], jac="2-point")
     try:
         yield
     finally:
-        Problem.linearize, solver._inner_solve = saved
+        Problem.linearize, steps.inner_solve = saved
 
 
 def timed(fn, repeat: int):

@@ -115,7 +115,7 @@ def test_gauss_newton_and_least_squares_paths_agree(rng, monkeypatch, caplog):
     """Gauss-Newton steps are the fast path; with them refused, least_squares alone reaches the same estimate."""
     import logging
 
-    from kincal.estimation import solver
+    from kincal.estimation import steps
 
     true = random_arm(rng, 6, name="arm")
     nominal = true.replace(offsets=true.offsets + rng.normal(scale=0.05, size=6),
@@ -126,7 +126,7 @@ def test_gauss_newton_and_least_squares_paths_agree(rng, monkeypatch, caplog):
         fast = calibrate(robot, data, "kinematic")
     assert "Gauss-Newton" in caplog.text and "least_squares" not in caplog.text
     caplog.clear()
-    monkeypatch.setattr(solver, "_gauss_newton", lambda lin, V: (np.zeros(V.shape[1]), 0.0))  # never helps
+    monkeypatch.setattr(steps, "gauss_newton", lambda lin, V: (np.zeros(V.shape[1]), 0.0))  # never helps
     with caplog.at_level(logging.DEBUG, logger="kincal.estimation.solver"):
         slow = calibrate(robot, data, "kinematic")
     assert "least_squares" in caplog.text

@@ -10,21 +10,20 @@ from __future__ import annotations
 
 import fnmatch
 import logging
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from kincal.analysis import analyse, correlated_pairs, covariance, select_columns
-from kincal.analysis.covariance import right_svd
 from kincal.data import Dataset
 from kincal.errors import DegenerateExperimentError, ModelError
+from kincal.estimation import steps
+from kincal.estimation.naming import analyse_named, block_of, context, degenerate
 from kincal.estimation.problem import Noise, Problem, residual_norms
 from kincal.estimation.result import Estimate, Result
 from kincal.experiments import build
-from kincal.kinematics import Robot, chain
-from kincal.lie import se3
+from kincal.kinematics import Robot
 from kincal.params import (
     Prior,
     State,
@@ -32,7 +31,6 @@ from kincal.params import (
     displacement,
     recentre,
     retract,
-    scale_direction,
     twist_coordinates,
 )
 
@@ -126,66 +124,22 @@ def _priority(problem: Problem, gauge) -> list[int]:
     then experiment frames."""
     names = problem.free_names
     layout = problem.layout
-    block_of = {}
+    blk = {}
     for b in layout.blocks:
         for i in range(b.start, b.stop):
-            block_of[i] = b
+            blk[i] = b
     default = sorted(range(len(names)), key=lambda k: (
-        _PART_RANK.get(block_of[problem.free_idx[k]].part, 9), k))
+        _PART_RANK.get(blk[problem.free_idx[k]].part, 9), k))
     if isinstance(gauge, str):
         return default
     order: list[int] = []
     for pat in gauge:
         hit = [k for k in default if k not in order and (
-            fnmatch.fnmatchcase(names[k], pat) or fnmatch.fnmatchcase(block_of[problem.free_idx[k]].name, pat))]
+            fnmatch.fnmatchcase(names[k], pat) or fnmatch.fnmatchcase(blk[problem.free_idx[k]].name, pat))]
         if not hit:
             raise ModelError(f"gauge priority pattern {pat!r} matches no free parameter")
         order += hit
     return order + [k for k in default if k not in order]
-
-
-@dataclass(frozen=True)
-class _Linearization:
-    """One evaluation at a state, reduced to the small triangular factor of ``[J_free | J_fixed | r]``.
-
-    Everything the solver asks of a linearization (rank, null space, gauge, covariance, the Gauss-Newton
-    convergence test, the scale test) depends on the tall whitened Jacobian only through its Gram matrix, so
-    one QR per linearization serves them all: ``R[:p, :p]`` stands in for ``J_free``, the next columns for
-    the fixed coordinates (used only by the scale test), the last for the residual.
-    """
-
-    r: np.ndarray  # (m,) whitened residual
-    J: np.ndarray  # (m, p) whitened Jacobian of the free coordinates
-    R: np.ndarray  # (q, P + 1) triangular factor, columns ordered free, fixed, residual
-    W: list
-    p: int
-
-    @property
-    def Rf(self) -> np.ndarray:
-        return self.R[: self.p, : self.p]
-
-    @property
-    def qtr(self) -> np.ndarray:
-        return self.R[: self.p, -1]
-
-    @property
-    def cost2(self) -> float:
-        return float(self.r @ self.r)
-
-
-def _linearize(problem: Problem, state: State, W, every: bool) -> _Linearization:
-    r, J, W = problem.linearize(state, W, every=every)
-    if not np.all(np.isfinite(r)) or not np.all(np.isfinite(J)):
-        raise DegenerateExperimentError("residuals or Jacobian are not finite at the starting values")
-    p = len(problem.free_idx)
-    if every:
-        fixed = np.flatnonzero(~problem.layout.free)
-        A = np.column_stack([J[:, problem.free_idx], J[:, fixed], r])
-        J = J[:, problem.free_idx]
-    else:
-        A = np.column_stack([J, r])
-    R = np.linalg.qr(A, mode="r")
-    return _Linearization(r, J, R, W, p)
 
 
 def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_threshold, progress, quiet=False):
@@ -195,7 +149,7 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
     p = len(names)
     order = _priority(problem, gauge)
     state = problem.nominal
-    describe_ctx = _context(problem)
+    describe_ctx = context(problem)
     every = any(problem.layout.units[i] == "m" for i in problem.free_idx)  # the scale test needs every column
     messages: list[str] = []
     id_before = None
@@ -212,20 +166,20 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
         if it <= 2 and problem.joint_noise:
             W = None
         first = id_before is None
-        lin = _linearize(problem, state, W, every)
+        lin = steps.linearize(problem, state, W, every)
         W = lin.W
         if first:
             before = problem.statistics(state, W)
         ana = analyse(lin.Rf, names, rtol=rank_rtol, priority=order)
         if first:
-            id_before = _analyse_named(problem, state, lin, rank_rtol, order, describe_ctx)
-            if _degenerate(problem, lin.Rf, ana):
+            id_before = analyse_named(problem, state, lin, rank_rtol, order, describe_ctx)
+            if degenerate(problem, lin.Rf, ana):
                 status = "degenerate"
                 break
             _require_redundancy(problem, len(lin.r), ana.rank)
         V = _gauge_basis(lin.Rf, ana, gauge, order)
-        z, r1sq = _gauss_newton(lin, V)
-        if it > 1 and _negligible(lin, V, z, r1sq):
+        z, r1sq = steps.gauss_newton(lin, V)
+        if it > 1 and steps.negligible(lin, V, z, r1sq):
             status = "converged"  # the re-linearized problem asks for no step
             break
         # Gauss-Newton step first (it costs one residual evaluation); least_squares (LM, or TRF with a robust
@@ -245,7 +199,7 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
         if accepted:
             x, cost = z, 0.5 * cost2_new
         else:
-            x, cost, nfev = _inner_solve(problem, state, lin, V, loss, f_scale)
+            x, cost, nfev = steps.inner_solve(problem, state, lin, V, loss, f_scale)
             evaluations += nfev
         delta = V @ x
         step = float(np.linalg.norm(lin.Rf @ delta))
@@ -257,16 +211,16 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
         r0_norm, m = np.sqrt(lin.cost2), len(lin.r)
         lin = None  # the state moved
         # stop when the step is negligible against the residual (or, with noise, well below one sigma)
-        if _converged(step, r0_norm, cost, m - V.shape[1]) or np.max(np.abs(delta), initial=0) < 1e-13:
+        if steps.converged(step, r0_norm, cost, m - V.shape[1]) or np.max(np.abs(delta), initial=0) < 1e-13:
             status = "converged"
             break
 
     if lin is None:  # the loop stopped after a step: linearize the final state
         if problem.joint_noise:
             W = None
-        lin = _linearize(problem, state, W, every)
+        lin = steps.linearize(problem, state, W, every)
         W = lin.W
-    ana = _analyse_named(problem, state, lin, rank_rtol, order, describe_ctx)
+    ana = analyse_named(problem, state, lin, rank_rtol, order, describe_ctx)
     if status == "degenerate":
         messages.append("degenerate experiment: no arm parameter can be identified from these data; "
                         "nothing was estimated")
@@ -314,71 +268,12 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
     )
 
 
-# A constant residual with a zero Jacobian row, added to the inner LM problem: MINPACK's relative ftol then
-# reads as an absolute one near a perfect fit (noise-free data), where relative reductions stay large down to
-# the round-off floor and LM would spend iterations polishing digits nobody can measure.
-_COST_FLOOR = 1.0
-_INNER_FTOL = 1e-12  # change of whitened chi^2 (with the floor) below which the inner solve stops
-
-
-def _inner_solve(problem: Problem, state: State, lin: _Linearization, V: np.ndarray, loss: str, f_scale: float,
-                 jac: str = "analytic"):
-    """``scipy.optimize.least_squares`` over coordinates ``z`` of the subspace V around ``state`` with the
-    analytic Jacobian (``jac="2-point"``: scipy's finite differences instead, for bench/bench_calibrate.py);
-    the first evaluation is the linearization already at hand. Returns (z, cost, nfev), cost = 0.5 |r|^2
-    without the floor."""
-    method = "lm" if loss == "linear" and V.shape[1] <= len(lin.r) else "trf"
-    floor = np.array([_COST_FLOOR if method == "lm" else 0.0])
-    zero_row = np.zeros((1, V.shape[1]))
-    cache = {np.zeros(V.shape[1]).tobytes(): (lin.r, lin.J @ V)}
-
-    def both(z, need_jac):
-        key = z.tobytes()
-        if key not in cache or (need_jac and cache[key][1] is None):
-            cache.clear()
-            r, J = problem.evaluate(state, V @ z, lin.W, jac=need_jac)
-            cache[key] = (r, None if J is None else J @ V)
-        return cache[key]
-
-    sol = least_squares(
-        lambda z: np.concatenate([both(z, False)[0], floor]), np.zeros(V.shape[1]),
-        jac=(lambda z: np.vstack([both(z, True)[1], zero_row])) if jac == "analytic" else jac, method=method,
-        loss=loss if method == "trf" else "linear", f_scale=f_scale, x_scale=1.0,
-        ftol=_INNER_FTOL if method == "lm" else 1e-10, xtol=1e-10, gtol=1e-10, max_nfev=200 * (V.shape[1] + 1),
-    )
-    cost = float(sol.cost) - 0.5 * float(floor[0] ** 2) if method == "lm" else float(sol.cost)
-    return sol.x, max(cost, 0.0), sol.nfev
-
-
 def _gauge_basis(Rf, ana, gauge, order) -> np.ndarray:
     """Columns spanning the coordinates the solver moves: the identifiable subspace (min-change) or the
     identifiable parameters first in the user's priority order (the rest held)."""
     if isinstance(gauge, str):
         return ana.range_space
     return np.eye(Rf.shape[1])[:, select_columns(Rf, order, ana.rank)]
-
-
-def _converged(step: float, r0_norm: float, cost: float, dof: int) -> bool:
-    """A step is negligible against the residual, or (with noise) well below one sigma of scatter: the
-    whitened step |J delta| is the step's length in standard deviations of the estimate, so 1e-2 moves no
-    estimate by more than a hundredth of its standard deviation."""
-    scatter = np.sqrt(2 * cost / max(dof, 1))
-    return step < max(1e-6 * (1.0 + r0_norm), 1e-2 * scatter)
-
-
-def _gauss_newton(lin: _Linearization, V: np.ndarray) -> tuple[np.ndarray, float]:
-    """Gauss-Newton step in the subspace V and the predicted |r|^2 after it, from the triangular factor alone:
-    with ``J = Q R``, ``z = argmin |R V z + Q^T r|`` and ``|r + J V z|^2 = |r|^2 - |Q^T r|^2 + |R V z + Q^T r|^2``."""
-    RV = lin.Rf @ V
-    z = np.linalg.lstsq(RV, -lin.qtr, rcond=None)[0]
-    e = lin.qtr + RV @ z
-    return z, max(lin.cost2 - float(lin.qtr @ lin.qtr) + float(e @ e), 0.0)
-
-
-def _negligible(lin: _Linearization, V: np.ndarray, z: np.ndarray, r1sq: float) -> bool:
-    """Convergence test at a new linearization point: the Gauss-Newton step asked for there is negligible."""
-    step = float(np.linalg.norm(lin.Rf @ (V @ z)))
-    return _converged(step, np.sqrt(lin.cost2), 0.5 * r1sq, len(lin.r) - V.shape[1])
 
 
 def _require_redundancy(problem, m: int, rank: int) -> None:
@@ -402,38 +297,12 @@ def _embed(cov, problem):
     return full
 
 
-def _degenerate(problem, J, ana) -> bool:
-    """No combination of free arm coordinates is identifiable: the arm columns add no rank to the columns of
-    the experiment frames (only frames move, or nothing does). Judged on subspaces, not single coordinates,
-    so an exact gauge (e.g. the whole arm moving with an unknown tracker) does not make data look useless."""
-    if ana.rank == 0:
-        return True
-    arm = np.array([_block(problem, i).arm is not None for i in problem.free_idx])
-    if not arm.any():
-        return False
-    if arm.all():
-        return False
-    c = np.linalg.norm(J, axis=0)
-    Js = J / np.where(c > 0, c, 1.0)
-    s_all = right_svd(Js)[0]
-    s_frames = right_svd(Js[:, ~arm])[0]
-    tol = ana.rtol * s_all[0]
-    return int(np.sum(s_frames > tol)) >= int(np.sum(s_all > tol))
-
-
-def _block(problem, i):
-    for b in problem.layout.blocks:
-        if b.start <= i < b.stop:
-            return b
-    raise IndexError(i)
-
-
 def _estimates(problem, state, std, ok):
     layout = problem.layout
     disp, _ = displacement(state, problem.nominal, layout)
     out = []
     for k, i in enumerate(problem.free_idx):
-        b = _block(problem, i)
+        b = block_of(problem, i)
         absolute = b.kind in ("offsets", "points")
         nominal = 0.0
         if absolute:
@@ -442,94 +311,6 @@ def _estimates(problem, state, std, ok):
         out.append(Estimate(layout.names[i], nominal + float(disp[i]), nominal, float(std[k]), layout.units[i],
                             bool(ok[k])))
     return out
-
-
-def _context(problem):
-    """Which experiments, with their free frames, for the words of identifiability messages."""
-    parts = []
-    for e in problem.experiments:
-        unknown = [n for r, n in e.frames.items()
-                   if problem.layout.free[problem.layout.block(n).start]]
-        parts.append(f"{e.kind_name} '{e.name}'" + (f" (free: {', '.join(unknown)})" if unknown else ""))
-    return "; ".join(parts)
-
-
-def _analyse_named(problem, state, lin, rtol, order, context):
-    layout = problem.layout
-    axes, frames = {}, {}
-    for e in problem.experiments:
-        for arm in e.arms:
-            a = state.arms[arm]
-            kin = chain(a.screws, e.dataset.q[arm][:1] + a.offsets, a.base, a.home, a.tool)
-            Ad = se3.adjoint(kin.prefixes[0, :-1])
-            for j, jn in enumerate(a.joint_names):
-                axes.setdefault(f"{arm}.{jn}", Ad[j] @ a.screws[j])
-        for role, G in e.increment_frames(state).items():
-            frames[e.frames[role]] = G
-    col = {int(i): k for k, i in enumerate(problem.free_idx)}
-    block_of = [_block(problem, i) for i in problem.free_idx]
-    pose_blocks = [(b, [col.get(i) for i in range(b.start, b.stop)]) for b in layout.blocks
-                   if b.kind == "pose" and b.arm is None]
-
-    def describe(row):
-        words = []
-        for b, idx in pose_blocks:
-            if any(i is None for i in idx):
-                continue
-            d = row[idx]
-            if np.linalg.norm(d) < 1e-9:
-                continue
-            tw = se3.adjoint(frames.get(b.name, np.eye(4))) @ d
-            v, w = se3.split(tw)
-            if np.linalg.norm(w) < 1e-9 * max(np.linalg.norm(v), 1e-300):
-                words.append(f"a translation of the {b.name}")
-                continue
-            t = tw / np.linalg.norm(w)
-            match = [jn for jn, ax in axes.items() if min(np.linalg.norm(t - ax), np.linalg.norm(t + ax)) < 1e-6]
-            words.append(f"a rotation of the {b.name} about the axis of {match[0]}" if match
-                         else f"a screw motion of the {b.name}")
-        moved = {block_of[k].part for k in np.flatnonzero(np.abs(row) > 1e-9) if block_of[k].arm is not None}
-        if "offsets" in moved and moved & {"twists", "home"}:
-            words.append("in a full POE model a joint offset equals rotating the later joint axes and the home pose "
-                         "about that joint's axis")
-        return "; ".join(words)
-
-    return analyse(lin.Rf, problem.free_names, rtol=rtol, scale=_scale_null(problem, state, lin), priority=order,
-                   describe=describe, context=context)
-
-
-def _scale_null(problem, state, lin: _Linearization):
-    """The free direction equivalent to scaling every length, if the data cannot see scale; else None.
-
-    Scale is unidentifiable when (1) scaling every length, fixed ones included, leaves the residuals unchanged
-    to first order (no measured length: ``J_all s_all = 0``), and (2) the fixed length coordinates add no rank
-    to the free ones (e.g. a fixed base is absorbed by free twists and home). The direction is then
-    ``s_free + u`` with ``J u = J_fixed s_fixed`` (free parameters standing in for the fixed lengths).
-    Everything is read off the linearization's triangular factor (columns free, fixed, residual).
-    """
-    layout = problem.layout
-    p = lin.p
-    if not any(layout.units[i] == "m" for i in problem.free_idx):
-        return None  # no free length, nothing to scale
-    fixed = np.flatnonzero(~layout.free)
-    Ra = lin.R[:, :-1]  # (q, P): every coordinate, free first
-    if Ra.shape[1] != layout.size:
-        raise AssertionError("the scale test needs a linearization with every column")
-    s_all = scale_direction(state, layout)
-    s = np.concatenate([s_all[problem.free_idx], s_all[fixed]])
-    colnorm = np.linalg.norm(Ra, axis=0)
-    if np.linalg.norm(Ra @ s) > 1e-6 * np.sum(colnorm * np.abs(s)):
-        return None
-    units = np.array(layout.units)[fixed]
-    lengths = np.flatnonzero((units == "m") & (colnorm[p:] > 0))
-    if len(lengths):
-        # the part of a fixed length's column outside the free columns' range sits below row p of R
-        outside = np.linalg.norm(Ra[p:, p + lengths], axis=0) / colnorm[p + lengths]
-        if np.max(outside) > 1e-6:
-            return None
-    u = np.linalg.lstsq(lin.Rf, Ra[:p, p:] @ s[p:], rcond=None)[0]
-    d = s[:p] + u
-    return d if np.linalg.norm(d) > 0 else None
 
 
 def _with_validation(result: Result, validation, noise) -> Result:

@@ -1,0 +1,121 @@
+"""One linearization of the calibration problem and the steps taken from it.
+
+A linearization evaluates every experiment once and reduces the tall whitened Jacobian to the triangular
+factor of ``[J_free | J_fixed | r]``; the Gauss-Newton step, its predicted cost and the convergence test read
+that factor only. ``inner_solve`` is the fallback: ``scipy.optimize.least_squares`` on the identifiable
+subspace with the analytic Jacobian.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from kincal.errors import DegenerateExperimentError
+from kincal.estimation.problem import Problem
+from kincal.params import State
+
+
+@dataclass(frozen=True)
+class Linearization:
+    """One evaluation at a state, reduced to the small triangular factor of ``[J_free | J_fixed | r]``.
+
+    Everything the solver asks of a linearization (rank, null space, gauge, covariance, the Gauss-Newton
+    convergence test, the scale test) depends on the tall whitened Jacobian only through its Gram matrix, so
+    one QR per linearization serves them all: ``R[:p, :p]`` stands in for ``J_free``, the next columns for
+    the fixed coordinates (used only by the scale test), the last for the residual.
+    """
+
+    r: np.ndarray  # (m,) whitened residual
+    J: np.ndarray  # (m, p) whitened Jacobian of the free coordinates
+    R: np.ndarray  # (q, P + 1) triangular factor, columns ordered free, fixed, residual
+    W: list
+    p: int
+
+    @property
+    def Rf(self) -> np.ndarray:
+        return self.R[: self.p, : self.p]
+
+    @property
+    def qtr(self) -> np.ndarray:
+        return self.R[: self.p, -1]
+
+    @property
+    def cost2(self) -> float:
+        return float(self.r @ self.r)
+
+
+def linearize(problem: Problem, state: State, W, every: bool) -> Linearization:
+    r, J, W = problem.linearize(state, W, every=every)
+    if not np.all(np.isfinite(r)) or not np.all(np.isfinite(J)):
+        raise DegenerateExperimentError("residuals or Jacobian are not finite at the starting values")
+    p = len(problem.free_idx)
+    if every:
+        fixed = np.flatnonzero(~problem.layout.free)
+        A = np.column_stack([J[:, problem.free_idx], J[:, fixed], r])
+        J = J[:, problem.free_idx]
+    else:
+        A = np.column_stack([J, r])
+    R = np.linalg.qr(A, mode="r")
+    return Linearization(r, J, R, W, p)
+
+
+# A constant residual with a zero Jacobian row, added to the inner LM problem: MINPACK's relative ftol then
+# reads as an absolute one near a perfect fit (noise-free data), where relative reductions stay large down to
+# the round-off floor and LM would spend iterations polishing digits nobody can measure.
+_COST_FLOOR = 1.0
+_INNER_FTOL = 1e-12  # change of whitened chi^2 (with the floor) below which the inner solve stops
+
+
+def inner_solve(problem: Problem, state: State, lin: Linearization, V: np.ndarray, loss: str, f_scale: float,
+                 jac: str = "analytic"):
+    """``scipy.optimize.least_squares`` over coordinates ``z`` of the subspace V around ``state`` with the
+    analytic Jacobian (``jac="2-point"``: scipy's finite differences instead, for bench/bench_calibrate.py);
+    the first evaluation is the linearization already at hand. Returns (z, cost, nfev), cost = 0.5 |r|^2
+    without the floor."""
+    method = "lm" if loss == "linear" and V.shape[1] <= len(lin.r) else "trf"
+    floor = np.array([_COST_FLOOR if method == "lm" else 0.0])
+    zero_row = np.zeros((1, V.shape[1]))
+    cache = {np.zeros(V.shape[1]).tobytes(): (lin.r, lin.J @ V)}
+
+    def both(z, need_jac):
+        key = z.tobytes()
+        if key not in cache or (need_jac and cache[key][1] is None):
+            cache.clear()
+            r, J = problem.evaluate(state, V @ z, lin.W, jac=need_jac)
+            cache[key] = (r, None if J is None else J @ V)
+        return cache[key]
+
+    sol = least_squares(
+        lambda z: np.concatenate([both(z, False)[0], floor]), np.zeros(V.shape[1]),
+        jac=(lambda z: np.vstack([both(z, True)[1], zero_row])) if jac == "analytic" else jac, method=method,
+        loss=loss if method == "trf" else "linear", f_scale=f_scale, x_scale=1.0,
+        ftol=_INNER_FTOL if method == "lm" else 1e-10, xtol=1e-10, gtol=1e-10, max_nfev=200 * (V.shape[1] + 1),
+    )
+    cost = float(sol.cost) - 0.5 * float(floor[0] ** 2) if method == "lm" else float(sol.cost)
+    return sol.x, max(cost, 0.0), sol.nfev
+
+
+def converged(step: float, r0_norm: float, cost: float, dof: int) -> bool:
+    """A step is negligible against the residual, or (with noise) well below one sigma of scatter: the
+    whitened step |J delta| is the step's length in standard deviations of the estimate, so 1e-2 moves no
+    estimate by more than a hundredth of its standard deviation."""
+    scatter = np.sqrt(2 * cost / max(dof, 1))
+    return step < max(1e-6 * (1.0 + r0_norm), 1e-2 * scatter)
+
+
+def gauss_newton(lin: Linearization, V: np.ndarray) -> tuple[np.ndarray, float]:
+    """Gauss-Newton step in the subspace V and the predicted |r|^2 after it, from the triangular factor alone:
+    with ``J = Q R``, ``z = argmin |R V z + Q^T r|`` and ``|r + J V z|^2 = |r|^2 - |Q^T r|^2 + |R V z + Q^T r|^2``."""
+    RV = lin.Rf @ V
+    z = np.linalg.lstsq(RV, -lin.qtr, rcond=None)[0]
+    e = lin.qtr + RV @ z
+    return z, max(lin.cost2 - float(lin.qtr @ lin.qtr) + float(e @ e), 0.0)
+
+
+def negligible(lin: Linearization, V: np.ndarray, z: np.ndarray, r1sq: float) -> bool:
+    """Convergence test at a new linearization point: the Gauss-Newton step asked for there is negligible."""
+    step = float(np.linalg.norm(lin.Rf @ (V @ z)))
+    return converged(step, np.sqrt(lin.cost2), 0.5 * r1sq, len(lin.r) - V.shape[1])
