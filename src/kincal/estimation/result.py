@@ -39,8 +39,8 @@ class Result:
     after: tuple[dict, ...]
     sigma2: float  # residual variance factor (chi^2 / (m - rank)) that scales the covariance
     status: str  # converged | not converged | degenerate
-    iterations: int  # outer (re-linearization) iterations
-    evaluations: int  # residual evaluations of the inner solver
+    iterations: int  # outer iterations (linearizations that led to a step)
+    evaluations: int  # residual evaluations spent on steps (Gauss-Newton trials, least_squares)
     messages: tuple[str, ...]
     extras: Mapping[str, object] = field(default_factory=dict)  # final experiment frames
     twists: tuple = ()  # derived (names, values (6n,), std (6n,)) of every arm with free twists
