@@ -39,7 +39,7 @@ class Result:
     after: tuple[dict, ...]
     sigma2: float  # residual variance factor (chi^2 / (m - rank)) that scales the covariance
     status: str  # converged | not converged | degenerate
-    iterations: int  # outer iterations (linearizations that led to a step)
+    iterations: int  # outer iterations: linearizations, the one that confirmed convergence included
     evaluations: int  # residual evaluations spent on steps (Gauss-Newton trials, least_squares)
     messages: tuple[str, ...]
     extras: Mapping[str, object] = field(default_factory=dict)  # final experiment frames
