@@ -244,3 +244,34 @@ def test_std_matches_actual_error_ur10_markers(known_markers):
     (_, p), = validation_predictions(res, [known])
     assert not p.registered and not p.tool_registered and p.null_moving >= 6
 
+
+def test_cli_and_result_report_predicted_against_actual(tmp_path, capsys, frida, plate_sim):
+    import json
+
+    import yaml
+
+    from kincal.cli import main
+    from kincal.io.datasets import write_simulation
+
+    # well posed: the demo (dual arm, known clamp, offsets)
+    assert main(["demo", "-o", str(tmp_path / "demo"), "-n", "40", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)["predict"]
+    assert [r["arm"] for r in rows] == ["left", "right"]
+    for r in rows:
+        assert r["trusted"] and r["registered"] and r["unidentifiable_moving"] == 0 and r["weak_moving"] == 0
+        assert 0 < r["position_mm_std_rms"] < 0.1 and r["position_mm_rms_actual"] < 0.1
+        assert r["messages"][0].startswith("at the 200 configurations of arm")
+    # badly posed: the plate at level kinematic, through a job file
+    _, ds, truth, val = plate_sim
+    write_simulation(tmp_path / "plate", ds, truth, val, frida, model="frida")
+    job = {"model": "frida", "data": ["plate/data.yaml"], "validation": ["plate/validation/right.yaml"],
+           "free": "kinematic"}
+    (tmp_path / "job.yaml").write_text(yaml.safe_dump(job))
+    assert main(["calibrate", str(tmp_path / "job.yaml"), "-o", str(tmp_path / "out")]) == 0
+    text = capsys.readouterr().out
+    assert "predicted vs actual on held-out configurations" in text and "should not be trusted" in text
+    (row,) = yaml.safe_load((tmp_path / "out" / "result.yaml").read_text())["predict"]
+    assert row["set"] == "frida-plate4-validation-right" and not row["trusted"] and row["weak_moving"] == 3
+    assert row["position_mm_std_rms"] > 1 and row["position_mm_rms_actual"] > 100
+    assert row["unidentifiable_position_mm_per_unit_max"] < GAUGE and row["weak_position_mm_per_unit_max"] > 0.3
+    assert row["directions"][0]["kind"] == "weak" and len(row["messages"]) >= 3
