@@ -28,11 +28,16 @@ def frida():
     return load("frida")
 
 
+def _offsets_of(nominal, true):
+    """The nominal geometry with the true robot's joint offsets."""
+    return Robot(nominal.name, {k: nominal[k].replace(offsets=true[k].offsets) for k in nominal.arms})
+
+
 @pytest.fixture(scope="module")
 def truths(frida):
     """(thesis-size full POE errors, the same offsets on the nominal geometry), as in test_calibrate_e2e."""
     full = perturb_robot(frida, "thesis", 7)
-    return full, Robot(frida.name, {k: frida[k].replace(offsets=full[k].offsets) for k in frida.arms})
+    return full, _offsets_of(frida, full)
 
 
 @pytest.fixture(scope="module")
@@ -189,8 +194,7 @@ def test_plate_with_four_fixtures_is_flagged(plate):
 
 def test_std_matches_actual_error_dual_known_clamp(frida):
     """50 noisy repetitions (encoder noise 1e-5 rad): RMS actual error / RMS predicted std near 1."""
-    true = perturb_robot(frida, "thesis", 11)
-    true = Robot(frida.name, {k: frida[k].replace(offsets=true[k].offsets) for k in frida.arms})
+    true = _offsets_of(frida, perturb_robot(frida, "thesis", 11))
     ds, _, val = generate_dual(true, n=12, rng=22, known_clamp=True)
     rng = np.random.default_rng(1)
     acc = {r: ([], [], [], []) for r in (False, True)}
