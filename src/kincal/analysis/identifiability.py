@@ -49,6 +49,7 @@ class Identifiability:
     directions: tuple[Direction, ...]
     weak: tuple[str, ...] = ()
     messages: tuple[str, ...] = field(default=())
+    weak_vectors: np.ndarray | None = None  # (p, w) the directions of ``weak`` in natural units, unit norm
 
     @property
     def deficiency(self) -> int:
@@ -91,6 +92,8 @@ def analyse(
     R = _complement(N, p)
     weak_idx = np.flatnonzero((S_full > rtol * smax) & (S_full < _weak_limit(S_full[:rank], weak_rtol) * smax))
     weak = tuple(_top_names(Vt[i], names) for i in weak_idx)
+    weak_vectors = Vt[weak_idx].T / c_safe[:, None]
+    weak_vectors /= np.maximum(np.linalg.norm(weak_vectors, axis=0), 1e-300)
 
     scale_null = False
     directions: list[Direction] = []
@@ -129,7 +132,7 @@ def analyse(
         messages.append(f"weakly identifiable direction (singular value far below the others; its estimate rests "
                         f"on little more than the noise): {w}")
     return Identifiability(names, rank, S_full, rtol, N, R, identifiable, scale_null, tuple(directions),
-                           weak, tuple(messages))
+                           weak, tuple(messages), weak_vectors)
 
 
 WEAK_GAP = 100.0

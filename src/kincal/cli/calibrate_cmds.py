@@ -15,7 +15,7 @@ from rich.table import Table
 
 from kincal.errors import DataFormatError
 from kincal.io.jobs import load_job, run_job
-from kincal.io.results import result_to_dict, write_results
+from kincal.io.results import prediction_rows, result_to_dict, write_results
 
 DEG = 180.0 / math.pi
 DEMO_SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "frida_dual_bracket.yaml"
@@ -59,6 +59,7 @@ def print_summary(console: Console, result, title: str) -> None:
                       _num(v.get("position_max_after"), 1e3), _num(v.get("orientation_rms_before"), DEG),
                       _num(v.get("orientation_rms_after"), DEG))
         console.print(t)
+    _print_predictions(console, prediction_rows(result))
     t = Table(title="estimates (offsets absolute; twist/pose coordinates as change from nominal)")
     for c in ("parameter", "value", "std", "unit"):
         t.add_column(c, justify="left" if c == "parameter" else "right")
@@ -70,6 +71,28 @@ def print_summary(console: Console, result, title: str) -> None:
         console.print(f"- {m}")
     for a, b, r in result.correlated[:10]:
         console.print(f"- strongly correlated: {a} and {b} (rho = {r:+.3f})")
+
+
+def _print_predictions(console: Console, rows) -> None:
+    """Predicted standard deviations next to the actual validation errors, and whether anything the data cannot
+    determine moves the tool there: the model is to be trusted only where the two agree and nothing moves."""
+    if not rows:
+        return
+    t = Table(title="predicted vs actual on held-out configurations (position mm, orientation deg; undetermined: "
+                    "tool mm per mm-or-mrad along directions the data cannot or barely determine)")
+    for c in ("set", "arm", "pos RMS actual", "pos std predicted", "pos max actual", "pos std max",
+              "rot RMS actual", "rot std predicted", "undetermined", "trust"):
+        t.add_column(c, justify="left" if c in ("set", "arm") else "right")
+    for r in rows:
+        undetermined = max(r["unidentifiable_position_mm_per_unit_max"] or 0.0, r["weak_position_mm_per_unit_max"] or 0.0)
+        t.add_row(r["set"], r["arm"], _num(r.get("position_mm_rms_actual")), _num(r["position_mm_std_rms"]),
+                  _num(r.get("position_mm_max_actual")), _num(r["position_mm_std_max"]),
+                  _num(r.get("orientation_deg_rms_actual")), _num(r["orientation_deg_std_rms"]),
+                  _num(undetermined, digits=3), "yes" if r["trusted"] else "NO")
+    console.print(t)
+    for r in rows:
+        for m in r["messages"]:
+            console.print(f"- {r['set']} ({r['arm']}): {m}")
 
 
 def _progress(console: Console, quiet: bool):

@@ -8,6 +8,7 @@ from typing import Mapping
 import numpy as np
 
 from kincal.analysis import Identifiability
+from kincal.analysis.prediction import Prediction, predicted_accuracy
 from kincal.kinematics import Robot
 from kincal.params import Layout, State
 
@@ -45,6 +46,7 @@ class Result:
     extras: Mapping[str, object] = field(default_factory=dict)  # final experiment frames
     twists: tuple = ()  # derived (names, values (6n,), std (6n,)) of every arm with free twists
     validation: tuple[dict, ...] = ()
+    predictions: tuple[tuple[str, Prediction], ...] = ()  # (validation set, prediction) per arm (io.jobs.run_job)
 
     @property
     def success(self) -> bool:
@@ -58,6 +60,11 @@ class Result:
 
     def values(self) -> dict[str, float]:
         return {e.name: e.value for e in self.estimates}
+
+    def predict(self, q, arm: str, *, register: bool = True, register_tool: bool = False) -> Prediction:
+        """Predicted accuracy of the calibrated tool pose of ``arm`` at joint readings q (N, n): standard
+        deviations and dependence on what the data cannot determine (``kincal.analysis.prediction``)."""
+        return predicted_accuracy(self, q, arm, register=register, register_tool=register_tool)
 
     def summary(self) -> str:
         lines = [f"status: {self.status} after {self.iterations} outer iterations ({self.evaluations} evaluations)"]

@@ -62,9 +62,41 @@ def result_to_dict(result: Result) -> dict:
         "residuals_before": [_stats(s) for s in result.before],
         "residuals_after": [_stats(s) for s in result.after],
         "validation": [_stats(s) for s in result.validation],
+        "predict": prediction_rows(result),
         "frames": {k: np.asarray(v.as_array() if hasattr(v, "as_array") else v).tolist()
                    for k, v in result.extras.items()},
     }
+
+
+def prediction_rows(result: Result) -> list[dict]:
+    """Per validation set and calibrated arm: the predicted accuracy next to the actual validation errors of the
+    set (mm, deg). Effects of undetermined directions are tool motion per unit norm of a direction in natural
+    units: mm per mm-or-mrad and mrad per mm-or-mrad."""
+    actual = {v["experiment"]: v for v in result.validation}
+    rows = []
+    for name, p in result.predictions:
+        st, v = p.stats(), actual.get(name, {})
+        row = {"set": name, "arm": p.arm, "samples": p.samples, "registered": p.registered,
+               "tool_registered": p.tool_registered, "trusted": p.trusted,
+               "position_mm_std_rms": _f(st["position_std_rms"] * 1e3),
+               "position_mm_std_max": _f(st["position_std_max"] * 1e3),
+               "orientation_deg_std_rms": _f(st["orientation_std_rms"] * DEG),
+               "orientation_deg_std_max": _f(st["orientation_std_max"] * DEG)}
+        for k, scale, unit in (("position_rms", 1e3, "mm"), ("position_max", 1e3, "mm"),
+                               ("orientation_rms", DEG, "deg"), ("orientation_max", DEG, "deg")):
+            if f"{k}_after" in v:
+                quantity, stat = k.split("_")
+                row[f"{quantity}_{unit}_{stat}_actual"] = _f(v[f"{k}_after"] * scale)
+        for key, moving, pos, rot in (("unidentifiable", p.null_moving, "null_position_max", "null_orientation_max"),
+                                      ("weak", p.weak_moving, "weak_position_max", "weak_orientation_max")):
+            row[f"{key}_moving"] = moving
+            row[f"{key}_position_mm_per_unit_max"] = _f(st[pos])
+            row[f"{key}_orientation_mrad_per_unit_max"] = _f(st[rot])
+        row["directions"] = [{"kind": d.kind, "pivot": d.pivot, "position_mm_per_unit": _f(d.position),
+                              "orientation_mrad_per_unit": _f(d.orientation)} for d in p.directions[:5]]
+        row["messages"] = list(p.messages)
+        rows.append(row)
+    return rows
 
 
 def write_results(result: Result, directory) -> dict[str, Path]:
