@@ -147,3 +147,6 @@ def test_tracker_markers_unknown_tracker_and_markers(markers, rank):
     assert not any("weakly identifiable" in m for m in res.messages)
     v = res.validation[0]
     assert v["position_rms_before"] > 1e-3 and v["position_max_after"] < EXACT
+    # the Python API reports, next to the validation error, what the model predicts about its accuracy there
+    ((name, pred),) = res.predictions
+    assert name == v["experiment"] and pred.trusted and pred.null_moving == 0

@@ -46,7 +46,7 @@ class Result:
     extras: Mapping[str, object] = field(default_factory=dict)  # final experiment frames
     twists: tuple = ()  # derived (names, values (6n,), std (6n,)) of every arm with free twists
     validation: tuple[dict, ...] = ()
-    predictions: tuple[tuple[str, Prediction], ...] = ()  # (validation set, prediction) per arm (io.jobs.run_job)
+    predictions: tuple[tuple[str, Prediction], ...] = ()  # (validation set, prediction) per arm
 
     @property
     def success(self) -> bool:

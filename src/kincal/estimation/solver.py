@@ -15,7 +15,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from kincal.analysis import analyse, correlated_pairs, covariance, select_columns
+from kincal.analysis import analyse, correlated_pairs, covariance, select_columns, validation_predictions
 from kincal.data import Dataset
 from kincal.errors import DegenerateExperimentError, ModelError
 from kincal.estimation import steps
@@ -324,7 +324,8 @@ def _with_validation(result: Result, validation, noise) -> Result:
             if k in b:
                 row[f"{k}_before"], row[f"{k}_after"] = b[k], a[k]
         rows.append(row)
-    return replace(result, validation=tuple(rows))
+    # next to the validation errors: what the model itself predicts about its accuracy there
+    return replace(result, validation=tuple(rows), predictions=validation_predictions(result, validation))
 
 
 __all__ = ["calibrate", "evaluate", "residual_norms"]

@@ -168,13 +168,10 @@ def run_job(job: Job, progress=None):
     """Run the job's solver: kincal's (a ``Result``) or the thesis baseline (a ``BaselineResult``)."""
     if job.method == "thesis":
         return _thesis(job)
-    from kincal.analysis import validation_predictions
     from kincal.estimation import calibrate
 
-    result = calibrate(job.robot, job.datasets, job.free, fixed=job.fixed, priors=job.priors, noise=job.noise,
-                       gauge=job.gauge, validation=job.validation, progress=progress, **job.options)
-    # next to the validation errors: what the model itself predicts about its accuracy there
-    return replace(result, predictions=validation_predictions(result, job.validation))
+    return calibrate(job.robot, job.datasets, job.free, fixed=job.fixed, priors=job.priors, noise=job.noise,
+                     gauge=job.gauge, validation=job.validation, progress=progress, **job.options)
 
 
 def _thesis(job: Job):
