@@ -131,6 +131,11 @@ def analyse(
     for w in weak:
         messages.append(f"weakly identifiable direction (singular value far below the others; its estimate rests "
                         f"on little more than the noise): {w}")
+    if len(weak_idx):
+        hold = float(f"{1.5 * S_full[weak_idx].max() / smax:.1g}")
+        messages.append(f"to hold the {len(weak_idx)} weakly identifiable direction(s) at their current values instead "
+                        f"of estimating them, calibrate with rank_rtol={hold:g} (they are then reported as "
+                        "unidentifiable), or give priors on the parameters they involve")
     return Identifiability(names, rank, S_full, rtol, N, R, identifiable, scale_null, tuple(directions),
                            weak, tuple(messages), weak_vectors)
 
