@@ -193,3 +193,13 @@ def test_twist_block_generator_identity(rng):
         lhs = theta[..., None, None] * se3.left_jacobian(xi * theta[..., None]) @ (-se3.ad(xi) @ G)
         rhs = G - se3.adjoint(se3.exp(xi * theta[..., None])) @ G
         np.testing.assert_allclose(lhs, rhs, atol=1e-11)
+
+
+def test_loaded_joint_reading_derivative_alone(rng):
+    """With no parameter block asked for, J_q of a loaded data set still includes the load torques' change."""
+    robot = _robot(rng, compliance=0.02)
+    ds = _case("markers+wrench", rng, robot)
+    state = State.from_robot(robot)
+    exps, extras, _ = experiments.build([ds], state)
+    state = State(state.arms, extras)
+    np.testing.assert_array_equal(exps[0].residual(state, want=set()).jq["a"], exps[0].residual(state).jq["a"])

@@ -35,7 +35,7 @@ def arm_jacobians(a: ArmValues, kin: Kinematics, G: np.ndarray, parts=ARM_PARTS,
     """
     N, k = G.shape[:2]
     n = a.dof
-    loaded = isinstance(kin, LoadedKinematics) and any(p != "base" for p in parts)
+    loaded = isinstance(kin, LoadedKinematics) and (with_jq or any(p != "base" for p in parts))
     joints = with_jq or "offsets" in parts or loaded
     twists = "twists" in parts
     idx = [*range(n + 1)] if twists else ([*range(n)] if joints else []) + ([n] if "home" in parts else [])
