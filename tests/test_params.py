@@ -22,7 +22,11 @@ def test_stable_names_and_units(state):
         assert name in lay.names
     assert "left.j2.xi.shift_1" not in lay.names  # prismatic: 2 tilt coordinates only
     assert lay.units[lay.index("left.j2.offset")] == "m" and lay.units[lay.index("right.j2.offset")] == "rad"
-    assert lay.size == 7 + 28 + 18 + 3 + 10 + 18 + 6 + 6
+    assert lay.units[lay.index("left.j2.compliance")] == "m/N" and lay.units[lay.index("right.j2.compliance")] == "rad/Nm"
+    assert lay.size == 7 + 28 + 18 + 3 + 10 + 18 + 6 + 6 + 10  # ... + one compliance per joint
+    ela = build_layout(state, ["kinematic", "elastic"], free_extras=[])
+    assert set(ela.free_names) - set(build_layout(state, "kinematic", free_extras=[]).free_names) == {
+        f"{a}.{j}.compliance" for a, n in (("right", 7), ("left", 3)) for j in [f"j{i}" for i in range(1, n + 1)]}
 
 
 def test_levels_globs_and_status(state):

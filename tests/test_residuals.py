@@ -7,18 +7,38 @@ from kincal import experiments
 from kincal.data import Dataset
 from kincal.errors import DataFormatError, DegenerateExperimentError
 from kincal.experiments._kernel import pose_gap
-from kincal.kinematics import Robot, forward_kinematics
+from kincal.kinematics import Robot, forward_kinematics, loaded_forward_kinematics
 from kincal.lie import se3
 from kincal.params import State, build_layout, retract
 from kincal.testing import numerical_jacobian, random_arm, random_pose
 
 
-def _robot(rng, prismatic=()):
-    return Robot("r", {"a": random_arm(rng, 6, prismatic, name="a"), "b": random_arm(rng, 7, name="b")})
+def _robot(rng, prismatic=(), compliance=0.0):
+    a = random_arm(rng, 6, prismatic, name="a")
+    a = a.replace(compliance=rng.uniform(0, compliance, a.dof))
+    return Robot("r", {"a": a, "b": random_arm(rng, 7, name="b")})
+
+
+LOADED = ("pose+wrench", "markers+wrench")
 
 
 def _case(kind, rng, robot):
-    """A data set of ``kind`` that is exactly consistent with ``robot`` (no inverse kinematics needed)."""
+    """A data set of ``kind`` that is exactly consistent with ``robot`` (no inverse kinematics needed);
+    ``<kind>+wrench``: random loads on the tool deflect arm a's compliant joints."""
+    if kind in LOADED:
+        kind = kind.split("+")[0]
+        q = rng.uniform(-2, 2, (5, robot["a"].dof))
+        w = rng.normal(size=(5, 6))
+        T = loaded_forward_kinematics(robot["a"], q, w)
+        plain = _case(kind, rng, Robot("r", {"a": robot["a"].replace(compliance=None), "b": robot["b"]}))
+        W = plain.known["T_world_tracker"]
+        if kind == "pose":
+            measured = {"T_tracker_tool": se3.inverse(W) @ T, "wrench_tool": w}
+        else:
+            x = plain.known["p_tool_marker"]
+            measured = {"p_tracker_marker": se3.transform_points(se3.inverse(W), se3.transform_points(T[:, None], x)),
+                        "wrench_tool": w}
+        return Dataset(kind, "r", ("a",), {"a": q}, measured, dict(plain.known))
     a, b = robot["a"], robot["b"]
     qa = lambda n: rng.uniform(-2, 2, (n, a.dof))  # noqa: E731
     qb = lambda n: rng.uniform(-2, 2, (n, b.dof))  # noqa: E731
@@ -69,11 +89,14 @@ def _assemble(res, layout, N):
     return J
 
 
-@pytest.mark.parametrize("kind", sorted(experiments.KINDS))
+@pytest.mark.parametrize("kind", sorted(experiments.KINDS) + list(LOADED))
 @pytest.mark.parametrize("prismatic", [(), (2,)])
 def test_residual_zero_at_truth_and_jacobian_matches_differences(rng, kind, prismatic):
-    robot = _robot(rng, prismatic)
+    """Loaded kinds (random wrenches, compliant joints) check the compliance block and the load torques'
+    dependence on every other block, the joint readings included."""
+    robot = _robot(rng, prismatic, compliance=0.02 if kind in LOADED else 0.0)
     ds = _case(kind, rng, robot)
+    kind = ds.kind
     state = State.from_robot(robot)
     exps, extras, unknown = experiments.build([ds], state)
     assert unknown == []
@@ -89,6 +112,8 @@ def test_residual_zero_at_truth_and_jacobian_matches_differences(rng, kind, pris
     measured = {k: np.repeat(v[:1], n, axis=0) for k, v in ds.measured.items()}
     if kind == "plate":
         measured["fixture"] = np.array([0, 2, 1])
+    if "wrench_tool" in measured:
+        measured["wrench_tool"] = rng.normal(size=(n, 6))
     exp = type(exp)(Dataset(kind, "r", ds.arms, q, measured, dict(ds.known), ds.name), exp.frames)
     res = exp.residual(state)
     J = _assemble(res, layout, n)
@@ -168,3 +193,13 @@ def test_twist_block_generator_identity(rng):
         lhs = theta[..., None, None] * se3.left_jacobian(xi * theta[..., None]) @ (-se3.ad(xi) @ G)
         rhs = G - se3.adjoint(se3.exp(xi * theta[..., None])) @ G
         np.testing.assert_allclose(lhs, rhs, atol=1e-11)
+
+
+def test_loaded_joint_reading_derivative_alone(rng):
+    """With no parameter block asked for, J_q of a loaded data set still includes the load torques' change."""
+    robot = _robot(rng, compliance=0.02)
+    ds = _case("markers+wrench", rng, robot)
+    state = State.from_robot(robot)
+    exps, extras, _ = experiments.build([ds], state)
+    state = State(state.arms, extras)
+    np.testing.assert_array_equal(exps[0].residual(state, want=set()).jq["a"], exps[0].residual(state).jq["a"])

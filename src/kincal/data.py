@@ -10,8 +10,9 @@ Kinds and their entries (N samples; shapes batch-first):
 kind              measured                              known (optional unless marked *)
 ================  ====================================  ======================================================
 ``pose``          ``T_tracker_tool`` (N, 4, 4)          ``T_world_tracker`` (4, 4)
+                  ``wrench_tool`` (N, 6) optional
 ``markers``       ``p_tracker_marker`` (N, m, 3)        ``T_world_tracker`` (4, 4), ``p_tool_marker`` (m, 3),
-                  ``wrench_tool`` (N, 6) optional       (loads as (force, torque) in the tool frame, N, N m)
+                  ``wrench_tool`` (N, 6) optional
 ``clamp``         --                                    ``T_world_fixture`` (4, 4)
 ``plate``         ``fixture`` (N,) int in [0, K)        ``T_plate_fixture`` (K, 4, 4) *, ``T_world_plate`` (4, 4)
 ``dual``          --                                    ``T_toolA_toolB`` (4, 4): arm B's tool in arm A's tool
@@ -19,6 +20,9 @@ kind              measured                              known (optional unless m
 ``distance``      --                                    ``distance`` (): |p_A - p_B| of the two arms' tool points
 ``plane``         --                                    ``plane_world`` (4,): n . p = d with unit n
 ================  ====================================  ======================================================
+
+``wrench_tool`` (pose, markers): the load (force, torque) applied TO the tool BY the environment, tool frame,
+N and N m, acting at the tool origin; it deflects compliant joints (``kincal.kinematics.elastic``).
 
 ``arms`` lists the arms involved (two for ``dual`` and ``distance``, first is A). Unknown quantities
 (absent from ``known``) become parameters of the calibration.
@@ -40,7 +44,7 @@ from kincal.errors import DegenerateExperimentError, ShapeError
 
 KINDS = {
     # kind: (number of arms, required measured keys, optional measured keys, required known keys, optional known keys)
-    "pose": (1, ("T_tracker_tool",), (), (), ("T_world_tracker",)),
+    "pose": (1, ("T_tracker_tool",), ("wrench_tool",), (), ("T_world_tracker",)),
     "markers": (1, ("p_tracker_marker",), ("wrench_tool",), (), ("T_world_tracker", "p_tool_marker")),
     "clamp": (1, (), (), (), ("T_world_fixture",)),
     "plate": (1, ("fixture",), (), ("T_plate_fixture",), ("T_world_plate",)),
@@ -156,6 +160,9 @@ class Dataset:
         for k, v in self.measured.items():
             if v.shape[:1] != (n,):
                 raise ShapeError(f"{where}: measured '{k}' has {v.shape[:1]} samples, joint readings have {n}")
+        w = self.measured.get("wrench_tool")
+        if w is not None and w.shape != (n, 6):
+            raise ShapeError(f"{where}: measured 'wrench_tool' must be (N, 6) (force, torque), got shape {w.shape}")
         if n == 0:
             raise DegenerateExperimentError(f"{where}: contains no samples")
 

@@ -14,6 +14,7 @@ joint twists    ``right.j3.xi.shift_1, shift_2, tilt_1,     ``Ad(exp(G d)) xi``:
                                                             Reports and priors use the chart ``B^+ (xi - xi0)``
 home/base/tool  ``right.home.v_x .. w_z``                   ``exp(d) T`` (left increment, in the frame T maps to)
 pose nuisance   ``fixture.*, plate.*, clamp.*, tracker.*``  ``exp(d) T``
+joint compliance ``right.j3.compliance`` (rad/Nm; m/N)     ``c + d`` (meaningful only with loads: ``wrench_tool``)
 points          ``markers.m1.x``, ``socket.x``              ``p + d``
 plane           ``plane.n_1, plane.n_2, plane.d``           ``n = normalize(n0 + U d_n)``, ``d + d_d``
 ==============  ==========================================  =====================================================
@@ -37,9 +38,10 @@ from kincal.kinematics import PRISMATIC, REVOLUTE, ArmModel, Robot, conform_twis
 from kincal.kinematics.identification import TWIST_COORDS
 from kincal.lie import se3, so3
 
-LEVELS = ("offsets", "kinematic")
+LEVELS = ("offsets", "kinematic", "elastic")
 POSE_COORDS = TWIST_COORDS
 ARM_POSES = ("home", "base", "tool")
+COMPLIANCE_UNITS = {REVOLUTE: "rad/Nm", PRISMATIC: "m/N"}
 
 
 @dataclass(frozen=True)
@@ -55,10 +57,16 @@ class ArmValues:
     joint_names: tuple
     joint_types: tuple
     generators: tuple = ()  # per joint (6, k_i): Ad(exp(G d)) retraction generators at the linearization point
+    compliance: np.ndarray | None = None  # (n,) rad/(N m) or m/N; None: zeros
 
     @property
     def dof(self) -> int:
         return self.screws.shape[0]
+
+    @property
+    def joint_compliance(self) -> np.ndarray:
+        """(n,) compliances (zeros when none are set)."""
+        return np.zeros(self.dof) if self.compliance is None else self.compliance
 
     @property
     def basis(self) -> np.ndarray:
@@ -77,7 +85,7 @@ class ArmValues:
         return ArmValues(
             np.array(model.screws), np.array(model.offsets), np.array(model.base), np.array(model.home),
             np.array(model.tool), _bases(model.screws, model.joint_types), model.joint_names, model.joint_types,
-            _generators(model.screws, model.joint_types),
+            _generators(model.screws, model.joint_types), np.array(model.compliance),
         )
 
 
@@ -151,8 +159,9 @@ class State:
                 continue
             a = self.arms[key]
             screws = conform_twists(a.screws, a.joint_types)
-            arms[key] = model.replace(
-                screws=screws, offsets=a.offsets, base=a.base, home=a.home, tool=a.tool
+            arms[key] = model.replace(  # a compliance estimated below 0 (noise) is held at 0 in the model
+                screws=screws, offsets=a.offsets, base=a.base, home=a.home, tool=a.tool,
+                compliance=np.maximum(a.joint_compliance, 0.0),
             )
         return Robot(robot.name, arms, dict(robot.meta))
 
@@ -223,6 +232,8 @@ def _arm_blocks(arm: str, a: ArmValues):
     yield f"{arm}.twists", "twists", "twists", names, units
     for part in ARM_POSES:
         yield (f"{arm}.{part}", "pose", part, [f"{arm}.{part}.{c}" for c in POSE_COORDS], _pose_units())
+    yield (f"{arm}.compliance", "compliance", "compliance", [f"{arm}.{j}.compliance" for j in a.joint_names],
+           [COMPLIANCE_UNITS[t] for t in a.joint_types])
 
 
 def _pose_units():
@@ -249,6 +260,8 @@ def level_patterns(level: str, arms: Sequence[str]) -> list[str]:
         return [f"{a}.*.offset" for a in arms]
     if level == "kinematic":
         return [p for a in arms for p in (f"{a}.*.offset", f"{a}.twists", f"{a}.home")]
+    if level == "elastic":
+        return [f"{a}.compliance" for a in arms]
     raise ModelError(f"unknown level {level!r}; levels: {', '.join(LEVELS)} (or a list of names/globs)")
 
 
@@ -348,6 +361,8 @@ def retract(state: State, layout: Layout, delta: np.ndarray) -> State:
                 arms[b.arm] = replace(a, offsets=a.offsets + d)
             elif b.part == "twists":
                 arms[b.arm] = _retract_twists(a, d)
+            elif b.part == "compliance":
+                arms[b.arm] = replace(a, compliance=a.joint_compliance + d)
             else:
                 arms[b.arm] = replace(a, **{b.part: se3.exp(d) @ getattr(a, b.part)})
         elif b.kind == "pose":
@@ -389,6 +404,8 @@ def displacement(state: State, nominal: State, layout: Layout) -> tuple[np.ndarr
             a, a0 = state.arms[b.arm], nominal.arms[b.arm]
             if b.part == "offsets":
                 disp[s], D[s, s] = a.offsets - a0.offsets, np.eye(b.stop - b.start)
+            elif b.part == "compliance":
+                disp[s], D[s, s] = a.joint_compliance - a0.joint_compliance, np.eye(b.stop - b.start)
             elif b.part == "twists":
                 B0p = np.linalg.pinv(a0.basis)
                 disp[s] = B0p @ (a.screws - a0.screws).ravel()
@@ -424,6 +441,8 @@ def scale_direction(state: State, layout: Layout) -> np.ndarray:
             a = state.arms[b.arm]
             if b.part == "offsets":
                 s[sl] = np.where(np.array(a.joint_types) == PRISMATIC, a.offsets, 0.0)
+            elif b.part == "compliance":  # same deflection under a pure force: torques scale with length
+                s[sl] = np.where(np.array(a.joint_types) == PRISMATIC, a.joint_compliance, -a.joint_compliance)
             elif b.part == "twists":
                 v = np.zeros_like(a.screws)
                 rev = np.array(a.joint_types) == REVOLUTE

@@ -31,7 +31,9 @@ def _num(x, scale=1.0, digits=4) -> str:
 
 
 def _shown(e) -> tuple[str, float, float]:
-    """(unit, value, std) in display units: deg and mm."""
+    """(unit, value, std) in display units: deg and mm; compliances in their SI units (rad/Nm, m/N)."""
+    if e.unit not in ("rad", "m"):
+        return e.unit, e.value, e.std
     k = DEG if e.unit == "rad" else 1e3
     return ("deg" if e.unit == "rad" else "mm"), e.value * k, e.std * k
 
@@ -60,7 +62,7 @@ def print_summary(console: Console, result, title: str) -> None:
                       _num(v.get("orientation_rms_after"), DEG))
         console.print(t)
     _print_predictions(console, prediction_rows(result))
-    t = Table(title="estimates (offsets absolute; twist/pose coordinates as change from nominal)")
+    t = Table(title="estimates (offsets and compliances absolute; twist/pose coordinates as change from nominal)")
     for c in ("parameter", "value", "std", "unit"):
         t.add_column(c, justify="left" if c == "parameter" else "right")
     for e in result.estimates:

@@ -62,6 +62,7 @@ def analyse_named(problem, state, lin, rtol, order, context):
                 axes.setdefault(f"{arm}.{jn}", Ad[j] @ a.screws[j])
         for role, G in e.increment_frames(state).items():
             frames[e.frames[role]] = G
+    loads = any("wrench_tool" in e.dataset.measured for e in problem.experiments)
     col = {int(i): k for k, i in enumerate(problem.free_idx)}
     blocks = [block_of(problem, i) for i in problem.free_idx]
     pose_blocks = [(b, [col.get(i) for i in range(b.start, b.stop)]) for b in layout.blocks
@@ -85,6 +86,8 @@ def analyse_named(problem, state, lin, rtol, order, context):
             words.append(f"a rotation of the {b.name} about the axis of {match[0]}" if match
                          else f"a screw motion of the {b.name}")
         moved = {blocks[k].part for k in np.flatnonzero(np.abs(row) > 1e-9) if blocks[k].arm is not None}
+        if "compliance" in moved and not loads:
+            words.append("no data set applies a load (wrench_tool), so joint compliance has no effect")
         if "offsets" in moved and moved & {"twists", "home"}:
             words.append("in a full POE model a joint offset equals rotating the later joint axes and the home pose "
                          "about that joint's axis")

@@ -303,11 +303,12 @@ def _estimates(problem, state, std, ok):
     out = []
     for k, i in enumerate(problem.free_idx):
         b = block_of(problem, i)
-        absolute = b.kind in ("offsets", "points")
+        absolute = b.kind in ("offsets", "points", "compliance")
         nominal = 0.0
         if absolute:
-            nominal = float(np.ravel(problem.nominal.arms[b.arm].offsets if b.arm else problem.nominal.extras[b.name])[
-                i - b.start])
+            arm = problem.nominal.arms[b.arm] if b.arm else None
+            value = (arm.joint_compliance if b.kind == "compliance" else arm.offsets) if arm else problem.nominal.extras[b.name]
+            nominal = float(np.ravel(value)[i - b.start])
         out.append(Estimate(layout.names[i], nominal + float(disp[i]), nominal, float(std[k]), layout.units[i],
                             bool(ok[k])))
     return out

@@ -7,11 +7,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from kincal.kinematics import Kinematics
+from kincal.experiments._elastic import add_compliance
+from kincal.kinematics import Kinematics, LoadedKinematics
 from kincal.lie import se3, so3
 from kincal.params import ArmValues
 
-ARM_PARTS = ("offsets", "twists", "home", "base", "tool")
+ARM_PARTS = ("offsets", "twists", "home", "base", "tool", "compliance")
 
 
 def arm_jacobians(a: ArmValues, kin: Kinematics, G: np.ndarray, parts=ARM_PARTS, with_jq: bool = True):
@@ -27,11 +28,15 @@ def arm_jacobians(a: ArmValues, kin: Kinematics, G: np.ndarray, parts=ARM_PARTS,
       ``theta J_l(theta xi) ad(xi) = Ad(exp(theta xi)) - I``, so ``Ad(P_{j-1}) theta J_l(theta xi_j) B_j =
       Ad(P_{j-1}) G_j - Ad(P_j) G_j``: moving a joint axis rigidly inserts the motion before the joint and
       its inverse after it. No per-sample weights, and it holds for raw (unconformed) twists too;
-    * home: ``M_n``; base: ``G``; tool: ``G Ad(T_world_flange)``.
+    * home: ``M_n``; base: ``G``; tool: ``G Ad(T_world_flange)``;
+    * compliance (``kin`` a ``LoadedKinematics``: the data set applies loads): ``J_q tau``, and every other
+      block gets the load torques' own dependence on it (``experiments._elastic``). Without loads the
+      compliance block is zero: compliance does not affect the residual.
     """
     N, k = G.shape[:2]
     n = a.dof
-    joints = with_jq or "offsets" in parts
+    loaded = isinstance(kin, LoadedKinematics) and (with_jq or any(p != "base" for p in parts))
+    joints = with_jq or "offsets" in parts or loaded
     twists = "twists" in parts
     idx = [*range(n + 1)] if twists else ([*range(n)] if joints else []) + ([n] if "home" in parts else [])
     out: dict[str, np.ndarray] = {}
@@ -52,6 +57,10 @@ def arm_jacobians(a: ArmValues, kin: Kinematics, G: np.ndarray, parts=ARM_PARTS,
         out["base"] = G
     if "tool" in parts:
         out["tool"] = G @ se3.adjoint(kin.flange)
+    if loaded:
+        jq = add_compliance(a, kin, jq, out, parts)
+    elif "compliance" in parts:
+        out["compliance"] = np.zeros((N, k, n))
     return out, (jq if with_jq else None)
 
 

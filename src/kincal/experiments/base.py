@@ -14,7 +14,7 @@ import numpy as np
 
 from kincal.data import ROLES, Dataset
 from kincal.experiments._kernel import ARM_PARTS, arm_jacobians
-from kincal.kinematics import Kinematics, chain
+from kincal.kinematics import Kinematics, chain, loaded_chain
 from kincal.params import State
 
 
@@ -96,8 +96,13 @@ class Experiment:
         return role in self.frames and (want is None or self.frames[role] in want)
 
     def _kin(self, state: State, arm: str) -> Kinematics:
+        """The arm's kinematics at the data's readings; deflected by ``wrench_tool`` when the data has loads."""
         a = state.arms[arm]
-        return chain(a.screws, self.dataset.q[arm] + a.offsets, a.base, a.home, a.tool)
+        theta0 = self.dataset.q[arm] + a.offsets
+        w = self.dataset.measured.get("wrench_tool")
+        if w is None:
+            return chain(a.screws, theta0, a.base, a.home, a.tool)
+        return loaded_chain(a.screws, theta0, a.base, a.home, a.tool, a.joint_compliance, w)
 
     def _fk(self, state: State, arm: str) -> np.ndarray:
         return self._kin(state, arm).tool

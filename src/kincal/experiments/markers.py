@@ -5,7 +5,8 @@ Residual (N, 3m), metres, in the tracker frame (where the noise is stated and is
 (``p_tool_marker``) and y_ij the measured ``p_tracker_marker``. In the tracker frame a rigid motion of the
 whole arm together with the tracker leaves the residual exactly unchanged, so that gauge shows up as an
 exact null direction rather than a residual-sized "weak" one.
-Optional ``wrench_tool`` loads are not used here (no compliance model in this residual).
+Optional ``wrench_tool`` loads (N, 6) deflect the arm's compliant joints (``Experiment._kin``, the compliance
+block and its Jacobian terms in ``experiments._elastic``).
 """
 
 from __future__ import annotations

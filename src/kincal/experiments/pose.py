@@ -2,7 +2,8 @@
 
 Residual (N, 6): ``[p_pred - p_meas, log(R_pred R_meas^T)]`` in the tracker frame (where the noise is
 stated), with ``T_pred = T_world_tracker^-1 T_world_tool(q)`` and ``T_meas = T_tracker_tool``. A rigid motion
-of the whole arm together with the tracker is then an exact null direction.
+of the whole arm together with the tracker is then an exact null direction. Optional ``wrench_tool`` loads
+deflect compliant joints (``Experiment._kin``).
 """
 
 from __future__ import annotations

@@ -8,7 +8,8 @@ for frames shared with other data sets). The CSV header names its columns:
 
 - joints ``<arm>.<joint>`` (e.g. ``left.j1``), every joint of every arm;
 - ``pose``: ``tool.x, tool.y, tool.z, tool.qw, tool.qx, tool.qy, tool.qz`` (tracker frame);
-- ``markers``: ``m1.x, m1.y, m1.z, m2.x, ...``; optional ``wrench.fx .. wrench.tz`` (N, N m);
+- ``markers``: ``m1.x, m1.y, m1.z, m2.x, ...``;
+- ``pose`` and ``markers``: optional ``wrench.fx .. wrench.tz`` (N, N m; the load applied to the tool, tool frame);
 - ``plate``: ``fixture`` (0-based index into ``known.T_plate_fixture``);
 - optional ``t`` (s) in any kind, kept in ``Dataset.meta["t"]``.
 
@@ -217,8 +218,6 @@ def _measured(ctx, kind: str, table: _Table, known: dict) -> dict:
         if "p_tool_marker" in known and known["p_tool_marker"].shape[0] != k - 1:
             m = known["p_tool_marker"].shape[0]
             raise ctx.fail("known.p_tool_marker", f"lists {m} markers, the CSV has {k - 1}")
-        if any(c in table.col for c in WRENCH_COLUMNS):
-            out["wrench_tool"] = table.take(list(WRENCH_COLUMNS))
     elif kind == "plate":
         idx = table.take(["fixture"], integer=True)[:, 0].astype(int)
         K = known["T_plate_fixture"].shape[0]
@@ -227,6 +226,8 @@ def _measured(ctx, kind: str, table: _Table, known: dict) -> dict:
             raise DataFormatError(f"{table.path}: line {table.rows[bad[0]][0]}, column 'fixture': expected a fixture "
                                   f"index 0..{K - 1} (known.T_plate_fixture lists {K}), found {idx[bad[0]]}")
         out["fixture"] = idx
+    if kind in ("pose", "markers") and any(c in table.col for c in WRENCH_COLUMNS):
+        out["wrench_tool"] = table.take(list(WRENCH_COLUMNS))
     return out
 
 
@@ -360,9 +361,9 @@ def write_dataset(
         p = ds.measured["p_tracker_marker"]
         header += [f"m{i + 1}.{c}" for i in range(p.shape[1]) for c in "xyz"]
         cols.append(p.reshape(len(p), -1) / fl)
-        if "wrench_tool" in ds.measured:
-            header += list(WRENCH_COLUMNS)
-            cols.append(ds.measured["wrench_tool"])
+    if "wrench_tool" in ds.measured:
+        header += list(WRENCH_COLUMNS)
+        cols.append(ds.measured["wrench_tool"])
     table = np.concatenate(cols, axis=1)
     fixture = ds.measured.get("fixture") if ds.kind == "plate" else None
     if fixture is not None:

@@ -33,7 +33,7 @@ TWIST_TOL = 1e-9  # twists are what save_robot writes: they must already be exac
 
 _TOP_KEYS = {"format", "version", "name", "units", "meta", "arms"}
 _ARM_KEYS = {"joints", "base", "home", "tool", "controller_order", "meta"}
-_JOINT_KEYS = {"name", "type", "axis", "point", "twist", "offset", "limits", "gear_ratio"}
+_JOINT_KEYS = {"name", "type", "axis", "point", "twist", "offset", "limits", "gear_ratio", "compliance"}
 _POSE_KEYS = {"matrix", "xyz", "rpy", "quaternion_wxyz", "rotation", "orthonormalize"}
 
 
@@ -128,6 +128,7 @@ def _arm(ctx: _Ctx, name: str, data: Any, path: str) -> ArmModel:
             lower=[p["lower"] for p in parsed],
             upper=[p["upper"] for p in parsed],
             gear_ratios=[p["gear_ratio"] for p in parsed],
+            compliance=[p["compliance"] for p in parsed],
             controller_order=order,
             joint_names=tuple(names),
             joint_types=tuple(p["type"] for p in parsed),
@@ -181,8 +182,12 @@ def _joint(ctx: _Ctx, data: Any, path: str, index: int) -> dict:
     ratio = _number(ctx, d.get("gear_ratio", 1.0), f"{path}.gear_ratio")
     if ratio == 0:
         raise ctx.fail(f"{path}.gear_ratio", "expected a non-zero gear ratio, found 0")
+    compliance = _number(ctx, d.get("compliance", 0.0), f"{path}.compliance")
+    if compliance < 0:
+        unit = "angle unit/(N m)" if kind == REVOLUTE else "length unit/N"
+        raise ctx.fail(f"{path}.compliance", f"expected a compliance >= 0 ({unit}), found {compliance!r}")
     return {"name": name, "type": kind, "twist": twist, "offset": offset, "lower": lower, "upper": upper,
-            "gear_ratio": ratio}
+            "gear_ratio": ratio, "compliance": compliance * scale}
 
 
 def _twist(ctx: _Ctx, value: Any, path: str, kind: str) -> np.ndarray:
@@ -353,6 +358,8 @@ def _arm_to_dict(arm: ArmModel) -> dict:
             j["limits"] = [float(arm.lower[i]), float(arm.upper[i])]
         if arm.gear_ratios[i] != 1:
             j["gear_ratio"] = float(arm.gear_ratios[i])
+        if arm.compliance[i] != 0:
+            j["compliance"] = float(arm.compliance[i])
         joints.append(j)
     out = {
         "base": {"matrix": [_floats(r) for r in arm.base]},

@@ -10,6 +10,13 @@ from kincal.kinematics.fk import (
     kinematics,
     space_jacobian,
 )
+from kincal.kinematics.elastic import (
+    LoadedKinematics,
+    load_torques,
+    loaded_chain,
+    loaded_forward_kinematics,
+    loaded_kinematics,
+)
 from kincal.kinematics.identification import IdentificationJacobian, identification_jacobian
 from kincal.kinematics.model import PRISMATIC, REVOLUTE, ArmModel, Robot
 from kincal.kinematics.twists import conform_twists, tangent_basis, tangent_generators
@@ -18,6 +25,7 @@ __all__ = [
     "ArmModel",
     "IdentificationJacobian",
     "Kinematics",
+    "LoadedKinematics",
     "PRISMATIC",
     "REVOLUTE",
     "Robot",
@@ -28,6 +36,10 @@ __all__ = [
     "identification_jacobian",
     "joint_array",
     "joint_axes",
+    "load_torques",
+    "loaded_chain",
+    "loaded_forward_kinematics",
+    "loaded_kinematics",
     "kinematics",
     "space_jacobian",
     "tangent_basis",

@@ -45,6 +45,9 @@ class ArmModel:
         Joint offsets o (rad or m): the true joint value is the reading plus the offset.
     lower, upper : ndarray, shape (n,)
         Joint limits in model units (rad or m), applied to the reading q.
+    compliance : ndarray, shape (n,)
+        Joint compliances c >= 0 (rad/(N m) revolute, m/N prismatic), default zeros: under a load the joint
+        deflects by ``c_i tau_i`` (``kincal.kinematics.elastic``).
     gear_ratios : ndarray, shape (n,)
         Motor units per joint unit (motor rad = ratio * arm rad), in model joint order.
     controller_order : tuple of int
@@ -68,6 +71,7 @@ class ArmModel:
     joint_names: tuple[str, ...] | None = None
     joint_types: tuple[str, ...] | None = None
     meta: Mapping = field(default_factory=dict)
+    compliance: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         where = f"arm '{self.name}'"
@@ -93,6 +97,9 @@ class ArmModel:
         vec("lower", -np.inf)
         vec("upper", np.inf)
         vec("gear_ratios", 1.0)
+        vec("compliance", 0.0)
+        if np.any(self.compliance < 0):
+            raise ModelError(f"{where}: compliance must be >= 0 (rad/(N m) or m/N), got {self.compliance.tolist()}")
         if np.any(np.isnan(self.lower)) or np.any(np.isnan(self.upper)) or np.any(self.lower >= self.upper):
             raise ModelError(f"{where}: joint limits need lower < upper, got lower={self.lower.tolist()} upper={self.upper.tolist()}")
         if np.any(self.gear_ratios == 0):
@@ -147,7 +154,7 @@ class ArmModel:
     def __eq__(self, other) -> bool:
         if not isinstance(other, ArmModel):
             return NotImplemented
-        arrays = ("screws", "home", "base", "tool", "offsets", "lower", "upper", "gear_ratios")
+        arrays = ("screws", "home", "base", "tool", "offsets", "lower", "upper", "gear_ratios", "compliance")
         return (
             self.name == other.name
             and self.joint_names == other.joint_names

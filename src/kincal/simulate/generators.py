@@ -24,7 +24,7 @@ import numpy as np
 from kincal._validate import as_array, check_transform
 from kincal.data import Dataset
 from kincal.errors import DegenerateExperimentError, ModelError
-from kincal.kinematics import ArmModel, Robot, forward_kinematics
+from kincal.kinematics import ArmModel, Robot, forward_kinematics, loaded_forward_kinematics
 from kincal.lie import se3, so3
 from kincal.simulate.ik import ClosedChainConstraint, PoseConstraint, PositionConstraint, solve
 from kincal.simulate.noise import Noise, joint_readings, tracker_points, tracker_poses
@@ -119,6 +119,43 @@ def random_markers(m: int, rng: np.random.Generator, radius_m: float = 0.1) -> n
     return radius_m * d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
+def random_wrenches(n: int, magnitude: float, rng: np.random.Generator, lever_m: float = 0.2) -> np.ndarray:
+    """n loads on the tool (n, 6): a force of ``magnitude`` N in a uniformly random direction acting at a random
+    point within ``lever_m`` of the tool origin, as (force, torque = r x force) in the tool frame."""
+    d = rng.normal(size=(n, 3))
+    f = magnitude * d / np.linalg.norm(d, axis=-1, keepdims=True)
+    r = rng.uniform(-lever_m, lever_m, (n, 3))
+    return np.concatenate([f, np.cross(r, f)], axis=-1)
+
+
+def _loads(wrench, n: int, rng) -> np.ndarray | None:
+    """``wrench`` (None, a magnitude in N, a constant (6,) or per-sample (n, 6)) as (n, 6) loads, or None."""
+    if wrench is None:
+        return None
+    if np.ndim(wrench) == 0:
+        if not (np.isfinite(wrench) and wrench > 0):
+            raise ModelError(f"wrench: expected a load magnitude > 0 (N), a (6,) or an (n, 6) array, got {wrench!r}")
+        return random_wrenches(n, float(wrench), rng)
+    w = as_array(wrench, "wrench", (6,))
+    if w.shape not in ((6,), (n, 6)):
+        raise ModelError(f"wrench: expected shape (6,) or ({n}, 6) (force N, torque N m, tool frame), got {w.shape}")
+    return np.array(np.broadcast_to(w, (n, 6)))
+
+
+def _validation_loads(wrench, loads, n: int, rng) -> np.ndarray | None:
+    """Loads for validation samples: fresh random ones of the same magnitude, the constant, or rows of the given."""
+    if loads is None:
+        return None
+    if np.ndim(wrench) == 0 or np.shape(wrench) == (6,):
+        return _loads(wrench, n, rng)
+    return loads[rng.integers(0, len(loads), n)]
+
+
+def _tool_poses(model: ArmModel, q, loads) -> np.ndarray:
+    """True tool poses: deflected by the loads (with the model's compliance) when there are loads."""
+    return forward_kinematics(model, q) if loads is None else loaded_forward_kinematics(model, q, loads)
+
+
 def _pose_or(T, name, default):
     """``T`` validated, or ``default()`` when T is None."""
     return default() if T is None else check_transform(T, name, 1e-6)
@@ -163,18 +200,22 @@ def generate_pose(
     known_tracker: bool = False,
     n_validation: int = 100,
     margin: float = 0.05,
+    wrench=None,
 ) -> tuple[Dataset, Truth, dict]:
     """Full tool pose measured by a tracker in its own frame: measured ``T_tracker_tool`` (N, 4, 4).
 
     Configurations are uniform within the limits shrunk by ``margin`` of each span; the tracker is placed
-    by ``random_tracker_pose`` unless given.
+    by ``random_tracker_pose`` unless given. ``wrench``: loads on the tool (see ``generate_markers``).
     """
     n, rng = _check_n(n), np.random.default_rng(rng)
     arm, model = _arm(robot, arm)
     T_wt = _pose_or(T_world_tracker, "T_world_tracker", lambda: random_tracker_pose(robot, arm, rng))
     q = random_configurations(model, n, rng, margin)
-    T = se3.inverse(T_wt) @ forward_kinematics(model, q)
+    loads = _loads(wrench, n, rng)
+    T = se3.inverse(T_wt) @ _tool_poses(model, q, loads)
     measured = {"T_tracker_tool": tracker_poses(T, noise, rng)}
+    if loads is not None:
+        measured["wrench_tool"] = loads
     ds = Dataset("pose", robot.name, (arm,), _noisy({arm: q}, noise, rng), measured,
                  {"T_world_tracker": T_wt} if known_tracker else {}, "pose", _meta("pose", noise))
     truth = Truth(robot, {"T_world_tracker": T_wt}, {arm: q}, noise, {"generator": "pose"})
@@ -194,10 +235,16 @@ def generate_markers(
     known_tracker: bool = False,
     n_validation: int = 100,
     margin: float = 0.05,
+    wrench=None,
 ) -> tuple[Dataset, Truth, dict]:
     """Positions of markers on the tool seen by a tracker (partial pose): ``p_tracker_marker`` (N, m, 3).
 
     ``markers`` is a count (random offsets within 0.1 m of the tool origin) or ``p_tool_marker`` (m, 3).
+    ``wrench``: loads on the tool (``wrench_tool``, applied to the tool by the environment, tool frame): a
+    constant (6,) (force N, torque N m), one per sample (n, 6), or a magnitude in N for random loads
+    (``random_wrenches``); the true poses are deflected with the true robot's compliance
+    (``kincal.kinematics.elastic``) and the validation set carries loads too. Without it the draws, and so
+    the outputs for a seed, are those of earlier versions.
     """
     n, rng = _check_n(n), np.random.default_rng(rng)
     arm, model = _arm(robot, arm)
@@ -206,23 +253,29 @@ def generate_markers(
         raise DegenerateExperimentError(f"markers: expected a count >= 1 or an (m, 3) array, got {markers!r}")
     T_wt = _pose_or(T_world_tracker, "T_world_tracker", lambda: random_tracker_pose(robot, arm, rng))
     q = random_configurations(model, n, rng, margin)
-    T = se3.inverse(T_wt) @ forward_kinematics(model, q)
+    loads = _loads(wrench, n, rng)
+    T = se3.inverse(T_wt) @ _tool_poses(model, q, loads)
     p = se3.transform_points(T[:, None], p_tm[None])
     known = {}
     if known_tracker:
         known["T_world_tracker"] = T_wt
     if known_markers:
         known["p_tool_marker"] = p_tm
-    ds = Dataset("markers", robot.name, (arm,), _noisy({arm: q}, noise, rng),
-                 {"p_tracker_marker": tracker_points(p, noise, rng)}, known, "markers", _meta("markers", noise))
+    measured = {"p_tracker_marker": tracker_points(p, noise, rng)}
+    if loads is not None:
+        measured["wrench_tool"] = loads
+    ds = Dataset("markers", robot.name, (arm,), _noisy({arm: q}, noise, rng), measured, known, "markers",
+                 _meta("markers", noise))
     truth = Truth(robot, {"T_world_tracker": T_wt, "p_tool_marker": p_tm}, {arm: q}, noise, {"generator": "markers"})
     # Validate what this experiment observes: marker positions at fresh configurations, noise-free, with the
     # tracker frame and marker offsets left unknown (refitted), not the world-frame tool pose (which a partial
     # pose measurement does not determine: the tracker gauge, and with one marker the tool orientation).
     qv = random_configurations(model, n_validation, rng, margin)
-    pv = se3.transform_points((se3.inverse(T_wt) @ forward_kinematics(model, qv))[:, None], p_tm[None])
-    validation = {arm: Dataset("markers", robot.name, (arm,), {arm: qv}, {"p_tracker_marker": pv}, {},
-                               f"validation-{arm}", {"noise_free": True})}
+    lv = _validation_loads(wrench, loads, n_validation, rng)
+    pv = se3.transform_points((se3.inverse(T_wt) @ _tool_poses(model, qv, lv))[:, None], p_tm[None])
+    mv = {"p_tracker_marker": pv} if lv is None else {"p_tracker_marker": pv, "wrench_tool": lv}
+    validation = {arm: Dataset("markers", robot.name, (arm,), {arm: qv}, mv, {}, f"validation-{arm}",
+                               {"noise_free": True})}
     return ds, truth, validation
 
 

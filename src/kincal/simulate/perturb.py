@@ -7,6 +7,9 @@ Every error is drawn uniformly in ``[-a, a]`` per coordinate:
 - joint offsets: ``|o_i| <= offset_rad`` (``offset_m`` for prismatic joints), added to the nominal offsets;
 - home (T_st), base and tool: additive in twist coordinates, ``exp(log(T) + (dv, dw))``.
 
+Joint compliances (``compliance``, rad/(N m) for revolute and m/N for prismatic joints) are drawn uniformly in
+``[0, compliance]``, last and only when set, so the other draws (and robots of earlier seeds) are unchanged.
+
 Named levels: ``"thesis"`` (0.01 m, 2.4 deg, 0.07 rad offsets, home perturbed like the twists) and
 ``"fine"`` (1 mm, 0.1 deg, 0.01 rad). Base and tool stay nominal unless their magnitudes are set.
 """
@@ -38,6 +41,7 @@ class Perturbation:
     base_rad: float = 0.0
     tool_m: float = 0.0
     tool_rad: float = 0.0
+    compliance: float = 0.0
 
     def __post_init__(self) -> None:
         for k, v in self.__dict__.items():
@@ -80,7 +84,8 @@ def _perturb_pose(T, rng, a_m, a_rad):
 
 
 def perturb_arm(model: ArmModel, p: Perturbation, rng: np.random.Generator) -> ArmModel:
-    """One arm with errors of magnitudes ``p``; draws in a fixed order (twists, offsets, home, base, tool)."""
+    """One arm with errors of magnitudes ``p``; draws in a fixed order (twists, offsets, home, base, tool, then
+    compliance only if ``p.compliance`` > 0)."""
     n = model.dof
     screws = conform_twists(model.screws + _twist_noise(rng, (n,), p.twist_m, p.twist_rad), model.joint_types)
     prismatic = np.array([t == PRISMATIC for t in model.joint_types])
@@ -92,6 +97,7 @@ def perturb_arm(model: ArmModel, p: Perturbation, rng: np.random.Generator) -> A
         base=_perturb_pose(model.base, rng, p.base_m, p.base_rad),
         tool=_perturb_pose(model.tool, rng, p.tool_m, p.tool_rad),
         meta={**model.meta, "perturbed_from": model.name},
+        compliance=rng.uniform(0, p.compliance, n) if p.compliance > 0 else model.compliance,
     )
 
 
