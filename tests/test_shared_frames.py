@@ -88,7 +88,7 @@ def test_marker_sessions_without_sharing_have_two_trackers(ur10, sessions):
 
 def test_shared_frame_known_in_one_data_set_is_known_in_both(ur10, sessions):
     true, T, sets = sessions
-    (a, pa), (b, pb) = sets["a"], sets["b"]
+    (a, _), (b, _) = sets["a"], sets["b"]
     known = Dataset(a.kind, a.robot, a.arms, a.q, a.measured, {"T_world_tracker": T}, "a", frames={"tracker": "lab"})
     res = calibrate(ur10, [known, _named(b, tracker="lab")], "kinematic")
     blk = res.layout.block("lab")
