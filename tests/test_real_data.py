@@ -1,0 +1,204 @@
+"""kincal on real measured data (../shared/datasets next to the checkout; each test skips when its data are absent).
+
+Thresholds come from the published figures quoted in each data set's SOURCE.md (attributed below) and from
+kincal's own numbers on these data when this file was written (docs/real-data.md, bench/real_data.py), with
+margins stated where they are used. Every threshold would catch a unit slip (mm vs m), a broken loader
+or a solver that stops early.
+"""
+
+import numpy as np
+import pytest
+
+import holdout as ho
+import realdata as rd
+from kincal.estimation import calibrate
+from kincal.estimation.problem import Noise
+
+MM, DEG = 1e-3, np.pi / 180
+
+
+def _folder(name):
+    try:
+        return rd.folder(name)
+    except rd.DataMissing as exc:
+        pytest.skip(str(exc))
+
+
+def _pivots(result, prefix):
+    return {d.pivot for d in result.identifiability.directions if d.pivot.startswith(prefix)}
+
+
+def _partners(direction):
+    return {name for name, _ in direction.partners}
+
+
+# ------------------------------------------------------------------------------ Wu et al. 2015, ABB IRB 120
+
+# Stated noise: 0.15 mm per axis, 0.07 deg per axis, encoders exact. Chosen once from the fits below (per-axis
+# RMS of the residuals) so that the variance factor is near 1 for both the marker and the frame data.
+WU_NOISE = Noise(0.15 * MM, 0.07 * DEG, 0.0)
+# Wu et al. 2015 (T-ASE 12(2)), the authors' Experiment.m on their 40 test configurations (SOURCE.md):
+# mean / max error of a test point, mm.
+WU_MOP = (0.266, 0.525)  # minimal POE, position only (3 points x 36 configurations)
+WU_MFP = (0.692, 1.336)  # minimal POE, full pose (36 frames)
+
+
+@pytest.fixture(scope="module")
+def wu():
+    path = _folder(rd.WU)
+    return path, rd.wu_robot(path)
+
+
+@pytest.fixture(scope="module")
+def wu_markers(wu):
+    path, robot = wu
+    ds = rd.wu_markers(path)
+    return ds, calibrate(robot, [ds], "kinematic", noise=WU_NOISE)
+
+
+@pytest.fixture(scope="module")
+def wu_pose(wu):
+    path, robot = wu
+    ds = rd.wu_pose(path)
+    return ds, calibrate(robot, [ds], "kinematic", noise=WU_NOISE)
+
+
+def test_wu_markers_fit_rank_and_noise(wu_markers):
+    _, res = wu_markers
+    assert res.status == "converged"
+    before, after = res.before[0]["position_rms"], res.after[0]["position_rms"]
+    assert before > 5 * MM  # at the starting values (nominal arm, initial tracker and markers): 10.5 mm RMS
+    assert after < 0.30 * MM  # 0.245 mm measured; +20 %
+    assert 0.5 < res.sigma2 < 2.0  # 1.0 measured: residuals match the stated noise within a factor sqrt(2)
+    ide = res.identifiability
+    # 36 arm, 6 tracker and 9 marker coordinates = 51 free, rank 33 (4r + 2p + 6 = 30
+    # for the arm with base and tool, plus 9 marker coordinates less the 6 the tool frame absorbs)
+    assert (len(ide.names), ide.rank) == (51, 33)
+    assert not ide.weak and not ide.scale_unidentifiable
+    # 18 null directions: the 6 offsets (redundant with twists and home in a full POE model), the tool frame
+    # against the marker positions (6, pivots on home) and the arm moving with the tracker (6, pivots on j1/j2)
+    assert _pivots(res, "arm.home") == {f"arm.home.{c}" for c in ("v_x", "v_y", "v_z", "w_x", "w_y", "w_z")}
+    assert _pivots(res, "arm.") >= {f"arm.j{i}.offset" for i in range(1, 7)}
+    home = [d for d in ide.directions if d.pivot.startswith("arm.home")]
+    assert all(all(n.startswith("markers.") for n in _partners(d)) for d in home)
+    gauge = [d for d in ide.directions if ".xi." in d.pivot]
+    assert len(gauge) == 6 and all(any(n.startswith("tracker.") for n in _partners(d)) for d in gauge)
+
+
+def test_wu_markers_cross_validated_against_minimal_poe(wu):
+    path, robot = wu
+    ds = rd.wu_markers(path)
+    cv = ho.cross_validate(robot, ds, "kinematic", k=6, noise=WU_NOISE)
+    assert {r.status for r in cv.results} == {"converged"}
+    s = cv.summary()
+    # held-out marker positions (108 = 36 configurations x 3 points, 6 folds): 0.279 mm mean, 0.98 mm max.
+    # Published MOP test-point error 0.266 mm mean (a different, held-back test set): within 1.5x.
+    assert s["pos_mean"] < 1.5 * WU_MOP[0] * MM
+    assert s["pos_max"] < 1.2 * MM  # measured 0.98 mm; the published max (0.525 mm) is over 40 samples, not 108
+    # the full model is worth it: offsets alone leave 0.63 mm mean
+    offsets = ho.cross_validate(robot, ds, "offsets", k=6, noise=WU_NOISE).summary()
+    assert s["pos_mean"] < offsets["pos_mean"] / 1.8
+
+
+def test_wu_pose_fit_rank_and_noise(wu_pose):
+    _, res = wu_pose
+    assert res.status == "converged"
+    after = res.after[0]
+    assert after["position_rms"] < 0.26 * MM  # 0.213 mm measured; +20 %
+    assert after["orientation_rms"] < 0.125 * DEG  # 0.104 deg measured; +20 %
+    assert 0.5 < res.sigma2 < 2.0  # 0.9 measured
+    ide = res.identifiability
+    # 36 arm + 6 tracker coordinates, rank 30 = 4r + 2p + 6 with r = 6 (the minimal POE count): null are the
+    # 6 offsets and the arm moving with the tracker
+    assert (len(ide.names), ide.rank) == (42, 30)
+    assert _pivots(res, "arm.") >= {f"arm.j{i}.offset" for i in range(1, 7)}
+    gauge = [d for d in ide.directions if not d.pivot.endswith(".offset")]
+    assert len(gauge) == 6 and all(any(n.startswith("tracker.") for n in _partners(d)) for d in gauge)
+
+
+def test_wu_pose_cross_validated_against_minimal_poe(wu):
+    path, robot = wu
+    cv = ho.cross_validate(robot, rd.wu_pose(path), "kinematic", k=6, noise=WU_NOISE)
+    s = cv.summary()
+    # held-out frame origins: 0.233 mm mean, 0.64 mm max, 0.117 deg RMS. Published MFP (full pose, minimal POE)
+    # test-point error 0.692 mm mean / 1.336 mm max: kincal's held-out error must not be worse.
+    assert s["pos_mean"] < WU_MFP[0] * MM and s["pos_max"] < WU_MFP[1] * MM
+    assert s["ori_rms"] < 0.15 * DEG
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "pose with an unknown tracker: the tracker's starting value (pose_mean of F T_meas^-1) ignores the tool "
+    "frame, so with the nominal flange frame 139 deg away from the probed frames the solve stops in a local "
+    "minimum (65.9 mm / 86 deg RMS) and reports status 'converged'"))
+def test_wu_pose_from_the_flange_frame_reaches_the_noise_floor(wu):
+    path, robot = wu
+    arm = robot["arm"]
+    flange = np.array([[0, 0, 1, 0.374], [0, 1, 0, 0], [-1, 0, 0, 0.630], [0, 0, 0, 1.0]])  # ABB tool0 at zero
+    res = calibrate(robot.replace_arm("arm", arm.replace(home=flange)), [rd.wu_pose(path)], "kinematic",
+                    noise=WU_NOISE)
+    assert res.status != "converged" or res.after[0]["position_rms"] < 0.26 * MM
+
+
+# ----------------------------------------------------------------------------- FIGAROH UR10e, camera poses
+
+# Stated noise: 1.5 mm and 0.3 deg per axis (a RealSense camera on a checkerboard; no figure is published, so
+# chosen from the fits: variance factor near 1).
+UR10_NOISE = Noise(1.5 * MM, 0.3 * DEG, 0.0)
+
+
+@pytest.fixture(scope="module")
+def ur10():
+    return rd.figaroh_ur10(_folder(rd.FIGAROH) / "ur10")
+
+
+def test_ur10_camera_base_and_tool_fit_matches_the_reference(ur10):
+    robot, ds = ur10
+    res = calibrate(robot, [ds], ["arm.home"], noise=UR10_NOISE)  # camera frame and tool (home) only
+    assert res.status == "converged" and res.identifiability.rank == 12
+    # SOURCE.md's helper check (nominal URDF, base pose + tool fitted): mean about 3.2 mm, 0.2-1.1 deg.
+    # kincal: 3.52 mm RMS, 6.2 mm max, 0.54 deg RMS.
+    assert 2.8 * MM < res.after[0]["position_rms"] < 4.2 * MM
+    assert res.after[0]["orientation_max"] < 1.2 * DEG
+
+
+def test_ur10_camera_kinematic_calibration_does_not_help_held_out_positions(ur10):
+    robot, ds = ur10
+    res = calibrate(robot, [ds], "kinematic", noise=UR10_NOISE)
+    assert res.status == "converged"
+    ide = res.identifiability
+    assert (len(ide.names), ide.rank) == (42, 30)  # as for any 6R arm with full pose: offsets + camera gauge
+    assert 0.5 < res.sigma2 < 2.0  # 1.08 measured
+    assert res.after[0]["position_rms"] < 3.2 * MM  # 2.90 mm measured
+    full = ho.cross_validate(robot, ds, "kinematic", k=6, noise=UR10_NOISE).summary()
+    frames = ho.cross_validate(robot, ds, ["arm.home"], k=6, noise=UR10_NOISE).summary()
+    # 23 noisy camera poses: 30 identifiable parameters buy nothing in held-out position (3.96 vs 3.87 mm mean)
+    # and some orientation (0.43 vs 0.59 deg RMS). Both ways this can change are checked.
+    assert full["pos_mean"] > 0.9 * frames["pos_mean"]
+    assert full["ori_rms"] < 0.85 * frames["ori_rms"]
+
+
+# ------------------------------------------------------------------------- FIGAROH TALOS left arm, one marker
+
+TALOS_NOISE = Noise(0.3 * MM, 1.0, 0.0)  # mocap marker, per axis (variance factor near 1 on the fit)
+
+
+@pytest.fixture(scope="module")
+def talos():
+    return rd.figaroh_talos(_folder(rd.FIGAROH) / "talos")
+
+
+def test_talos_marker_kinematic_calibration(talos):
+    robot, ds = talos
+    res = calibrate(robot, [ds], "kinematic", noise=TALOS_NOISE)
+    assert res.status == "converged"
+    # SOURCE.md helper check, nominal URDF with base and marker fitted: RMS 5.2 mm. kincal, the same fit: 5.16 mm
+    nominal = calibrate(robot, [ds], [], noise=TALOS_NOISE)  # only the unknown tracker and marker are free
+    assert 4.7 * MM < nominal.after[0]["position_rms"] < 5.7 * MM
+    assert res.after[0]["position_rms"] < 0.6 * MM  # 0.509 mm measured
+    assert 0.5 < res.sigma2 < 2.0
+    ide = res.identifiability
+    # 9 joints: 9 offsets, the arm moving with the tracker (6) and, with one marker, the whole tool frame (6)
+    assert (len(ide.names), ide.rank) == (60, 39)
+    assert _pivots(res, "arm.home") == {f"arm.home.{c}" for c in ("v_x", "v_y", "v_z", "w_x", "w_y", "w_z")}
+    cv = ho.cross_validate(robot, ds, "kinematic", k=4, noise=TALOS_NOISE).summary()
+    assert cv["pos_mean"] < 0.85 * MM  # 0.65 mm measured (6 folds); nominal 4.9 mm
