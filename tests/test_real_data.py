@@ -6,11 +6,11 @@ margins stated where they are used. Every threshold would catch a unit slip (mm 
 or a solver that stops early.
 """
 
+import holdout as ho
 import numpy as np
 import pytest
-
-import holdout as ho
 import realdata as rd
+
 from kincal.estimation import calibrate
 from kincal.estimation.problem import Noise
 
@@ -202,3 +202,62 @@ def test_talos_marker_kinematic_calibration(talos):
     assert _pivots(res, "arm.home") == {f"arm.home.{c}" for c in ("v_x", "v_y", "v_z", "w_x", "w_y", "w_z")}
     cv = ho.cross_validate(robot, ds, "kinematic", k=4, noise=TALOS_NOISE).summary()
     assert cv["pos_mean"] < 0.85 * MM  # 0.65 mm measured (6 folds); nominal 4.9 mm
+
+
+# ---------------------------------------------------------------------- MUKCa: a Panda's ball held in sockets
+
+# Stated noise: 0.3 mm per axis for the ball centre in its socket (variance factor 5 measured: the residuals
+# also carry what 7 offsets cannot model). Trained on three plate placements, checked on the other six.
+MUKCA_NOISE = Noise(0.3 * MM, 1.0, 0.0)
+MUKCA_TRAIN = ("front_center", "back_left", "high")
+
+
+@pytest.fixture(scope="module")
+def mukca():
+    path = _folder(rd.MUKCA)
+    nominal = rd.mukca_robot(path)
+    train = [d for pl in MUKCA_TRAIN for d in rd.mukca_sockets(path, "panda_2", pl)]
+    held_out = [rd.mukca_sockets(path, "panda_2", pl) for pl in rd.mukca_placements(path, "panda_2")
+                if pl not in MUKCA_TRAIN]
+    return path, nominal, train, held_out, calibrate(nominal, train, "offsets", noise=MUKCA_NOISE)
+
+
+def test_mukca_offsets_on_held_out_placements(mukca):
+    path, nominal, _, held_out, res = mukca
+    assert res.status == "converged" and len(held_out) == 6
+    assert max(a["position_rms"] for a in res.after) < 1.8 * MM  # 0.76-1.50 mm per socket measured
+    authors = rd.mukca_robot(path, "calibrated_urdf/panda_2/panda.urdf")  # the authors' calibrated URDF
+
+    def consistency(robot):
+        out = [ho.socket_consistency(robot["arm"], sockets) for sockets in held_out]
+        return np.mean([s for s, _ in out]), max(abs(d - rd.MUKCA_HOLE_DISTANCE) for _, d in out)
+
+    (nom_spread, nom_dist), (spread, dist), (auth_spread, _) = map(consistency, (nominal, res.robot, authors))
+    # mean distance of the predicted ball centre from its per-socket mean on the 6 held-out placements:
+    # nominal 8.7 mm, kincal (7 offsets) 1.19 mm, the authors (every joint origin, with the 50 mm term) 0.35 mm
+    assert spread < nom_spread / 5
+    assert spread < 4 * auth_spread
+    # distance between the two socket means against the plate's 50 mm: nominal off by up to 3.1 mm, kincal 0.8 mm,
+    # the authors 0.4 mm (offsets cannot change the arm's lengths, so kincal's scale comes from the nominal URDF)
+    assert dist < 1.2 * MM and nom_dist > 2 * MM
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "socket residuals are world-frame vectors, so rotating the arm about joint 1 together with the unknown "
+    "sockets (an exact symmetry of the cost) is only 'weakly identifiable' on noisy data: kincal estimates "
+    "panda_joint1.offset = -0.034 +- 0.052 rad from the noise instead of reporting it unidentifiable"))
+def test_mukca_joint1_offset_is_a_gauge_with_unknown_sockets(mukca):
+    res = mukca[-1]
+    assert not res.estimate("arm.panda_joint1.offset").identifiable
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "sockets without a known length (kincal cannot state 'two sockets 50 mm apart'): at level 'kinematic' the "
+    "solver moves every joint axis through the ball, the tool point stops moving, residuals are 0 and the status "
+    "is 'converged'; only a 'scale cannot be identified' message hints at it"))
+def test_mukca_kinematic_level_keeps_the_arm_size(mukca):
+    path, nominal = mukca[:2]
+    sockets = rd.mukca_sockets(path, "panda_2", "front_center")
+    res = calibrate(nominal, sockets, "kinematic", noise=MUKCA_NOISE)
+    dist = ho.socket_consistency(res.robot["arm"], sockets)[1]
+    assert dist > 40 * MM  # the plate's holes are 50 mm apart; the "calibrated" model puts them 4e-10 mm apart
