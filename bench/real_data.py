@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import holdout as ho  # noqa: E402
 import realdata as rd  # noqa: E402
 
-from kincal.estimation import calibrate  # noqa: E402
+from kincal.estimation import calibrate, evaluate  # noqa: E402
 from kincal.estimation.problem import Noise  # noqa: E402
 
 MM, DEG = 1e-3, np.pi / 180
@@ -37,6 +37,8 @@ UR10_NOISE = Noise(1.5 * MM, 0.3 * DEG, 0.0)
 MOCAP_NOISE = Noise(0.3 * MM, 1.0, 0.0)
 MUKCA_NOISE = Noise(0.3 * MM, 1.0, 0.0)
 MUKCA_TRAIN = ("front_center", "back_left", "high")
+MOTOMAN_NOISE = Noise(1.0 * MM, 1.0, 0.0)
+MOTOMAN_FREE = ["right.L.offset", "right.U.offset", "right.R.offset", "right.B.offset", "right.home"]
 
 
 def _fmt(x, scale, digits=3):
@@ -79,6 +81,36 @@ def mukca_rows(path):
           f"{len(res.identifiability.names)}, {res.iterations} iterations, {wall:.2f} s, fit RMS up to "
           f"{fit / MM:.3f} mm per socket, variance factor {res.sigma2:.2f}")
     _table(["model", "held-out spread mean mm", "max mm", "max |d - 50 mm| mm"], rows)
+
+
+def motoman_rows(path):
+    """Self-contact (distance) calibration of the right arm on a 70/30 split, the same offsets on the laser
+    tracker, and plane contacts (each surface an unknown plane) checked on the self-contact data."""
+    robot, ds = rd.motoman_robot(), rd.motoman_self_touch(path)
+    order = np.random.default_rng(0).permutation(ds.size)
+    train, test = ds.subset(order[: int(0.7 * ds.size)]), ds.subset(order[int(0.7 * ds.size):])
+    planes = [rd.motoman_plane(path, f"{s}{k}") for s in ("higher_table", "lower_table", "wall_table") for k in "12"]
+    leica = rd.motoman_robot("leica")
+    tracker = rd.motoman_leica(path)
+    rows = [["nominal", "-", "-", "-", "-", _fmt(evaluate(robot, [train])[0]["position_rms"], MM),
+             _fmt(evaluate(robot, [test])[0]["position_rms"], MM), _fmt(evaluate(robot, [ds])[0]["position_rms"], MM),
+             _fmt(evaluate(leica, [tracker])[0]["position_rms"], MM), "1.36 / 1.31"]]
+    for label, data, ref in (("self-touch (train)", [train], "0.95 / 1.02"), ("planes (6 surfaces)", planes, "")):
+        t = time.perf_counter()
+        res = calibrate(robot, data, MOTOMAN_FREE, noise=MOTOMAN_NOISE)
+        wall = time.perf_counter() - t
+        on_leica = leica.replace_arm("right", leica["right"].replace(offsets=res.robot["right"].offsets))
+        fit = np.sqrt(np.mean([a["position_rms"] ** 2 for a in res.after]))
+        rows.append([label, f"{res.identifiability.rank}/{len(res.identifiability.names)}", str(res.iterations),
+                     f"{wall:.2f}", _fmt(fit, MM), _fmt(evaluate(res.robot, [train])[0]["position_rms"], MM),
+                     _fmt(evaluate(res.robot, [test])[0]["position_rms"], MM),
+                     _fmt(evaluate(res.robot, [ds])[0]["position_rms"], MM),
+                     _fmt(evaluate(on_leica, [tracker])[0]["position_rms"], MM), ref])
+    print(f"\nMotoman: right arm {', '.join(MOTOMAN_FREE)} free; self-touch distance RMS (mm) on the 70/30 split "
+          f"({train.size}/{test.size} poses) and Leica reflector RMS with the same offsets ({tracker.size} poses, "
+          "tracker fitted); authors: train / test RMS")
+    _table(["calibrated from", "rank", "it", "s", "fit RMS", "self-touch train", "test", "all", "Leica RMS",
+            "authors"], rows)
 
 
 def _table(header, rows):
@@ -128,10 +160,11 @@ def main(argv=None):
     print(f"Tracker data: fit on every configuration, then {k}-fold held-out errors (mm, deg); published: mean / max mm")
     _table(["data", "free", "N", "rank", "it", "s", "fit pos RMS", "fit ori RMS", "var factor", "held-out mean",
             "RMS", "max", "ori RMS", "status", "published / reference"], rows)
-    try:
-        mukca_rows(rd.folder(rd.MUKCA))
-    except rd.DataMissing as exc:
-        print(f"skipped mukca: {exc}")
+    for name, rows_of in ((rd.MUKCA, mukca_rows), (rd.MOTOMAN, motoman_rows)):
+        try:
+            rows_of(rd.folder(name))
+        except rd.DataMissing as exc:
+            print(f"skipped {name}: {exc}")
 
 
 if __name__ == "__main__":

@@ -12,9 +12,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from scipy.io import loadmat
 
 from kincal.data import Dataset
 from kincal.kinematics import ArmModel, Robot
+from kincal.kinematics.dh import from_dh
 from kincal.kinematics.urdf import from_urdf
 from kincal.lie import se3
 
@@ -195,3 +197,72 @@ def mukca_sockets(path: Path, robot_dir: str, placement: str) -> list[Dataset]:
     return [Dataset("socket", "panda", ("arm",), {"arm": _csv(path / "data" / robot_dir / placement / f"hole_{k}.csv")},
                     name=f"{placement}.hole{k}", meta={"source": f"{MUKCA}/data/{robot_dir}/{placement}"})
             for k in (0, 1)]
+
+
+# ------------------------------------------------------------- CTU Motoman MA1400 dual arm (ctu-motoman-dual-arm)
+
+MOTOMAN = "ctu-motoman-dual-arm"
+MOTOMAN_JOINTS = ("E", "S", "L", "U", "R", "B", "T")
+MOTOMAN_CONTACT_DISTANCE = 0.116  # m between the two end-effector centres in self-contact (the authors' value)
+# Columns (0-based) of each arm's joints: E (the shared torso axis, col 7 1-based) then S, L, U, R, B, T.
+_MOTOMAN_COLUMNS = {"right": [6, 7, 8, 9, 10, 11, 12], "left": [6, 13, 14, 15, 16, 17, 18]}
+
+
+def _motoman_arm(name: str, torso_alpha: float, flange: np.ndarray) -> ArmModel:
+    """One arm of the toolbox's loadMotoman.m (standard DH rows E, S, L, U, R, B, T; SOURCE.md)."""
+    return from_dh(a=[0, 0.150, 0.614, 0.200, 0, 0.030, 0], alpha=[torso_alpha, -np.pi / 2, np.pi, -np.pi / 2,
+                                                                     np.pi / 2, np.pi / 2, 0],
+                   d=[-0.263, 1.4159, 0, 0, -0.640, 0, 0.200], theta=[-np.pi / 2, 0, -np.pi / 2, 0, 0, -np.pi / 2, 0],
+                   flange=flange, name=name, joint_names=MOTOMAN_JOINTS)
+
+
+def motoman_robot(tool: str = "contact") -> Robot:
+    """Both arms from the base frame, each with its own copy of the shared torso joint E (kincal has no shared
+    joints; the data repeat the E reading for both arms). ``tool``: ``contact`` (end-effector centre, DH row
+    EE: d = 0.354 m) or ``leica`` (the right arm's laser-tracker reflector, row LR1: a 0.045, d 0.245,
+    theta -0.38)."""
+    ee = se3.make(np.eye(3), np.array([0.0, 0.0, 0.354]))
+    if tool == "leica":
+        c, s = np.cos(-0.38), np.sin(-0.38)
+        right = se3.make(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]), np.array([0.045 * c, 0.045 * s, 0.245]))
+    else:
+        right = ee
+    return Robot("motoman", {"right": _motoman_arm("right", np.radians(15), right),
+                             "left": _motoman_arm("left", np.radians(-15), ee)})
+
+
+def _motoman_poses(path: Path, name: str) -> np.ndarray:
+    """One row per pose (the files repeat a pose once per observed ArUco marker): columns as SOURCE.md."""
+    file = path / "leica_dataset" / f"{name}_dataset.mat"
+    if not file.is_file():
+        raise DataMissing(f"real data file not available: {file}")
+    rows = loadmat(file)["dataset"]
+    return rows[np.unique(rows[:, 0], return_index=True)[1]]
+
+
+MOTOMAN_SELF_TOUCH = tuple(f"{p}self_{s}_4x4" for p in ("leica_", "no_leica_")
+                           for s in ("upper1", "upper2", "lower1", "lower2"))
+
+
+def motoman_self_touch(path: Path, names=MOTOMAN_SELF_TOUCH) -> Dataset:
+    """Self-contact poses of the given files: both end-effector centres ``MOTOMAN_CONTACT_DISTANCE`` apart."""
+    rows = np.vstack([_motoman_poses(path, n) for n in names])
+    return Dataset("distance", "motoman", ("right", "left"), {a: rows[:, c] for a, c in _MOTOMAN_COLUMNS.items()},
+                   known={"distance": MOTOMAN_CONTACT_DISTANCE}, name="self-touch", meta={"source": MOTOMAN})
+
+
+def motoman_plane(path: Path, surface: str) -> Dataset:
+    """Right end effector touching one surface (e.g. ``higher_table1``), poses with and without the tracker;
+    the plane is unknown."""
+    rows = np.vstack([_motoman_poses(path, f"{p}{surface}_5x5") for p in ("leica_", "no_leica_")])
+    return Dataset("plane", "motoman", ("right",), {"right": rows[:, _MOTOMAN_COLUMNS["right"]]}, name=surface,
+                   meta={"source": MOTOMAN})
+
+
+def motoman_leica(path: Path, name: str = "leica_right_hand_6x6x6") -> Dataset:
+    """Reflector positions on the right arm (tracker frame, m) with the tracker frame unknown; poses without a
+    tracker reading dropped."""
+    rows = _motoman_poses(path, name)
+    rows = rows[np.isfinite(rows[:, 19:22]).all(axis=1)]
+    return Dataset("markers", "motoman", ("right",), {"right": rows[:, _MOTOMAN_COLUMNS["right"]]},
+                   {"p_tracker_marker": rows[:, None, 19:22]}, name=name, meta={"source": MOTOMAN})

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import realdata as rd
 
-from kincal.estimation import calibrate
+from kincal.estimation import calibrate, evaluate
 from kincal.estimation.problem import Noise
 
 MM, DEG = 1e-3, np.pi / 180
@@ -261,3 +261,49 @@ def test_mukca_kinematic_level_keeps_the_arm_size(mukca):
     res = calibrate(nominal, sockets, "kinematic", noise=MUKCA_NOISE)
     dist = ho.socket_consistency(res.robot["arm"], sockets)[1]
     assert dist > 40 * MM  # the plate's holes are 50 mm apart; the "calibrated" model puts them 4e-10 mm apart
+
+
+# ----------------------------------------------------------- CTU Motoman dual arm: self-contact at a known distance
+
+# The authors' reference run (SOURCE.md, reference_results): self-touch only, right arm, 70/30 split, RMS
+# distance error 1.36 -> 0.95 mm (training) and 1.31 -> 1.02 mm (testing).
+MOTOMAN_REFERENCE_TEST_RMS = 1.02 * MM
+MOTOMAN_NOISE = Noise(1.0 * MM, 1.0, 0.0)  # contact distance (variance factor 1.0 measured)
+# Close to the authors' free set (L, U, R, B joint offsets and the end-effector length), in POE terms: the right
+# arm's offsets of L, U, R, B and its tool frame; the torso E and shoulder S stay nominal, the left arm is fixed.
+MOTOMAN_FREE = ["right.L.offset", "right.U.offset", "right.R.offset", "right.B.offset", "right.home"]
+
+
+@pytest.fixture(scope="module")
+def motoman():
+    path = _folder(rd.MOTOMAN)
+    robot, ds = rd.motoman_robot(), rd.motoman_self_touch(path)
+    order = np.random.default_rng(0).permutation(ds.size)
+    train, test = ds.subset(order[: int(0.7 * ds.size)]), ds.subset(order[int(0.7 * ds.size):])
+    return path, robot, train, test, calibrate(robot, [train], MOTOMAN_FREE, noise=MOTOMAN_NOISE)
+
+
+def test_motoman_self_touch_against_the_authors(motoman):
+    _, robot, train, test, res = motoman
+    assert res.status == "converged" and 0.5 < res.sigma2 < 2.0
+    # a point contact cannot see the tool frame's orientation: the 3 rotations of right.home are null
+    ide = res.identifiability
+    assert (len(ide.names), ide.rank) == (10, 7)
+    assert all(d.pivot.startswith("right.home.") and all(n.startswith("right.home.") for n in _partners(d))
+               for d in ide.directions)
+    (before,), (after,) = evaluate(robot, [test]), evaluate(res.robot, [test])
+    # kincal: 1.33 -> 0.99 mm on the 396 training poses, 1.37 -> 0.98 mm on the 170 held-out ones
+    assert res.after[0]["position_rms"] < 0.8 * res.before[0]["position_rms"]
+    assert after["position_rms"] < 1.1 * MOTOMAN_REFERENCE_TEST_RMS and after["position_rms"] < 0.8 * before["position_rms"]
+
+
+def test_motoman_self_touch_offsets_do_not_spoil_the_laser_tracker(motoman):
+    path, _, _, _, res = motoman
+    leica = rd.motoman_robot("leica")
+    calibrated = leica.replace_arm("right", leica["right"].replace(offsets=res.robot["right"].offsets))
+    ds = rd.motoman_leica(path)  # 212 reflector positions, tracker frame fitted with the arm fixed
+    (nominal,), (after,) = evaluate(leica, [ds]), evaluate(calibrated, [ds])
+    # SOURCE.md helper check: 0.23 mm mean / 0.51 mm max with the nominal model; kincal 0.248 -> 0.173 mm RMS
+    # (offsets from the 70 % split; from all 566 poses 0.237 mm: distance data determine them loosely), so only
+    # "not worse" is asserted.
+    assert nominal["position_rms"] < 0.3 * MM and after["position_rms"] < 1.05 * nominal["position_rms"]
