@@ -284,7 +284,7 @@ def motoman():
 
 
 def test_motoman_self_touch_against_the_authors(motoman):
-    _, robot, train, test, res = motoman
+    _, robot, _, test, res = motoman
     assert res.status == "converged" and 0.5 < res.sigma2 < 2.0
     # a point contact cannot see the tool frame's orientation: the 3 rotations of right.home are null
     ide = res.identifiability
