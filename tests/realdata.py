@@ -35,10 +35,14 @@ def folder(name: str) -> Path:
     return path
 
 
-def _csv(path: Path, **kw) -> np.ndarray:
+def _file(path: Path) -> Path:
     if not path.is_file():
         raise DataMissing(f"real data file not available: {path}")
-    return np.loadtxt(path, delimiter=",", ndmin=2, **kw)
+    return path
+
+
+def _csv(path: Path, **kw) -> np.ndarray:
+    return np.loadtxt(_file(path), delimiter=",", ndmin=2, **kw)
 
 
 def _frames(origin, z, x_point) -> np.ndarray:
@@ -138,7 +142,7 @@ def rpy_matrix(rpy: np.ndarray) -> np.ndarray:
 def figaroh_ur10(path: Path) -> tuple[Robot, Dataset]:
     """Nominal UR10e (URDF chain ``base_link_inertia`` -> ``wrist_3_link``) and the 23 camera poses of the
     target (m, roll-pitch-yaw rad) as a pose data set with the camera frame unknown."""
-    arm = from_urdf(path / "ur10_robot.urdf", "base_link_inertia", "wrist_3_link", name="arm")
+    arm = from_urdf(_file(path / "ur10_robot.urdf"), "base_link_inertia", "wrist_3_link", name="arm")
     data = _csv(path / "calibration.csv", skiprows=1)  # x, y, z, roll, pitch, yaw, 6 joints
     T = np.tile(np.eye(4), (len(data), 1, 1))
     T[:, :3, :3], T[:, :3, 3] = rpy_matrix(data[:, 3:6]), data[:, :3]
@@ -150,7 +154,7 @@ def figaroh_ur10(path: Path) -> tuple[Robot, Dataset]:
 def figaroh_talos(path: Path) -> tuple[Robot, Dataset]:
     """Nominal TALOS left arm with torso (URDF chain ``base_link`` -> ``gripper_left_base_link``, 9 joints) and
     the 61 mocap positions of one marker (m, robot-base frame; tracker and marker offset unknown)."""
-    arm = from_urdf(path / "talos_full_v2.urdf", "base_link", "gripper_left_base_link", name="arm")
+    arm = from_urdf(_file(path / "talos_full_v2.urdf"), "base_link", "gripper_left_base_link", name="arm")
     data = _csv(path / "talos_left_arm_02_10_contact.csv", skiprows=1)  # t, x, y, z, 2 torso + 7 arm joints
     ds = Dataset("markers", "talos", ("arm",), {"arm": data[:, 4:13]}, {"p_tracker_marker": data[:, None, 1:4]},
                  name="talos-left-marker", meta={"source": f"{FIGAROH}/talos", "t": data[:, 0]})
@@ -160,7 +164,7 @@ def figaroh_talos(path: Path) -> tuple[Robot, Dataset]:
 def figaroh_tiago(path: Path) -> tuple[Robot, Dataset]:
     """Nominal TIAGo arm with its prismatic torso (URDF ``base_footprint`` -> ``arm_7_link``, 8 joints) and
     the 34 mocap positions of the 3 distinct hand markers (columns x4..z4 repeat x3..z3 and are dropped)."""
-    arm = from_urdf(path / "tiago_hey5.urdf", "base_footprint", "arm_7_link", name="arm")
+    arm = from_urdf(_file(path / "tiago_hey5.urdf"), "base_footprint", "arm_7_link", name="arm")
     data = _csv(path / "qualysis_base_hand_calibration.csv", skiprows=1)  # 4 markers x xyz, torso, 7 arm joints
     ds = Dataset("markers", "tiago", ("arm",), {"arm": data[:, 12:20]},
                  {"p_tracker_marker": data[:, :9].reshape(-1, 3, 3)}, name="tiago-hand-markers",
@@ -177,10 +181,7 @@ MUKCA_HOLE_DISTANCE = 0.050  # m between the centres of hole 0 and hole 1 (SOURC
 def mukca_robot(path: Path, urdf: str = "urdf/panda.urdf") -> Robot:
     """A Panda from one of the folder's URDFs (nominal or ``calibrated_urdf/panda_k/panda.urdf``), chain
     ``panda_link0`` -> ``ball_link`` (the ball centre is the tool point)."""
-    file = path / urdf
-    if not file.is_file():
-        raise DataMissing(f"real data file not available: {file}")
-    return Robot("panda", {"arm": from_urdf(file, "panda_link0", "ball_link", name="arm")})
+    return Robot("panda", {"arm": from_urdf(_file(path / urdf), "panda_link0", "ball_link", name="arm")})
 
 
 def mukca_placements(path: Path, robot_dir: str) -> list[str]:
@@ -233,10 +234,7 @@ def motoman_robot(tool: str = "contact") -> Robot:
 
 def _motoman_poses(path: Path, name: str) -> np.ndarray:
     """One row per pose (the files repeat a pose once per observed ArUco marker): columns as SOURCE.md."""
-    file = path / "leica_dataset" / f"{name}_dataset.mat"
-    if not file.is_file():
-        raise DataMissing(f"real data file not available: {file}")
-    rows = loadmat(file)["dataset"]
+    rows = loadmat(_file(path / "leica_dataset" / f"{name}_dataset.mat"))["dataset"]
     return rows[np.unique(rows[:, 0], return_index=True)[1]]
 
 

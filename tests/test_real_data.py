@@ -7,6 +7,8 @@ or a solver that stops early.
 """
 
 import holdout as ho
+from contextlib import contextmanager
+
 import numpy as np
 import pytest
 import realdata as rd
@@ -17,9 +19,11 @@ from kincal.estimation.problem import Noise
 MM, DEG = 1e-3, np.pi / 180
 
 
-def _folder(name):
+@contextmanager
+def _data():
+    """Skip the test when a real data set or one of its files is absent."""
     try:
-        return rd.folder(name)
+        yield
     except rd.DataMissing as exc:
         pytest.skip(str(exc))
 
@@ -45,21 +49,21 @@ WU_MFP = (0.692, 1.336)  # minimal POE, full pose (36 frames)
 
 @pytest.fixture(scope="module")
 def wu():
-    path = _folder(rd.WU)
-    return path, rd.wu_robot(path)
+    """The nominal robot, the marker data and the frame data."""
+    with _data():
+        path = rd.folder(rd.WU)
+        return rd.wu_robot(path), rd.wu_markers(path), rd.wu_pose(path)
 
 
 @pytest.fixture(scope="module")
 def wu_markers(wu):
-    path, robot = wu
-    ds = rd.wu_markers(path)
+    robot, ds, _ = wu
     return ds, calibrate(robot, [ds], "kinematic", noise=WU_NOISE)
 
 
 @pytest.fixture(scope="module")
 def wu_pose(wu):
-    path, robot = wu
-    ds = rd.wu_pose(path)
+    robot, _, ds = wu
     return ds, calibrate(robot, [ds], "kinematic", noise=WU_NOISE)
 
 
@@ -86,8 +90,7 @@ def test_wu_markers_fit_rank_and_noise(wu_markers):
 
 
 def test_wu_markers_cross_validated_against_minimal_poe(wu):
-    path, robot = wu
-    ds = rd.wu_markers(path)
+    robot, ds, _ = wu
     cv = ho.cross_validate(robot, ds, "kinematic", k=6, noise=WU_NOISE)
     assert {r.status for r in cv.results} == {"converged"}
     s = cv.summary()
@@ -117,8 +120,8 @@ def test_wu_pose_fit_rank_and_noise(wu_pose):
 
 
 def test_wu_pose_cross_validated_against_minimal_poe(wu):
-    path, robot = wu
-    cv = ho.cross_validate(robot, rd.wu_pose(path), "kinematic", k=6, noise=WU_NOISE)
+    robot, _, ds = wu
+    cv = ho.cross_validate(robot, ds, "kinematic", k=6, noise=WU_NOISE)
     s = cv.summary()
     # held-out frame origins: 0.233 mm mean, 0.64 mm max, 0.117 deg RMS. Published MFP (full pose, minimal POE)
     # test-point error 0.692 mm mean / 1.336 mm max: kincal's held-out error must not be worse.
@@ -131,11 +134,10 @@ def test_wu_pose_cross_validated_against_minimal_poe(wu):
     "frame, so with the nominal flange frame 139 deg away from the probed frames the solve stops in a local "
     "minimum (65.9 mm / 86 deg RMS) and reports status 'converged'"))
 def test_wu_pose_from_the_flange_frame_reaches_the_noise_floor(wu):
-    path, robot = wu
+    robot, _, ds = wu
     arm = robot["arm"]
     flange = np.array([[0, 0, 1, 0.374], [0, 1, 0, 0], [-1, 0, 0, 0.630], [0, 0, 0, 1.0]])  # ABB tool0 at zero
-    res = calibrate(robot.replace_arm("arm", arm.replace(home=flange)), [rd.wu_pose(path)], "kinematic",
-                    noise=WU_NOISE)
+    res = calibrate(robot.replace_arm("arm", arm.replace(home=flange)), [ds], "kinematic", noise=WU_NOISE)
     assert res.status != "converged" or res.after[0]["position_rms"] < 0.26 * MM
 
 
@@ -148,7 +150,8 @@ UR10_NOISE = Noise(1.5 * MM, 0.3 * DEG, 0.0)
 
 @pytest.fixture(scope="module")
 def ur10():
-    return rd.figaroh_ur10(_folder(rd.FIGAROH) / "ur10")
+    with _data():
+        return rd.figaroh_ur10(rd.folder(rd.FIGAROH) / "ur10")
 
 
 def test_ur10_camera_base_and_tool_fit_matches_the_reference(ur10):
@@ -184,7 +187,8 @@ TALOS_NOISE = Noise(0.3 * MM, 1.0, 0.0)  # mocap marker, per axis (variance fact
 
 @pytest.fixture(scope="module")
 def talos():
-    return rd.figaroh_talos(_folder(rd.FIGAROH) / "talos")
+    with _data():
+        return rd.figaroh_talos(rd.folder(rd.FIGAROH) / "talos")
 
 
 def test_talos_marker_kinematic_calibration(talos):
@@ -214,19 +218,19 @@ MUKCA_TRAIN = ("front_center", "back_left", "high")
 
 @pytest.fixture(scope="module")
 def mukca():
-    path = _folder(rd.MUKCA)
-    nominal = rd.mukca_robot(path)
-    train = [d for pl in MUKCA_TRAIN for d in rd.mukca_sockets(path, "panda_2", pl)]
-    held_out = [rd.mukca_sockets(path, "panda_2", pl) for pl in rd.mukca_placements(path, "panda_2")
-                if pl not in MUKCA_TRAIN]
-    return path, nominal, train, held_out, calibrate(nominal, train, "offsets", noise=MUKCA_NOISE)
+    with _data():
+        path = rd.folder(rd.MUKCA)
+        nominal, authors = rd.mukca_robot(path), rd.mukca_robot(path, "calibrated_urdf/panda_2/panda.urdf")
+        train = [d for pl in MUKCA_TRAIN for d in rd.mukca_sockets(path, "panda_2", pl)]
+        held_out = [rd.mukca_sockets(path, "panda_2", pl) for pl in rd.mukca_placements(path, "panda_2")
+                    if pl not in MUKCA_TRAIN]
+    return nominal, authors, train, held_out, calibrate(nominal, train, "offsets", noise=MUKCA_NOISE)
 
 
 def test_mukca_offsets_on_held_out_placements(mukca):
-    path, nominal, _, held_out, res = mukca
+    nominal, authors, _, held_out, res = mukca  # authors: their calibrated URDF
     assert res.status == "converged" and len(held_out) == 6
     assert max(a["position_rms"] for a in res.after) < 1.8 * MM  # 0.76-1.50 mm per socket measured
-    authors = rd.mukca_robot(path, "calibrated_urdf/panda_2/panda.urdf")  # the authors' calibrated URDF
 
     def consistency(robot):
         out = [ho.socket_consistency(robot["arm"], sockets) for sockets in held_out]
@@ -256,8 +260,7 @@ def test_mukca_joint1_offset_is_a_gauge_with_unknown_sockets(mukca):
     "solver moves every joint axis through the ball, the tool point stops moving, residuals are 0 and the status "
     "is 'converged'; only a 'scale cannot be identified' message hints at it"))
 def test_mukca_kinematic_level_keeps_the_arm_size(mukca):
-    path, nominal = mukca[:2]
-    sockets = rd.mukca_sockets(path, "panda_2", "front_center")
+    nominal, sockets = mukca[0], mukca[2][:2]  # the two sockets of front_center
     res = calibrate(nominal, sockets, "kinematic", noise=MUKCA_NOISE)
     dist = ho.socket_consistency(res.robot["arm"], sockets)[1]
     assert dist > 40 * MM  # the plate's holes are 50 mm apart; the "calibrated" model puts them 4e-10 mm apart
@@ -276,11 +279,13 @@ MOTOMAN_FREE = ["right.L.offset", "right.U.offset", "right.R.offset", "right.B.o
 
 @pytest.fixture(scope="module")
 def motoman():
-    path = _folder(rd.MOTOMAN)
-    robot, ds = rd.motoman_robot(), rd.motoman_self_touch(path)
+    with _data():
+        path = rd.folder(rd.MOTOMAN)
+        ds, leica = rd.motoman_self_touch(path), rd.motoman_leica(path)
+    robot = rd.motoman_robot()
     order = np.random.default_rng(0).permutation(ds.size)
     train, test = ds.subset(order[: int(0.7 * ds.size)]), ds.subset(order[int(0.7 * ds.size):])
-    return path, robot, train, test, calibrate(robot, [train], MOTOMAN_FREE, noise=MOTOMAN_NOISE)
+    return leica, robot, train, test, calibrate(robot, [train], MOTOMAN_FREE, noise=MOTOMAN_NOISE)
 
 
 def test_motoman_self_touch_against_the_authors(motoman):
@@ -298,10 +303,9 @@ def test_motoman_self_touch_against_the_authors(motoman):
 
 
 def test_motoman_self_touch_offsets_do_not_spoil_the_laser_tracker(motoman):
-    path, _, _, _, res = motoman
+    ds, _, _, _, res = motoman  # ds: 212 reflector positions, tracker frame fitted with the arm fixed
     leica = rd.motoman_robot("leica")
     calibrated = leica.replace_arm("right", leica["right"].replace(offsets=res.robot["right"].offsets))
-    ds = rd.motoman_leica(path)  # 212 reflector positions, tracker frame fitted with the arm fixed
     (nominal,), (after,) = evaluate(leica, [ds]), evaluate(calibrated, [ds])
     # SOURCE.md helper check: 0.23 mm mean / 0.51 mm max with the nominal model; kincal 0.248 -> 0.173 mm RMS
     # (offsets from the 70 % split; from all 566 poses 0.237 mm: distance data determine them loosely), so only
