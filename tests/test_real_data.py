@@ -6,9 +6,9 @@ margins stated where they are used. Every threshold would catch a unit slip (mm 
 or a solver that stops early.
 """
 
-import holdout as ho
 from contextlib import contextmanager
 
+import holdout as ho
 import numpy as np
 import pytest
 import realdata as rd

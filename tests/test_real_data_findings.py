@@ -48,13 +48,18 @@ def test_misfit_message_does_not_suggest_what_is_already_free():
     assert "e.g. 'kinematic'" not in res.messages[0]
 
 
+def _panda_in_socket(**options):
+    """The built-in Panda and socket data (40 configurations) of a Panda with thesis-size errors."""
+    panda = robots.load("panda")
+    return panda, generate_socket(perturb_robot(panda, "thesis", rng=1), n=40, rng=2, **options)[0]
+
+
 @pytest.mark.xfail(strict=True, reason=(
     "a socket residual shrinks with the arm's lengths about the ball: at level 'kinematic' the solver moves every "
     "joint axis through the socket, the tool point no longer moves with any joint, residuals are 0 and the status "
     "is 'converged' (noise-free data of a perturbed Panda)"))
 def test_socket_kinematic_level_does_not_collapse_the_arm():
-    panda = robots.load("panda")
-    ds, _, _ = generate_socket(perturb_robot(panda, "thesis", rng=1), n=40, rng=2)
+    panda, ds = _panda_in_socket()
     res = calibrate(panda, [ds], "kinematic")
     q = np.random.default_rng(0).uniform(-1, 1, (20, 7))
     p = forward_kinematics(res.robot["arm"], q)[:, :3, 3]
@@ -66,7 +71,6 @@ def test_socket_kinematic_level_does_not_collapse_the_arm():
     "leaves the cost unchanged but not the residual vector, so with residuals left (here a Panda with twist errors "
     "calibrated at level 'offsets') j1.offset is reported identifiable and estimated at -1.68 +- 0.087 rad"))
 def test_socket_joint1_offset_is_a_gauge_with_an_unknown_socket():
-    panda = robots.load("panda")
-    ds, _, _ = generate_socket(perturb_robot(panda, "thesis", rng=1), n=40, rng=2, noise=Added(joint_rad=1e-4))
+    panda, ds = _panda_in_socket(noise=Added(joint_rad=1e-4))
     res = calibrate(panda, [ds], "offsets", noise=Stated(1e-5, 1e-5, 1e-4))
     assert not res.estimate("arm.j1.offset").identifiable
