@@ -29,16 +29,8 @@ import holdout as ho  # noqa: E402
 import realdata as rd  # noqa: E402
 
 from kincal.estimation import calibrate, evaluate  # noqa: E402
-from kincal.estimation.problem import Noise  # noqa: E402
 
 MM, DEG = 1e-3, np.pi / 180
-WU_NOISE = Noise(0.15 * MM, 0.07 * DEG, 0.0)  # the stated noise of tests/test_real_data.py
-UR10_NOISE = Noise(1.5 * MM, 0.3 * DEG, 0.0)
-MOCAP_NOISE = Noise(0.3 * MM, 1.0, 0.0)
-MUKCA_NOISE = Noise(0.3 * MM, 1.0, 0.0)
-MUKCA_TRAIN = ("front_center", "back_left", "high")
-MOTOMAN_NOISE = Noise(1.0 * MM, 1.0, 0.0)
-MOTOMAN_FREE = ["right.L.offset", "right.U.offset", "right.R.offset", "right.B.offset", "right.home"]
 
 
 def _fmt(x, scale, digits=3):
@@ -63,12 +55,12 @@ def tracker_row(label, robot, ds, free, noise, folds, published="", **options):
 def mukca_rows(path):
     nominal = rd.mukca_robot(path)
     authors = rd.mukca_robot(path, "calibrated_urdf/panda_2/panda.urdf")
-    train = [d for pl in MUKCA_TRAIN for d in rd.mukca_sockets(path, "panda_2", pl)]
+    train = [d for pl in rd.MUKCA_TRAIN for d in rd.mukca_sockets(path, "panda_2", pl)]
     t = time.perf_counter()
-    res = calibrate(nominal, train, "offsets", noise=MUKCA_NOISE)
+    res = calibrate(nominal, train, "offsets", noise=rd.NOISE["mukca"])
     wall = time.perf_counter() - t
     held = [rd.mukca_sockets(path, "panda_2", pl) for pl in rd.mukca_placements(path, "panda_2")
-            if pl not in MUKCA_TRAIN]
+            if pl not in rd.MUKCA_TRAIN]
     rows = []
     for label, robot in (("nominal URDF", nominal), ("kincal offsets", res.robot), ("authors' URDF", authors)):
         out = [ho.socket_consistency(robot["arm"], s) for s in held]
@@ -76,7 +68,7 @@ def mukca_rows(path):
         dist = np.array([d for _, d in out]) - rd.MUKCA_HOLE_DISTANCE
         rows.append([label, _fmt(spread.mean(), MM), _fmt(spread.max(), MM), _fmt(np.abs(dist).max(), MM)])
     fit = max(a["position_rms"] for a in res.after)
-    print(f"\nMUKCa panda_2: offsets trained on {', '.join(MUKCA_TRAIN)} ({sum(d.size for d in train)} "
+    print(f"\nMUKCa panda_2: offsets trained on {', '.join(rd.MUKCA_TRAIN)} ({sum(d.size for d in train)} "
           f"configurations, 12 sockets): {res.status}, rank {res.identifiability.rank}/"
           f"{len(res.identifiability.names)}, {res.iterations} iterations, {wall:.2f} s, fit RMS up to "
           f"{fit / MM:.3f} mm per socket, variance factor {res.sigma2:.2f}")
@@ -97,7 +89,7 @@ def motoman_rows(path):
              _fmt(evaluate(leica, [tracker])[0]["position_rms"], MM), "1.36 / 1.31"]]
     for label, data, ref in (("self-touch (train)", [train], "0.95 / 1.02"), ("planes (6 surfaces)", planes, "")):
         t = time.perf_counter()
-        res = calibrate(robot, data, MOTOMAN_FREE, noise=MOTOMAN_NOISE)
+        res = calibrate(robot, data, rd.MOTOMAN_FREE, noise=rd.NOISE["motoman"])
         wall = time.perf_counter() - t
         on_leica = leica.replace_arm("right", leica["right"].replace(offsets=res.robot["right"].offsets))
         fit = np.sqrt(np.mean([a["position_rms"] ** 2 for a in res.after]))
@@ -106,7 +98,7 @@ def motoman_rows(path):
                      _fmt(evaluate(res.robot, [test])[0]["position_rms"], MM),
                      _fmt(evaluate(res.robot, [ds])[0]["position_rms"], MM),
                      _fmt(evaluate(on_leica, [tracker])[0]["position_rms"], MM), ref])
-    print(f"\nMotoman: right arm {', '.join(MOTOMAN_FREE)} free; self-touch distance RMS (mm) on the 70/30 split "
+    print(f"\nMotoman: right arm {', '.join(rd.MOTOMAN_FREE)} free; self-touch distance RMS (mm) on the 70/30 split "
           f"({train.size}/{test.size} poses) and Leica reflector RMS with the same offsets ({tracker.size} poses, "
           "tracker fitted); authors: train / test RMS")
     _table(["calibrated from", "rank", "it", "s", "fit RMS", "self-touch train", "test", "all", "Leica RMS",
@@ -134,25 +126,25 @@ def main(argv=None):
     def wu():
         p = rd.folder(rd.WU)
         robot, mk, pose = rd.wu_robot(p), rd.wu_markers(p), rd.wu_pose(p)
-        return [tracker_row("wu markers", robot, mk, [], WU_NOISE, k, "nominal 18.17 / 30.50"),
-                tracker_row("wu markers", robot, mk, "offsets", WU_NOISE, k),
-                tracker_row("wu markers", robot, mk, "kinematic", WU_NOISE, k, "MOP 0.266 / 0.525, TOP 0.569 / 1.235"),
-                tracker_row("wu frames", robot, pose, "kinematic", WU_NOISE, k, "MFP 0.692 / 1.336, TFP 0.788 / 1.515")]
+        return [tracker_row("wu markers", robot, mk, [], rd.NOISE["wu"], k, "nominal 18.17 / 30.50"),
+                tracker_row("wu markers", robot, mk, "offsets", rd.NOISE["wu"], k),
+                tracker_row("wu markers", robot, mk, "kinematic", rd.NOISE["wu"], k, "MOP 0.266 / 0.525, TOP 0.569 / 1.235"),
+                tracker_row("wu frames", robot, pose, "kinematic", rd.NOISE["wu"], k, "MFP 0.692 / 1.336, TFP 0.788 / 1.515")]
 
     def ur10():
         robot, ds = rd.figaroh_ur10(rd.folder(rd.FIGAROH) / "ur10")
-        return [tracker_row("ur10e camera", robot, ds, ["arm.home"], UR10_NOISE, k, "fit: about 3.2 mean"),
-                tracker_row("ur10e camera", robot, ds, "kinematic", UR10_NOISE, k),
-                tracker_row("ur10e camera", robot, ds, "kinematic", UR10_NOISE, k, loss="soft_l1", f_scale=2.0)]
+        return [tracker_row("ur10e camera", robot, ds, ["arm.home"], rd.NOISE["ur10"], k, "fit: about 3.2 mean"),
+                tracker_row("ur10e camera", robot, ds, "kinematic", rd.NOISE["ur10"], k),
+                tracker_row("ur10e camera", robot, ds, "kinematic", rd.NOISE["ur10"], k, loss="soft_l1", f_scale=2.0)]
 
     def mocap():
         out = []
         for label, make, ref in (("talos marker", rd.figaroh_talos, "fit: 5.2 RMS"),
                                  ("tiago 3 markers", rd.figaroh_tiago, "fit: 3.3-4.0 mean")):
             robot, ds = make(rd.folder(rd.FIGAROH) / label.split()[0])
-            out += [tracker_row(label, robot, ds, [], MOCAP_NOISE, k, ref),
-                    tracker_row(label, robot, ds, "offsets", MOCAP_NOISE, k),
-                    tracker_row(label, robot, ds, "kinematic", MOCAP_NOISE, k)]
+            out += [tracker_row(label, robot, ds, [], rd.NOISE["mocap"], k, ref),
+                    tracker_row(label, robot, ds, "offsets", rd.NOISE["mocap"], k),
+                    tracker_row(label, robot, ds, "kinematic", rd.NOISE["mocap"], k)]
         return out
 
     for name, make in (("wu2015-irb120-poe", wu), ("figaroh ur10", ur10), ("figaroh talos/tiago", mocap)):

@@ -14,7 +14,6 @@ import pytest
 import realdata as rd
 
 from kincal.estimation import calibrate, evaluate
-from kincal.estimation.problem import Noise
 
 MM, DEG = 1e-3, np.pi / 180
 
@@ -38,9 +37,9 @@ def _partners(direction):
 
 # ------------------------------------------------------------------------------ Wu et al. 2015, ABB IRB 120
 
-# Stated noise: 0.15 mm per axis, 0.07 deg per axis, encoders exact. Chosen once from the fits below (per-axis
-# RMS of the residuals) so that the variance factor is near 1 for both the marker and the frame data.
-WU_NOISE = Noise(0.15 * MM, 0.07 * DEG, 0.0)
+# Stated noise (realdata.NOISE): 0.15 mm and 0.07 deg per axis, chosen from the fits below so that the variance
+# factor is near 1 for both the marker and the frame data.
+WU_NOISE = rd.NOISE["wu"]
 # Wu et al. 2015 (T-ASE 12(2)), the authors' Experiment.m on their 40 test configurations (SOURCE.md):
 # mean / max error of a test point, mm.
 WU_MOP = (0.266, 0.525)  # minimal POE, position only (3 points x 36 configurations)
@@ -143,9 +142,8 @@ def test_wu_pose_from_the_flange_frame_reaches_the_noise_floor(wu):
 
 # ----------------------------------------------------------------------------- FIGAROH UR10e, camera poses
 
-# Stated noise: 1.5 mm and 0.3 deg per axis (a RealSense camera on a checkerboard; no figure is published, so
-# chosen from the fits: variance factor near 1).
-UR10_NOISE = Noise(1.5 * MM, 0.3 * DEG, 0.0)
+# Stated noise: 1.5 mm and 0.3 deg per axis (no figure is published; chosen from the fits: variance factor near 1).
+UR10_NOISE = rd.NOISE["ur10"]
 
 
 @pytest.fixture(scope="module")
@@ -182,7 +180,7 @@ def test_ur10_camera_kinematic_calibration_does_not_help_held_out_positions(ur10
 
 # ------------------------------------------------------------------------- FIGAROH TALOS left arm, one marker
 
-TALOS_NOISE = Noise(0.3 * MM, 1.0, 0.0)  # mocap marker, per axis (variance factor near 1 on the fit)
+TALOS_NOISE = rd.NOISE["mocap"]  # 0.3 mm per axis (variance factor near 1 on the fit)
 
 
 @pytest.fixture(scope="module")
@@ -212,8 +210,7 @@ def test_talos_marker_kinematic_calibration(talos):
 
 # Stated noise: 0.3 mm per axis for the ball centre in its socket (variance factor 5 measured: the residuals
 # also carry what 7 offsets cannot model). Trained on three plate placements, checked on the other six.
-MUKCA_NOISE = Noise(0.3 * MM, 1.0, 0.0)
-MUKCA_TRAIN = ("front_center", "back_left", "high")
+MUKCA_NOISE = rd.NOISE["mukca"]
 
 
 @pytest.fixture(scope="module")
@@ -221,9 +218,9 @@ def mukca():
     with _data():
         path = rd.folder(rd.MUKCA)
         nominal, authors = rd.mukca_robot(path), rd.mukca_robot(path, "calibrated_urdf/panda_2/panda.urdf")
-        train = [d for pl in MUKCA_TRAIN for d in rd.mukca_sockets(path, "panda_2", pl)]
+        train = [d for pl in rd.MUKCA_TRAIN for d in rd.mukca_sockets(path, "panda_2", pl)]
         held_out = [rd.mukca_sockets(path, "panda_2", pl) for pl in rd.mukca_placements(path, "panda_2")
-                    if pl not in MUKCA_TRAIN]
+                    if pl not in rd.MUKCA_TRAIN]
     return nominal, authors, train, held_out, calibrate(nominal, train, "offsets", noise=MUKCA_NOISE)
 
 
@@ -271,10 +268,7 @@ def test_mukca_kinematic_level_keeps_the_arm_size(mukca):
 # The authors' reference run (SOURCE.md, reference_results): self-touch only, right arm, 70/30 split, RMS
 # distance error 1.36 -> 0.95 mm (training) and 1.31 -> 1.02 mm (testing).
 MOTOMAN_REFERENCE_TEST_RMS = 1.02 * MM
-MOTOMAN_NOISE = Noise(1.0 * MM, 1.0, 0.0)  # contact distance (variance factor 1.0 measured)
-# Close to the authors' free set (L, U, R, B joint offsets and the end-effector length), in POE terms: the right
-# arm's offsets of L, U, R, B and its tool frame; the torso E and shoulder S stay nominal, the left arm is fixed.
-MOTOMAN_FREE = ["right.L.offset", "right.U.offset", "right.R.offset", "right.B.offset", "right.home"]
+MOTOMAN_NOISE = rd.NOISE["motoman"]  # 1 mm on the contact distance (variance factor 1.0 measured)
 
 
 @pytest.fixture(scope="module")
@@ -285,7 +279,7 @@ def motoman():
     robot = rd.motoman_robot()
     order = np.random.default_rng(0).permutation(ds.size)
     train, test = ds.subset(order[: int(0.7 * ds.size)]), ds.subset(order[int(0.7 * ds.size):])
-    return leica, robot, train, test, calibrate(robot, [train], MOTOMAN_FREE, noise=MOTOMAN_NOISE)
+    return leica, robot, train, test, calibrate(robot, [train], rd.MOTOMAN_FREE, noise=MOTOMAN_NOISE)
 
 
 def test_motoman_self_touch_against_the_authors(motoman):
