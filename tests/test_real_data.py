@@ -229,7 +229,7 @@ def test_mukca_offsets_on_held_out_placements(mukca):
     assert res.status == "converged" and len(held_out) == 6
     assert max(a["position_rms"] for a in res.after) < 1.8 * MM  # 0.76-1.50 mm per socket measured
     # 7 offsets + 6 sockets x 3, all identifiable (but see the joint-1 xfail below); variance factor 5.0 measured at
-    # 0.3 mm: seven offsets do not model everything, yet the residuals stay within 2.2 sigma per axis
+    # 0.3 mm: seven offsets do not model everything (residual RMS 2.2 times the stated noise)
     assert res.identifiability.rank == 25 and 2 < res.sigma2 < 10
 
     def consistency(robot):
