@@ -1,0 +1,163 @@
+"""kincal on the real data sets in ../shared/datasets: the table of docs/real-data.md.
+
+For each tracker data set (pose, markers): the fit on every configuration (residual RMS, rank, variance factor,
+outer iterations, wall time) and k-fold held-out errors (calibrate on k-1 folds, predict the held-out fold with
+the calibrated arm and the tracker/markers estimated from the training folds). For the MUKCa sockets: offsets
+trained on three plate placements, consistency on the other six (spread of the predicted ball centre about its
+per-socket mean, distance between the two socket means against 50 mm), next to the nominal and the authors'
+calibrated URDF. Loaders and held-out helpers live in tests/ (realdata.py, holdout.py). Absent data sets are
+skipped with a note.
+
+    OPENBLAS_NUM_THREADS=1 PYTHONPATH=src .venv/bin/python bench/real_data.py [--folds 6]
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy loads OpenBLAS (see bench_calibrate.py)
+
+import argparse  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+import holdout as ho  # noqa: E402
+import realdata as rd  # noqa: E402
+
+from kincal.estimation import calibrate, evaluate  # noqa: E402
+
+MM, DEG = 1e-3, np.pi / 180
+
+
+def _fmt(x, scale, digits=3):
+    return "-" if x is None else f"{x / scale:.{digits}f}"
+
+
+def tracker_row(label, robot, ds, free, noise, folds, published="", **options):
+    t = time.perf_counter()
+    res = calibrate(robot, [ds], free, noise=noise, **options)
+    wall = time.perf_counter() - t
+    cv = ho.cross_validate(robot, ds, free, k=folds, noise=noise, **options).summary()
+    a = res.after[0]
+    free_name = free if isinstance(free, str) else ("+".join(free) or "frames only")
+    cells = [label, free_name + (f" ({options['loss']})" if "loss" in options else ""), str(ds.size),
+             f"{res.identifiability.rank}/{len(res.identifiability.names)}", str(res.iterations), f"{wall:.2f}",
+             _fmt(a["position_rms"], MM), _fmt(a.get("orientation_rms"), DEG), f"{res.sigma2:.2f}",
+             _fmt(cv["pos_mean"], MM), _fmt(cv["pos_rms"], MM), _fmt(cv["pos_max"], MM),
+             _fmt(cv.get("ori_rms"), DEG), res.status, published]
+    return cells
+
+
+def mukca_rows(path):
+    nominal = rd.mukca_robot(path)
+    authors = rd.mukca_robot(path, "calibrated_urdf/panda_2/panda.urdf")
+    train = [d for pl in rd.MUKCA_TRAIN for d in rd.mukca_sockets(path, "panda_2", pl)]
+    t = time.perf_counter()
+    res = calibrate(nominal, train, "offsets", noise=rd.NOISE["mukca"])
+    wall = time.perf_counter() - t
+    held = [rd.mukca_sockets(path, "panda_2", pl) for pl in rd.mukca_placements(path, "panda_2")
+            if pl not in rd.MUKCA_TRAIN]
+    rows = []
+    for label, robot in (("nominal URDF", nominal), ("kincal offsets", res.robot), ("authors' URDF", authors)):
+        out = [ho.socket_consistency(robot["arm"], s) for s in held]
+        spread = np.concatenate([s for s, _ in out])
+        dist = np.array([d for _, d in out]) - rd.MUKCA_HOLE_DISTANCE
+        rows.append([label, _fmt(spread.mean(), MM), _fmt(spread.max(), MM), _fmt(np.abs(dist).max(), MM)])
+    fit = max(a["position_rms"] for a in res.after)
+    print(f"\nMUKCa panda_2: offsets trained on {', '.join(rd.MUKCA_TRAIN)} ({sum(d.size for d in train)} "
+          f"configurations, 12 sockets): {res.status}, rank {res.identifiability.rank}/"
+          f"{len(res.identifiability.names)}, {res.iterations} iterations, {wall:.2f} s, fit RMS up to "
+          f"{fit / MM:.3f} mm per socket, variance factor {res.sigma2:.2f}")
+    _table(["model", "held-out spread mean mm", "max mm", "max |d - 50 mm| mm"], rows)
+
+
+def motoman_rows(path):
+    """Self-contact (distance) calibration of the right arm on a 70/30 split, the same offsets on the laser
+    tracker, and plane contacts (each surface an unknown plane) checked on the self-contact data."""
+    robot, ds = rd.motoman_robot(), rd.motoman_self_touch(path)
+    order = np.random.default_rng(0).permutation(ds.size)
+    train, test = ds.subset(order[: int(0.7 * ds.size)]), ds.subset(order[int(0.7 * ds.size):])
+    planes = [rd.motoman_plane(path, f"{s}{k}") for s in ("higher_table", "lower_table", "wall_table") for k in "12"]
+    leica = rd.motoman_robot("leica")
+    tracker = rd.motoman_leica(path)
+    rows = [["nominal", "-", "-", "-", "-", _fmt(evaluate(robot, [train])[0]["position_rms"], MM),
+             _fmt(evaluate(robot, [test])[0]["position_rms"], MM), _fmt(evaluate(robot, [ds])[0]["position_rms"], MM),
+             _fmt(evaluate(leica, [tracker])[0]["position_rms"], MM), "1.36 / 1.31"]]
+    for label, data, ref in (("self-touch (train)", [train], "0.95 / 1.02"), ("planes (6 surfaces)", planes, "")):
+        t = time.perf_counter()
+        res = calibrate(robot, data, rd.MOTOMAN_FREE, noise=rd.NOISE["motoman"])
+        wall = time.perf_counter() - t
+        on_leica = leica.replace_arm("right", leica["right"].replace(offsets=res.robot["right"].offsets))
+        fit = np.sqrt(np.mean([a["position_rms"] ** 2 for a in res.after]))
+        rows.append([label, f"{res.identifiability.rank}/{len(res.identifiability.names)}", str(res.iterations),
+                     f"{wall:.2f}", _fmt(fit, MM), _fmt(evaluate(res.robot, [train])[0]["position_rms"], MM),
+                     _fmt(evaluate(res.robot, [test])[0]["position_rms"], MM),
+                     _fmt(evaluate(res.robot, [ds])[0]["position_rms"], MM),
+                     _fmt(evaluate(on_leica, [tracker])[0]["position_rms"], MM), ref])
+    print(f"\nMotoman: right arm {', '.join(rd.MOTOMAN_FREE)} free; self-touch distance RMS (mm) on the 70/30 split "
+          f"({train.size}/{test.size} poses) and Leica reflector RMS with the same offsets ({tracker.size} poses, "
+          "tracker fitted); authors: train / test RMS")
+    _table(["calibrated from", "rank", "it", "s", "fit RMS", "self-touch train", "test", "all", "Leica RMS",
+            "authors"], rows)
+
+
+def _table(header, rows):
+    widths = [max(len(str(r[i])) for r in [header, *rows]) for i in range(len(header))]
+    for r in [header, ["-" * w for w in widths], *rows]:
+        print(" | ".join(str(c).ljust(w) for c, w in zip(r, widths)))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--folds", type=int, default=6)
+    k = ap.parse_args(argv).folds
+    rows = []
+
+    def attempt(name, make):
+        try:
+            rows.extend(make())
+        except rd.DataMissing as exc:
+            print(f"skipped {name}: {exc}")
+
+    def wu():
+        p = rd.folder(rd.WU)
+        robot, mk, pose = rd.wu_robot(p), rd.wu_markers(p), rd.wu_pose(p)
+        return [tracker_row("wu markers", robot, mk, [], rd.NOISE["wu"], k, "nominal 18.17 / 30.50"),
+                tracker_row("wu markers", robot, mk, "offsets", rd.NOISE["wu"], k),
+                tracker_row("wu markers", robot, mk, "kinematic", rd.NOISE["wu"], k, "MOP 0.266 / 0.525, TOP 0.569 / 1.235"),
+                tracker_row("wu frames", robot, pose, "kinematic", rd.NOISE["wu"], k, "MFP 0.692 / 1.336, TFP 0.788 / 1.515")]
+
+    def ur10():
+        robot, ds = rd.figaroh_ur10(rd.folder(rd.FIGAROH) / "ur10")
+        return [tracker_row("ur10e camera", robot, ds, ["arm.home"], rd.NOISE["ur10"], k, "fit: about 3.2 mean"),
+                tracker_row("ur10e camera", robot, ds, "kinematic", rd.NOISE["ur10"], k),
+                tracker_row("ur10e camera", robot, ds, "kinematic", rd.NOISE["ur10"], k, loss="soft_l1", f_scale=2.0)]
+
+    def mocap():
+        out = []
+        for label, make, ref in (("talos marker", rd.figaroh_talos, "fit: 5.2 RMS"),
+                                 ("tiago 3 markers", rd.figaroh_tiago, "fit: 3.3-4.0 mean")):
+            robot, ds = make(rd.folder(rd.FIGAROH) / label.split()[0])
+            out += [tracker_row(label, robot, ds, [], rd.NOISE["mocap"], k, ref),
+                    tracker_row(label, robot, ds, "offsets", rd.NOISE["mocap"], k),
+                    tracker_row(label, robot, ds, "kinematic", rd.NOISE["mocap"], k)]
+        return out
+
+    for name, make in (("wu2015-irb120-poe", wu), ("figaroh ur10", ur10), ("figaroh talos/tiago", mocap)):
+        attempt(name, make)
+    print(f"Tracker data: fit on every configuration, then {k}-fold held-out errors (mm, deg); published: mean / max mm")
+    _table(["data", "free", "N", "rank", "it", "s", "fit pos RMS", "fit ori RMS", "var factor", "held-out mean",
+            "RMS", "max", "ori RMS", "status", "published / reference"], rows)
+    for name, rows_of in ((rd.MUKCA, mukca_rows), (rd.MOTOMAN, motoman_rows)):
+        try:
+            rows_of(rd.folder(name))
+        except rd.DataMissing as exc:
+            print(f"skipped {name}: {exc}")
+
+
+if __name__ == "__main__":
+    main()
