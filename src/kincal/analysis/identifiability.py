@@ -70,7 +70,7 @@ def analyse(
     *,
     rtol: float = 1e-9,
     weak_rtol: float = 1e-5,
-    scale: np.ndarray | None = None,  # a candidate scale direction (p,), reported as scale if it is null
+    scale: np.ndarray | None = None,  # the scale direction (p,) when no measured length enters: always held
     priority: Sequence[int] | None = None,
     describe: Callable[[np.ndarray], str] | None = None,
     context: str = "",
@@ -87,10 +87,23 @@ def analyse(
     smax = S_full[0] if p else 0.0
     rank = int(np.sum(S_full > rtol * smax)) if smax > 0 else 0
     Ns = Vt[rank:].T  # (p, k) scaled coordinates
+    held_scale = False
+    if scale is not None and np.linalg.norm(scale) > 0:
+        # No measured length: scale is unidentifiable even where the residuals left make it look determined
+        # (shrinking every length shrinks them): hold it like the exact gauges.
+        sc = c_safe * scale
+        sc /= np.linalg.norm(sc)
+        outside = sc - Ns @ (Ns.T @ sc)
+        if np.linalg.norm(outside) > 1e-6:
+            Ns = np.column_stack([Ns, outside / np.linalg.norm(outside)])
+            rank -= 1
+            held_scale = True
     identifiable = np.linalg.norm(Ns, axis=1) < IDENTIFIABLE_TOL
     N = _orth(Ns / c_safe[:, None])
     R = _complement(N, p)
     weak_idx = np.flatnonzero((S_full > rtol * smax) & (S_full < _weak_limit(S_full[:rank], weak_rtol) * smax))
+    if held_scale:  # the scale direction, lifted by the residuals, is not a weak direction but held
+        weak_idx = np.array([i for i in weak_idx if abs(Vt[i] @ sc) < 0.5], dtype=int)
     weak = tuple(_top_names(Vt[i], names) for i in weak_idx)
     weak_vectors = Vt[weak_idx].T / c_safe[:, None]
     weak_vectors /= np.maximum(np.linalg.norm(weak_vectors, axis=0), 1e-300)
@@ -108,8 +121,10 @@ def analyse(
             lengths = [names[i] for i in np.argsort(-np.abs(s)) if abs(s[i]) > 1e-3 * np.max(np.abs(s))]
             messages.append(
                 "scale cannot be identified: no known length closes the loop, so scaling every length together "
-                f"(mostly {_list(lengths, 4)}) leaves every residual unchanged (thesis Sec. 2.11); "
-                "fix or measure one length"
+                f"(mostly {_list(lengths, 4)}) leaves every residual unchanged (thesis Sec. 2.11)"
+                + (" up to scaling the residuals themselves, which would let the data shrink the robot towards a "
+                   "point; it is held at its current value" if held_scale else "")
+                + "; fix or measure one length"
             )
             Nd = _orth(N - np.outer(s, s @ N), drop=1)
     order = list(range(p)) if priority is None else list(priority)

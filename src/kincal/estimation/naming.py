@@ -100,24 +100,26 @@ def analyse_named(problem, state, lin, rtol, order, context):
 def scale_null(problem, state, lin: Linearization):
     """The free direction equivalent to scaling every length, if the data cannot see scale; else None.
 
-    Scale is unidentifiable when (1) scaling every length, fixed ones included, leaves the residuals unchanged
-    to first order (no measured length: ``J_all s_all = 0``), and (2) the fixed length coordinates add no rank
-    to the free ones (e.g. a fixed base is absorbed by free twists and home). The direction is then
-    ``s_free + u`` with ``J u = J_fixed s_fixed`` (free parameters standing in for the fixed lengths).
-    Everything is read off the linearization's triangular factor (columns free, fixed, residual).
+    Scale is unidentifiable when (1) no measured length enters the residuals: scaling every length, fixed ones
+    included, by ``1 + e`` scales the residual's length part by ``1 + e`` (``J_all s_all = r_len``; zero on
+    noise-free data at the truth, but with residuals left the data would prefer to shrink the robot, which
+    is no information about its size), and (2) the fixed length coordinates add no rank to the free ones
+    (e.g. a fixed base is absorbed by free twists and home). The direction is then ``s_free + u`` with
+    ``J u = J_fixed s_fixed`` (free parameters standing in for the fixed lengths). Everything is read off the
+    linearization's triangular factor.
     """
     layout = problem.layout
     p = lin.p
     if not any(layout.units[i] == "m" for i in problem.free_idx):
         return None  # no free length, nothing to scale
-    fixed = np.flatnonzero(~layout.free)
-    Ra = lin.R[:, :-1]  # (q, P): every coordinate, free first
-    if Ra.shape[1] != layout.size:
+    if not lin.every:
         raise AssertionError("the scale test needs a linearization with every column")
+    fixed = np.flatnonzero(~layout.free)
+    Ra = lin.Rall  # (q, P): every coordinate, free first
     s_all = scale_direction(state, layout)
     s = np.concatenate([s_all[problem.free_idx], s_all[fixed]])
     colnorm = np.linalg.norm(Ra, axis=0)
-    if np.linalg.norm(Ra @ s) > 1e-6 * np.sum(colnorm * np.abs(s)):
+    if np.linalg.norm(Ra @ s - lin.Rlen) > 1e-6 * (np.sum(colnorm * np.abs(s)) + np.linalg.norm(lin.Rlen)):
         return None
     units = np.array(layout.units)[fixed]
     lengths = np.flatnonzero((units == "m") & (colnorm[p:] > 0))

@@ -106,6 +106,20 @@ class Problem:
         r, J = self._stack(state, res, W, cols, {})
         return r, J, W
 
+    def length_part(self, state: State, whiteners) -> np.ndarray:
+        """The whitened stacked residual with only its length components kept (prior rows zero).
+
+        Where no measured length enters a loop (clamp, dual, socket, plane, distance with lengths all free),
+        scaling every length by ``1 + e`` changes the residual by exactly ``e`` times this, to first order:
+        the scale test compares it with the Jacobian's scale column."""
+        out = []
+        for exp, W, res in zip(self.experiments, whiteners, self._residuals(state)):
+            keep = np.array([c == "position" for c in exp.components()], float)
+            out.append((W @ (res.r * keep)[:, :, None]).ravel())
+        if len(self.prior_idx):
+            out.append(np.zeros(len(self.prior_idx)))
+        return np.concatenate(out)
+
     def evaluate(self, state0: State, delta_free: np.ndarray, whiteners, jac: bool = True):
         """Whitened stacked residual (m,) at ``retract(state0, delta)`` and, if asked, its Jacobian (m, p_free)."""
         delta = self.full_delta(delta_free)

@@ -19,7 +19,7 @@ from kincal.analysis import analyse, correlated_pairs, covariance, select_column
 from kincal.data import Dataset
 from kincal.errors import DegenerateExperimentError, ModelError
 from kincal.estimation import steps
-from kincal.estimation.naming import analyse_named, block_of, context, degenerate
+from kincal.estimation.naming import analyse_named, block_of, context, degenerate, scale_null
 from kincal.estimation.problem import Noise, Problem, residual_norms
 from kincal.estimation.result import Estimate, Result
 from kincal.experiments import build
@@ -170,13 +170,15 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
         W = lin.W
         if first:
             before = problem.statistics(state, W)
-        ana = analyse(lin.Rf, names, rtol=rank_rtol, priority=order)
         if first:
-            id_before = analyse_named(problem, state, lin, rank_rtol, order, describe_ctx)
+            ana = id_before = analyse_named(problem, state, lin, rank_rtol, order, describe_ctx)
             if degenerate(problem, lin.Rf, ana):
                 status = "degenerate"
                 break
             _require_redundancy(problem, len(lin.r), ana.rank)
+        else:
+            ana = analyse(lin.Rf, names, rtol=rank_rtol, priority=order,
+                          scale=scale_null(problem, state, lin) if every else None)
         V = _gauge_basis(lin.Rf, ana, gauge, order)
         z, r1sq = steps.gauss_newton(lin, V)
         if it > 1 and steps.negligible(lin, V, z, r1sq):
@@ -226,6 +228,15 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
                         "nothing was estimated")
     elif status == "not converged":
         messages.append(f"did not converge in {max_outer} outer iterations")
+    if status != "degenerate":
+        for name, before_q, after_q in _lost_joint_sensitivity(problem, state):
+            status = "degenerate"
+            messages.append(
+                f"degenerate solution for '{name}': its residuals no longer depend on the joint readings "
+                f"(sensitivity {before_q:.3g} at the nominal model, {after_q:.3g} at the solution): the solver found "
+                "a model whose tool does not move with the joints, which fits any such data exactly (with "
+                "position-only loops and no known length, every joint axis through one point). Free fewer "
+                "parameters (e.g. 'offsets'), or measure a length")
     dof = len(lin.r) - ana.rank
     sigma2 = lin.cost2 / dof if dof > 0 else float("nan")
     V = _gauge_basis(lin.Rf, ana, gauge, order)
@@ -242,8 +253,7 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
         messages.insert(0, (
             f"the model does not explain the data: residuals are {np.sqrt(sigma2):.3g} times the stated noise "
             f"(residual variance factor {sigma2:.3g}); the estimates absorb what the free parameters cannot model "
-            "and their standard deviations assume a model that fits. Free more parameters (e.g. 'kinematic'), "
-            "check the stated noise, or look for outliers (a robust loss)"))
+            f"and their standard deviations assume a model that fits. {_misfit_advice(problem)}"))
     tw_names, tw_vals, tw_cov = twist_coordinates(state, problem.layout, _embed(cov, problem))
     twists = (tuple(tw_names), tw_vals, np.sqrt(np.clip(np.diag(tw_cov), 0, None)) if tw_cov is not None else None)
     return Result(
@@ -268,12 +278,45 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
     )
 
 
+def _misfit_advice(problem: Problem) -> str:
+    """What to try when the model does not fit, from what is free already."""
+    layout = problem.layout
+    geometric = [b for b in layout.blocks if b.arm is not None and b.part in ("twists", "home")]
+    tips = []
+    if not all(layout.free[b.start: b.stop].all() for b in geometric):
+        tips.append("free more parameters (e.g. 'kinematic')")
+    tips.append("check the stated noise")
+    tips.append("look for outliers (a robust loss)")
+    tips.append("check the starting values: the nominal model, and the nominal tool and base frames in particular, "
+                "may be so far from the truth that the solve stopped in a local minimum")
+    return "Possible causes: " + "; ".join(tips) + "."
+
+
+# A model whose residuals depend this much less on the joint readings than the nominal's has collapsed.
+COLLAPSE_RATIO = 1e-3
+
+
+def _lost_joint_sensitivity(problem: Problem, state) -> list[tuple[str, float, float]]:
+    """Experiments whose residuals hardly depend on the joint readings any more: (name, RMS |dr/dq| at the
+    nominal state, at ``state``). The data are then explained without the arm moving: a degenerate model."""
+    out = []
+    for exp in problem.experiments:
+        rms = []
+        for st in (problem.nominal, state):
+            jq = exp.residual(st, want=set(), jq=True).jq
+            rms.append(float(np.sqrt(np.mean([np.mean(j**2) for j in jq.values()]))) if jq else 0.0)
+        if rms[0] > 0 and rms[1] < COLLAPSE_RATIO * rms[0]:
+            out.append((exp.name, rms[0], rms[1]))
+    return out
+
+
 def _gauge_basis(Rf, ana, gauge, order) -> np.ndarray:
     """Columns spanning the coordinates the solver moves: the identifiable subspace (min-change) or the
     identifiable parameters first in the user's priority order (the rest held)."""
     if isinstance(gauge, str):
         return ana.range_space
-    return np.eye(Rf.shape[1])[:, select_columns(Rf, order, ana.rank)]
+    R = ana.range_space  # columns independent there avoid every null direction, a held scale included
+    return np.eye(Rf.shape[1])[:, select_columns(Rf @ R @ R.T, order, ana.rank)]
 
 
 def _require_redundancy(problem, m: int, rank: int) -> None:

@@ -20,19 +20,31 @@ from kincal.params import State
 
 @dataclass(frozen=True)
 class Linearization:
-    """One evaluation at a state, reduced to the small triangular factor of ``[J_free | J_fixed | r]``.
+    """One evaluation at a state, reduced to the small triangular factor of ``[J_free | J_fixed | r_len | r]``.
 
     Everything the solver asks of a linearization (rank, null space, gauge, covariance, the Gauss-Newton
     convergence test, the scale test) depends on the tall whitened Jacobian only through its Gram matrix, so
     one QR per linearization serves them all: ``R[:p, :p]`` stands in for ``J_free``, the next columns for
-    the fixed coordinates (used only by the scale test), the last for the residual.
+    the fixed coordinates and the residual's length part (``every``: used only by the scale test), the last
+    for the residual.
     """
 
     r: np.ndarray  # (m,) whitened residual
     J: np.ndarray  # (m, p) whitened Jacobian of the free coordinates
-    R: np.ndarray  # (q, P + 1) triangular factor, columns ordered free, fixed, residual
+    R: np.ndarray  # (q, P + 2) or (q, p + 1) triangular factor, columns ordered as above
     W: list
     p: int
+    every: bool = False
+
+    @property
+    def Rall(self) -> np.ndarray:
+        """Columns of every coordinate, free first (``every`` only)."""
+        return self.R[:, :-2]
+
+    @property
+    def Rlen(self) -> np.ndarray:
+        """The residual's length part (``every`` only)."""
+        return self.R[:, -2]
 
     @property
     def Rf(self) -> np.ndarray:
@@ -54,12 +66,12 @@ def linearize(problem: Problem, state: State, W, every: bool) -> Linearization:
     p = len(problem.free_idx)
     if every:
         fixed = np.flatnonzero(~problem.layout.free)
-        A = np.column_stack([J[:, problem.free_idx], J[:, fixed], r])
+        A = np.column_stack([J[:, problem.free_idx], J[:, fixed], problem.length_part(state, W), r])
         J = J[:, problem.free_idx]
     else:
         A = np.column_stack([J, r])
     R = np.linalg.qr(A, mode="r")
-    return Linearization(r, J, R, W, p)
+    return Linearization(r, J, R, W, p, every)
 
 
 # A constant residual with a zero Jacobian row, added to the inner LM problem: MINPACK's relative ftol then
