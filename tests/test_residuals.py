@@ -203,3 +203,14 @@ def test_loaded_joint_reading_derivative_alone(rng):
     exps, extras, _ = experiments.build([ds], state)
     state = State(state.arms, extras)
     np.testing.assert_array_equal(exps[0].residual(state, want=set()).jq["a"], exps[0].residual(state).jq["a"])
+
+
+def test_hand_eye_recovers_the_tool_error_or_says_it_cannot(rng):
+    from kincal.experiments.handeye import hand_eye
+
+    F, X, W = random_pose(rng, (20,)), random_pose(rng), random_pose(rng)
+    np.testing.assert_allclose(hand_eye(F, se3.inverse(W) @ F @ X), X, atol=1e-10)
+    # motions about one axis only leave the rotation about it undetermined
+    turn = se3.exp(np.concatenate([np.zeros((20, 3)), np.outer(rng.uniform(0.3, 2.0, 20), [0, 0, 1.0])], axis=1))
+    F1 = F[0] @ turn
+    assert hand_eye(F1, se3.inverse(W) @ F1 @ X) is None

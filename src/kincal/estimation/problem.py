@@ -33,10 +33,13 @@ class Noise:
 class Problem:
     experiments: Sequence[Experiment]
     layout: Layout
-    nominal: State
+    nominal: State  # the reference: priors, reported changes, the gauge's "minimum change"
     noise: Sequence[Noise]
+    start: State | None = None  # where the solve starts (default: nominal)
 
     def __post_init__(self):
+        if self.start is None:
+            object.__setattr__(self, "start", self.nominal)
         free = np.flatnonzero(self.layout.free)
         object.__setattr__(self, "free_idx", free)
         prior = np.isfinite(self.layout.prior_sigma) & self.layout.free

@@ -21,6 +21,7 @@ from kincal.errors import DegenerateExperimentError, ModelError
 from kincal.estimation import steps
 from kincal.estimation.naming import analyse_named, block_of, context, degenerate, scale_null
 from kincal.estimation.problem import Noise, Problem, residual_norms
+from kincal.estimation.start import starting_state
 from kincal.estimation.result import Estimate, Result
 from kincal.experiments import build
 from kincal.kinematics import Robot
@@ -116,7 +117,8 @@ def _problem(robot, datasets, free, fixed, priors, noise):
         noises = [noise.get(e.name, Noise()) for e in exps]
     else:
         noises = [noise or Noise()] * len(exps)
-    return Problem(exps, layout, nominal, noises), unknown
+    start, nominal = starting_state(nominal, exps, layout, unknown)
+    return Problem(exps, layout, nominal, noises, start=start), unknown
 
 
 def _priority(problem: Problem, gauge) -> list[int]:
@@ -148,7 +150,7 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
     names = problem.free_names
     p = len(names)
     order = _priority(problem, gauge)
-    state = problem.nominal
+    state = problem.start
     describe_ctx = context(problem)
     every = any(problem.layout.units[i] == "m" for i in problem.free_idx)  # the scale test needs every column
     messages: list[str] = []
@@ -350,7 +352,10 @@ def _estimates(problem, state, std, ok):
         nominal = 0.0
         if absolute:
             arm = problem.nominal.arms[b.arm] if b.arm else None
-            value = (arm.joint_compliance if b.kind == "compliance" else arm.offsets) if arm else problem.nominal.extras[b.name]
+            if arm is None:
+                value = problem.nominal.extras[b.name]
+            else:
+                value = arm.joint_compliance if b.kind == "compliance" else arm.offsets
             nominal = float(np.ravel(value)[i - b.start])
         out.append(Estimate(layout.names[i], nominal + float(disp[i]), nominal, float(std[k]), layout.units[i],
                             bool(ok[k])))
