@@ -114,8 +114,8 @@ def scale_null(problem, state, lin: Linearization):
         return None  # no free length, nothing to scale
     if not lin.every:
         raise AssertionError("the scale test needs a linearization with every column")
-    fixed = np.flatnonzero(~layout.free)
-    Ra = lin.Rall  # (q, P): every coordinate, free first
+    fixed = lin.fixed  # the fixed coordinates that scale with the robot
+    Ra = lin.Rall  # (q, p + len(fixed)): free first
     s_all = scale_direction(state, layout)
     s = np.concatenate([s_all[problem.free_idx], s_all[fixed]])
     colnorm = np.linalg.norm(Ra, axis=0)

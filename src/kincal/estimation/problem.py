@@ -92,20 +92,20 @@ class Problem:
                 out.append(np.broadcast_to(np.diag(1.0 / np.sqrt(var)), res.r.shape + (res.r.shape[1],)))
         return out
 
-    def linearize(self, state: State, whiteners=None, every: bool = False):
+    def linearize(self, state: State, whiteners=None, cols=None):
         """Whitened residual (m,) and Jacobian at ``state`` in one evaluation of the experiments.
 
-        ``every``: Jacobian columns for every coordinate of the layout (fixed ones too, for the scale test),
-        else for the free ones. ``whiteners=None``: whiten at ``state`` from the same evaluation's ``J_q``.
+        ``cols``: layout indices of the Jacobian's columns (default: the free coordinates; the scale test adds
+        fixed ones). ``whiteners=None``: whiten at ``state`` from the same evaluation's ``J_q``.
         Returns ``(r, J, whiteners)``.
         """
-        want = {b.name for b in self.layout.blocks} if every else self.want
+        cols = self.free_idx if cols is None else np.asarray(cols)
+        want = {b.name for b in self.layout.blocks if np.any((cols >= b.start) & (cols < b.stop))}
         fresh = whiteners is None
         res = [exp.residual(state, want=want, jq=fresh and self.joint_noise) for exp in self.experiments]
         W = self._whiteners_of(res) if fresh else whiteners
         if fresh or not self.joint_noise:  # statistics at this state need no second evaluation
             object.__setattr__(self, "_plain", (state, res))
-        cols = np.arange(self.layout.size) if every else self.free_idx
         r, J = self._stack(state, res, W, cols, {})
         return r, J, W
 

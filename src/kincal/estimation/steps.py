@@ -15,7 +15,7 @@ from scipy.optimize import least_squares
 
 from kincal.errors import DegenerateExperimentError
 from kincal.estimation.problem import Problem
-from kincal.params import State
+from kincal.params import State, scale_direction
 
 
 @dataclass(frozen=True)
@@ -35,10 +35,11 @@ class Linearization:
     W: list
     p: int
     every: bool = False
+    fixed: np.ndarray | None = None  # layout indices of the fixed columns kept (``every``)
 
     @property
     def Rall(self) -> np.ndarray:
-        """Columns of every coordinate, free first (``every`` only)."""
+        """Columns of the free coordinates, then of the fixed ones in ``fixed`` (``every`` only)."""
         return self.R[:, :-2]
 
     @property
@@ -60,18 +61,25 @@ class Linearization:
 
 
 def linearize(problem: Problem, state: State, W, every: bool) -> Linearization:
-    r, J, W = problem.linearize(state, W, every=every)
+    """Evaluate at ``state`` (whitening there when ``W`` is None) and reduce to the triangular factor.
+    ``every``: also the fixed columns the scale test needs, those that scale with the robot (lengths,
+    compliances), and the residual's length part."""
+    p = len(problem.free_idx)
+    fixed = np.zeros(0, int)
+    if every:
+        layout = problem.layout
+        moves = (np.array(layout.units) == "m") | (scale_direction(state, layout) != 0)
+        fixed = np.flatnonzero(~layout.free & moves)
+    r, J, W = problem.linearize(state, W, np.concatenate([problem.free_idx, fixed]))
     if not np.all(np.isfinite(r)) or not np.all(np.isfinite(J)):
         raise DegenerateExperimentError("residuals or Jacobian are not finite at the starting values")
-    p = len(problem.free_idx)
     if every:
-        fixed = np.flatnonzero(~problem.layout.free)
-        A = np.column_stack([J[:, problem.free_idx], J[:, fixed], problem.length_part(state, W), r])
-        J = J[:, problem.free_idx]
+        A = np.column_stack([J, problem.length_part(state, W), r])
+        J = J[:, :p]
     else:
         A = np.column_stack([J, r])
     R = np.linalg.qr(A, mode="r")
-    return Linearization(r, J, R, W, p, every)
+    return Linearization(r, J, R, W, p, every, fixed)
 
 
 # A constant residual with a zero Jacobian row, added to the inner LM problem: MINPACK's relative ftol then
