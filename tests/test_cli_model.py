@@ -83,3 +83,15 @@ def test_fk_requires_exactly_one_unit(capsys):
     assert main(["fk", "ur10", "--q-deg", "0", "--q-rad", "0"]) != 0
     assert main(["fk", "ur10", "--q-deg", "a,b"]) != 0
     assert "expected numbers" in capsys.readouterr().err
+
+
+def test_model_show_prints_joint_compliance(tmp_path):
+    r = robots.load("klimchik3r")
+    arm = r["arm"] if "arm" in r.arms else r[next(iter(r.arms))]
+    key = next(k for k in r.arms if r[k] is arm)
+    path = save_robot(r.replace_arm(key, arm.replace(compliance=np.array([0.0, 2.5e-6, 1e-6]))), tmp_path / "c.yaml")
+    out = _run("model", "show", str(path))
+    assert "joint compliance:" in out and "2.5e-06 rad/(N m)" in out
+    assert "joint compliance" not in _run("model", "show", "klimchik3r")
+    data = json.loads(_run("model", "show", str(path), "--json"))
+    assert data["arms"][key]["joints"][1]["compliance_rad_per_Nm"] == pytest.approx(2.5e-6)

@@ -71,6 +71,7 @@ def _joint_rows(arm: ArmModel) -> list[dict]:
             f"offset_{unit}": float(arm.offsets[i] * scale),
             "gear_ratio": float(arm.gear_ratios[i]),
             "controller_channel": channel[i],
+            f"compliance_{'rad_per_Nm' if revolute else 'm_per_N'}": float(arm.compliance[i]),
         })
     return rows
 
@@ -105,6 +106,10 @@ def _print_arm(console: Console, robot_name: str, key: str, arm: ArmModel) -> No
     console.print(table)
     order = ", ".join(arm.joint_names[i] for i in arm.controller_order)
     console.print(f"controller order (channel 1..n -> joint): {order}")
+    if np.any(arm.compliance):
+        parts = [f"{n} {c:.4g} {'rad/(N m)' if t == REVOLUTE else 'm/N'}"
+                 for n, c, t in zip(arm.joint_names, arm.compliance, arm.joint_types) if c]
+        console.print(f"joint compliance: {', '.join(parts)}")
     poses = (("base  T_world_base", arm.base), ("home  T_base_flange(0)", arm.home), ("tool  T_flange_tool", arm.tool))
     for label, T in poses:
         p = _pose_lines(T)
