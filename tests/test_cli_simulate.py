@@ -79,6 +79,16 @@ def test_bad_scenario_names_the_field(tmp_path):
     (tmp_path / "s.yaml").write_text(SMALL_DUAL.replace("kind: dual", "kind: laser"))
     with pytest.raises(DataFormatError, match="experiment.kind: expected one of"):
         load_scenario(tmp_path / "s.yaml")
+    loaded = resources.files("kincal.scenarios").joinpath("klimchik3r_loaded_markers.yaml").read_text()
+    (tmp_path / "s.yaml").write_text(loaded.replace("wrench_N: 2500", "wrench_N: -5"))
+    with pytest.raises(DataFormatError, match=r"experiment\.wrench_N: expected a load magnitude > 0 \(N\)"):
+        load_scenario(tmp_path / "s.yaml")
+    (tmp_path / "s.yaml").write_text(loaded.replace("wrench_N: 2500", "wrench_N: [0, 0, -100]"))
+    with pytest.raises(DataFormatError, match=r"experiment\.wrench_N"):
+        load_scenario(tmp_path / "s.yaml")
+    (tmp_path / "s.yaml").write_text(loaded.replace("compliance_rad_per_Nm: 1.0e-5", "compliance_rad_per_Nm: -1"))
+    with pytest.raises(DataFormatError, match=r"truth\.compliance_rad_per_Nm: expected a compliance >= 0"):
+        load_scenario(tmp_path / "s.yaml")
 
 
 def test_simulate_accepts_builtin_scenario_names(tmp_path, capsys):
@@ -87,3 +97,24 @@ def test_simulate_accepts_builtin_scenario_names(tmp_path, capsys):
     assert scenario_path("frida_plate4").name == "frida_plate4.yaml"
     assert main(["simulate", "nosuch", "-o", str(tmp_path / "x")]) == 2
     assert "not a built-in scenario (frida_clamp_one, frida_dual_bracket" in capsys.readouterr().err
+
+
+def test_loaded_scenario_to_elastic_calibration_through_the_cli(tmp_path):
+    """The shipped paper scenario under load: kincal simulate writes loads and the true compliances, kincal
+    calibrate with [kinematic, elastic] recovers the compliances within their reported uncertainty."""
+    import yaml
+
+    out = tmp_path / "sim"
+    assert main(["simulate", "klimchik3r_loaded_markers", "-o", str(out), "--quiet"]) == 0
+    ds = load_dataset(out / "data.yaml")
+    assert ds.measured["wrench_tool"].shape == (60, 6) and np.abs(ds.measured["wrench_tool"][:, :3]).max() > 100
+    true_c = read_robot(out / "truth" / "robot.yaml")["arm"].compliance
+    assert 0 < true_c.min() and true_c.max() <= 1e-5
+    (tmp_path / "job.yaml").write_text(yaml.safe_dump({
+        "model": "klimchik3r", "data": [{"manifest": "sim/data.yaml", "noise": {"position_mm": 0.02}}],
+        "free": ["kinematic", "elastic"]}))
+    assert main(["calibrate", str(tmp_path / "job.yaml"), "-o", str(tmp_path / "res"), "--quiet"]) == 0
+    est = {e["name"]: e for e in yaml.safe_load((tmp_path / "res" / "result.yaml").read_text())["estimates"]}
+    for j, c in zip(("j1", "j2", "j3"), true_c):
+        e = est[f"arm.{j}.compliance"]
+        assert e["identifiable"] and abs(e["value"] - c) < 5 * e["std"] and e["std"] < 0.05 * c

@@ -454,14 +454,15 @@ _SCENARIO_KEYS = {"format", "version", "name", "model", "seed", "units", "truth"
                   "output", "description"}
 # experiment keys per kind (besides kind and n); pose blocks and points use the scenario's units
 _EXPERIMENT_KEYS = {
-    "pose": {"arm", "known_tracker", "T_world_tracker"},
-    "markers": {"arm", "markers", "p_tool_marker", "known_markers", "known_tracker", "T_world_tracker"},
+    "pose": {"arm", "known_tracker", "T_world_tracker", "wrench_N"},
+    "markers": {"arm", "markers", "p_tool_marker", "known_markers", "known_tracker", "T_world_tracker", "wrench_N"},
     "clamp": {"arm", "T_world_fixture", "known_fixture", "workspace", "explore"},
     "plate": {"arm", "T_plate_fixture", "T_world_plate", "known_plate", "workspace", "explore"},
     "dual": {"arms", "clamp", "known_clamp", "workspace", "explore"},
     "socket": {"arm", "p_world_socket", "known_socket", "workspace", "explore"},
 }
 _EXPLORE_KEYS = {"n_seeds", "n_steps", "step_rad", "momentum"}
+COMPLIANCE_KEY = "compliance_rad_per_Nm"
 
 
 def _si_key(ctx, key: str, value: Any, path: str) -> tuple[str, float]:
@@ -513,10 +514,16 @@ def load_scenario(path):
     except KincalError as exc:
         raise ctx.fail("model", str(exc)) from None
 
-    fields = Perturbation.__dataclass_fields__
-    allowed = set(fields) | {"level", "arms"} | {f"{f.rpartition('_')[0]}_{u}" for f in fields for u in ("mm", "deg")}
+    fields = [f for f in Perturbation.__dataclass_fields__ if f != "compliance"]
+    allowed = (set(fields) | {"level", "arms", COMPLIANCE_KEY}
+               | {f"{f.rpartition('_')[0]}_{u}" for f in fields for u in ("mm", "deg")})
     truth = _mapping(ctx, top.get("truth") or {}, "truth", allowed)
-    over = dict(_si_key(ctx, k, v, f"truth.{k}") for k, v in truth.items() if k not in ("level", "arms"))
+    over = dict(_si_key(ctx, k, v, f"truth.{k}") for k, v in truth.items() if k not in ("level", "arms", COMPLIANCE_KEY))
+    if COMPLIANCE_KEY in truth:  # joint compliances drawn in [0, value] (rad/(N m); prismatic joints m/N)
+        c = _number(ctx, truth[COMPLIANCE_KEY], f"truth.{COMPLIANCE_KEY}")
+        if not (np.isfinite(c) and c >= 0):
+            raise ctx.fail(f"truth.{COMPLIANCE_KEY}", f"expected a compliance >= 0, found {c!r}")
+        over["compliance"] = c
     try:
         pert = perturbation(truth.get("level", "thesis"), **over)
     except KincalError as exc:
@@ -572,6 +579,14 @@ def load_scenario(path):
                             _vector(ctx, w["upper"], f"{p}.upper", 3) * ctx.length)
         elif key == "p_world_socket":
             options[key] = _vector(ctx, value, p, 3) * ctx.length
+        elif key == "wrench_N":  # random loads of this magnitude, or one constant (fx, fy, fz, tx, ty, tz)
+            if isinstance(value, list):
+                options["wrench"] = _vector(ctx, value, p, 6)
+            else:
+                w = _number(ctx, value, p)
+                if not (np.isfinite(w) and w > 0):
+                    raise ctx.fail(p, f"expected a load magnitude > 0 (N) or [fx, fy, fz, tx, ty, tz], found {value!r}")
+                options["wrench"] = w
         elif key == "p_tool_marker":
             if not isinstance(value, list) or not value:
                 raise ctx.fail(p, "expected a list of [x, y, z]")
