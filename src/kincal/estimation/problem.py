@@ -14,6 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
+from kincal.estimation.constraints import constraint_rows
 from kincal.experiments import Experiment
 from kincal.params import Layout, State, displacement, pose_retraction_jacobians, retract
 
@@ -36,6 +37,7 @@ class Problem:
     nominal: State  # the reference: priors, reported changes, the gauge's "minimum change"
     noise: Sequence[Noise]
     start: State | None = None  # where the solve starts (default: nominal)
+    constraints: Sequence = ()  # FrameDistance rows (estimation.constraints)
 
     def __post_init__(self):
         if self.start is None:
@@ -121,6 +123,7 @@ class Problem:
             out.append((W @ (res.r * keep)[:, :, None]).ravel())
         if len(self.prior_idx):
             out.append(np.zeros(len(self.prior_idx)))
+        out.append(np.zeros(len(self.constraints)))  # a known distance does not scale with the robot
         return np.concatenate(out)
 
     def evaluate(self, state0: State, delta_free: np.ndarray, whiteners, jac: bool = True):
@@ -167,6 +170,11 @@ class Problem:
                     b = self.layout.block(name)
                     Dfull[:, b.start: b.stop] = Dfull[:, b.start: b.stop] @ Jl
                 Js.append(Dfull[:, cols] / sig[:, None])
+        if len(self.constraints):
+            rc, Jc = constraint_rows(self.constraints, state, self.layout, Rl)
+            rs.append(rc)
+            if cols is not None:
+                Js.append(Jc[:, cols])
         r = np.concatenate(rs)
         return (r, np.concatenate(Js, axis=0)) if cols is not None else (r, None)
 

@@ -19,6 +19,7 @@ from kincal.analysis import analyse, correlated_pairs, covariance, select_column
 from kincal.data import Dataset
 from kincal.errors import DegenerateExperimentError, ModelError
 from kincal.estimation import steps
+from kincal.estimation.constraints import FrameDistance
 from kincal.estimation.naming import analyse_named, block_of, context, degenerate, scale_null
 from kincal.estimation.problem import Noise, Problem, residual_norms
 from kincal.estimation.start import starting_state
@@ -58,6 +59,7 @@ def calibrate(
     rank_rtol: float = 1e-9,
     correlation_threshold: float = 0.9,
     validation: Sequence[Dataset] = (),
+    constraints: Sequence[FrameDistance] = (),
     progress: Callable[[int, float], None] | None = None,
 ) -> Result:
     """Calibrate ``robot`` from ``datasets``.
@@ -66,17 +68,18 @@ def calibrate(
     list of names/globs (level words allowed inside the list). Frames absent from a data set's ``known``
     (fixture pose, clamp, tracker, markers, ...) are always estimated; known ones only when freed by name.
     ``noise``: one ``Noise`` for all data sets or a mapping data set name -> Noise.
+    ``constraints``: known relations between frames (``FrameDistance``: e.g. two sockets 50 mm apart).
     """
     if not datasets:
         raise DegenerateExperimentError("no data sets given: nothing to calibrate from")
-    problem, unknown = _problem(robot, datasets, free, fixed, priors, noise)
+    problem, unknown = _problem(robot, datasets, free, fixed, priors, noise, constraints)
     p = len(problem.free_idx)
     if p == 0:
         raise DegenerateExperimentError(
             f"every parameter is fixed: nothing to estimate (free={free!r}, fixed={list(fixed)!r})"
         )
     eqs = problem.equations()
-    m = sum(eqs) + len(problem.prior_idx)
+    m = sum(eqs) + len(problem.prior_idx) + len(problem.constraints)
     if m < p:
         per = ", ".join(f"'{e.name}' ({e.kind_name}, {e.size} samples): {n}" for e, n in zip(problem.experiments, eqs))
         raise DegenerateExperimentError(
@@ -100,7 +103,7 @@ def evaluate(robot: Robot, datasets: Sequence[Dataset], noise=None) -> list[dict
     return problem.statistics(state)
 
 
-def _problem(robot, datasets, free, fixed, priors, noise):
+def _problem(robot, datasets, free, fixed, priors, noise, constraints=()):
     nominal_arms = State.from_robot(robot)
     exps, extras, unknown = build(datasets, nominal_arms)
     arms = [a for a in robot.arms if any(a in e.arms for e in exps)]
@@ -117,8 +120,10 @@ def _problem(robot, datasets, free, fixed, priors, noise):
         noises = [noise.get(e.name, Noise()) for e in exps]
     else:
         noises = [noise or Noise()] * len(exps)
+    for c in constraints:
+        c.check(nominal)
     start, nominal = starting_state(nominal, exps, layout, unknown)
-    return Problem(exps, layout, nominal, noises, start=start), unknown
+    return Problem(exps, layout, nominal, noises, start=start, constraints=tuple(constraints)), unknown
 
 
 def _priority(problem: Problem, gauge) -> list[int]:

@@ -518,7 +518,8 @@ def load_scenario(path):
     allowed = (set(fields) | {"level", "arms", COMPLIANCE_KEY}
                | {f"{f.rpartition('_')[0]}_{u}" for f in fields for u in ("mm", "deg")})
     truth = _mapping(ctx, top.get("truth") or {}, "truth", allowed)
-    over = dict(_si_key(ctx, k, v, f"truth.{k}") for k, v in truth.items() if k not in ("level", "arms", COMPLIANCE_KEY))
+    over = dict(_si_key(ctx, k, v, f"truth.{k}") for k, v in truth.items()
+                if k not in ("level", "arms", COMPLIANCE_KEY))
     if COMPLIANCE_KEY in truth:  # joint compliances drawn in [0, value] (rad/(N m); prismatic joints m/N)
         c = _number(ctx, truth[COMPLIANCE_KEY], f"truth.{COMPLIANCE_KEY}")
         if not (np.isfinite(c) and c >= 0):

@@ -23,7 +23,7 @@ from kincal.kinematics import Robot
 from kincal.params import LEVELS, Prior
 
 _TOP = {"format", "version", "name", "model", "data", "validation", "free", "fixed", "priors", "gauge", "solver",
-        "description"}
+        "description", "constraints"}
 _SOLVER = {"method", "loss", "f_scale", "max_outer", "rank_rtol", "correlation_threshold"}
 _LOSSES = ("linear", "huber", "soft_l1", "cauchy", "arctan")
 _NOISE = {"position": "length", "orientation": "angle", "joint": "angle"}
@@ -45,6 +45,7 @@ class Job:
     gauge: str | tuple[str, ...] = "min-change"
     method: str = "kincal"
     options: Mapping[str, Any] = field(default_factory=dict)  # loss, f_scale, max_outer, rank_rtol, ...
+    constraints: tuple = ()  # FrameDistance
 
 
 def load_job(path) -> Job:
@@ -93,8 +94,37 @@ def load_job(path) -> Job:
     for k in ("f_scale", "rank_rtol", "correlation_threshold", "max_outer"):
         if k in options and not (isinstance(options[k], (int, float)) and options[k] > 0):
             raise DataFormatError(f"{f}: field solver.{k} must be a positive number, found {options[k]!r}")
+    constraints = top.get("constraints") or []
+    if not isinstance(constraints, list):
+        raise DataFormatError(f"{f}: field 'constraints' must be a list, found {constraints!r}")
+    constraints = tuple(_constraint(f"{f}: constraints[{i}]", c) for i, c in enumerate(constraints))
     return Job(path, str(top.get("name", path.stem)), robot, datasets, validation, free, fixed, priors, noise, gauge,
-               method, options)
+               method, options, constraints)
+
+
+def _constraint(where, spec):
+    """``{distance: [frame_a, frame_b], value_<unit>: d, sigma_<unit>: s}`` -> FrameDistance (SI)."""
+    from kincal.estimation import FrameDistance
+
+    if not isinstance(spec, dict) or "distance" not in spec:
+        raise DataFormatError(f"{where}: expected {{distance: [frame_a, frame_b], value_mm: ..., sigma_mm: ...}}, "
+                              f"found {spec!r}")
+    frames = spec["distance"]
+    if not (isinstance(frames, list) and len(frames) == 2 and all(isinstance(x, str) for x in frames)):
+        raise DataFormatError(f"{where}: field distance must name two frames, found {frames!r}")
+    out = {}
+    for k, v in spec.items():
+        if k == "distance":
+            continue
+        base, _, unit = k.partition("_")
+        if base not in ("value", "sigma") or base in out:
+            raise DataFormatError(f"{where}: unknown key {k!r}; expected value_<unit> and sigma_<unit>")
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0):
+            raise DataFormatError(f"{where}: {k} must be a positive number, found {v!r}")
+        out[base] = float(v) * units.factor("length", unit, f"{where}: {k}")
+    if set(out) != {"value", "sigma"}:
+        raise DataFormatError(f"{where}: expected value_<unit> and sigma_<unit>, found {sorted(spec)}")
+    return FrameDistance(frames[0], frames[1], out["value"], out["sigma"])
 
 
 def _strings(f, x, key) -> tuple[str, ...]:
@@ -171,7 +201,8 @@ def run_job(job: Job, progress=None):
     from kincal.estimation import calibrate
 
     return calibrate(job.robot, job.datasets, job.free, fixed=job.fixed, priors=job.priors, noise=job.noise,
-                     gauge=job.gauge, validation=job.validation, progress=progress, **job.options)
+                     gauge=job.gauge, validation=job.validation, constraints=job.constraints, progress=progress,
+                     **job.options)
 
 
 def _thesis(job: Job):
