@@ -71,6 +71,7 @@ def analyse(
     rtol: float = 1e-9,
     weak_rtol: float = 1e-5,
     scale: np.ndarray | None = None,  # the scale direction (p,) when no measured length enters: always held
+    held: Sequence[np.ndarray] = (),  # other exact symmetries of the cost (p,), held even where residuals lift them
     priority: Sequence[int] | None = None,
     describe: Callable[[np.ndarray], str] | None = None,
     context: str = "",
@@ -98,12 +99,21 @@ def analyse(
             Ns = np.column_stack([Ns, outside / np.linalg.norm(outside)])
             rank -= 1
             held_scale = True
+    lifted = [sc] if held_scale else []
+    for h in held:
+        hc = c_safe * h
+        hc /= np.linalg.norm(hc)
+        outside = hc - Ns @ (Ns.T @ hc)
+        if np.linalg.norm(outside) > 1e-6:
+            Ns = np.column_stack([Ns, outside / np.linalg.norm(outside)])
+            rank -= 1
+            lifted.append(hc)
     identifiable = np.linalg.norm(Ns, axis=1) < IDENTIFIABLE_TOL
     N = _orth(Ns / c_safe[:, None])
     R = _complement(N, p)
     weak_idx = np.flatnonzero((S_full > rtol * smax) & (S_full < _weak_limit(S_full[:rank], weak_rtol) * smax))
-    if held_scale:  # the scale direction, lifted by the residuals, is not a weak direction but held
-        weak_idx = np.array([i for i in weak_idx if abs(Vt[i] @ sc) < 0.5], dtype=int)
+    if lifted:  # directions lifted by the residuals are not weak directions but held
+        weak_idx = np.array([i for i in weak_idx if max(abs(Vt[i] @ h) for h in lifted) < 0.5], dtype=int)
     weak = tuple(_top_names(Vt[i], names) for i in weak_idx)
     weak_vectors = Vt[weak_idx].T / c_safe[:, None]
     weak_vectors /= np.maximum(np.linalg.norm(weak_vectors, axis=0), 1e-300)

@@ -94,7 +94,7 @@ def analyse_named(problem, state, lin, rtol, order, context):
         return "; ".join(words)
 
     return analyse(lin.Rf, problem.free_names, rtol=rtol, scale=scale_null(problem, state, lin), priority=order,
-                   describe=describe, context=context)
+                   describe=describe, context=context, held=rotation_nulls(problem, state, lin))
 
 
 def scale_null(problem, state, lin: Linearization):
@@ -131,3 +131,62 @@ def scale_null(problem, state, lin: Linearization):
     u = np.linalg.lstsq(lin.Rf, Ra[:p, p:] @ s[p:], rcond=None)[0]
     d = s[:p] + u
     return d if np.linalg.norm(d) > 0 else None
+
+
+def rotation_nulls(problem, state, lin: Linearization) -> list[np.ndarray]:
+    """Rotations about an arm's first joint axis that carry every world-side frame of its experiments along
+    (``j1.offset + 1`` with the frames turned by the axis screw): exact symmetries of the cost wherever those
+    frames are free. Residuals written in a frame that turns along are unchanged (clamp, plate, tracker); a
+    socket's world-frame vector ``r`` turns, ``J g = w x r``, which residuals left would mistake for
+    information. Returned (natural units, free coordinates) where the linearization confirms the symmetry:
+    ``J g`` equals the turned residuals."""
+    layout = problem.layout
+    col = {int(i): k for k, i in enumerate(problem.free_idx)}
+    residuals = problem._residuals(state)
+    out = []
+    for arm, a in state.arms.items():
+        exps = [e for e in problem.experiments if arm in e.arms]
+        if not exps or any(len(e.arms) > 1 for e in exps):
+            continue  # another arm in the loop does not turn along
+        i1 = layout.index(f"{arm}.{a.joint_names[0]}.offset")
+        if i1 not in col or a.joint_types[0] != "revolute":
+            continue
+        xi = se3.adjoint(a.base) @ a.screws[0]  # joint 1's screw in world coordinates
+        v, w = se3.split(xi)
+        g = np.zeros(layout.size)
+        g[i1] = 1.0
+        ok = True
+        for e in exps:
+            for role, name in e.frames.items():
+                b = layout.block(name)
+                value = state.extras[name]
+                if b.kind == "pose" and role in _WORLD_POSES:
+                    g[b.start: b.stop] = xi
+                elif b.kind == "points" and role == "socket":
+                    g[b.start: b.stop] = v + np.cross(w, np.asarray(value))
+                elif b.kind == "plane":
+                    n, _ = value.unit()
+                    g[b.start: b.start + 2] = value.U.T @ np.cross(w, n)
+                    g[b.stop - 1] = n @ v
+                else:
+                    continue
+                if not layout.free[b.start: b.stop].all():
+                    ok = False  # a known frame anchors the rotation
+        if not ok or any(g[i] != 0 and i not in col for i in np.flatnonzero(g)):
+            continue
+        target = []
+        for e, W, res in zip(problem.experiments, lin.W, residuals):
+            t = np.zeros_like(res.r)
+            if e.kind == "socket" and arm in e.arms:
+                t = np.cross(w, res.r)
+            target.append((W @ t[:, :, None]).ravel())
+        target.append(np.zeros(len(lin.r) - sum(len(x) for x in target)))
+        t = np.concatenate(target)
+        gf = g[problem.free_idx]
+        Jg = lin.J @ gf
+        if np.linalg.norm(Jg - t) <= 1e-6 * (np.sum(np.linalg.norm(lin.J, axis=0) * np.abs(gf)) + np.linalg.norm(t)):
+            out.append(gf)
+    return out
+
+
+_WORLD_POSES = ("fixture", "plate", "tracker")  # pose frames on the world side of an arm's loop

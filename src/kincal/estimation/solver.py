@@ -20,7 +20,7 @@ from kincal.data import Dataset
 from kincal.errors import DegenerateExperimentError, ModelError
 from kincal.estimation import steps
 from kincal.estimation.constraints import FrameDistance
-from kincal.estimation.naming import analyse_named, block_of, context, degenerate, scale_null
+from kincal.estimation.naming import analyse_named, block_of, context, degenerate, rotation_nulls, scale_null
 from kincal.estimation.problem import Noise, Problem, residual_norms
 from kincal.estimation.start import starting_state
 from kincal.estimation.result import Estimate, Result
@@ -185,7 +185,8 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
             _require_redundancy(problem, len(lin.r), ana.rank)
         else:
             ana = analyse(lin.Rf, names, rtol=rank_rtol, priority=order,
-                          scale=scale_null(problem, state, lin) if every else None)
+                          scale=scale_null(problem, state, lin) if every else None,
+                          held=rotation_nulls(problem, state, lin))
         V = _gauge_basis(lin.Rf, ana, gauge, order)
         z, r1sq = steps.gauss_newton(lin, V)
         if it > 1 and steps.negligible(lin, V, z, r1sq):
