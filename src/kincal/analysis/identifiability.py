@@ -89,18 +89,11 @@ def analyse(
     rank = int(np.sum(S_full > rtol * smax)) if smax > 0 else 0
     Ns = Vt[rank:].T  # (p, k) scaled coordinates
     held_scale = False
-    if scale is not None and np.linalg.norm(scale) > 0:
-        # No measured length: scale is unidentifiable even where the residuals left make it look determined
-        # (shrinking every length shrinks them): hold it like the exact gauges.
-        sc = c_safe * scale
-        sc /= np.linalg.norm(sc)
-        outside = sc - Ns @ (Ns.T @ sc)
-        if np.linalg.norm(outside) > 1e-6:
-            Ns = np.column_stack([Ns, outside / np.linalg.norm(outside)])
-            rank -= 1
-            held_scale = True
-    lifted = [sc] if held_scale else []
-    for h in held:
+    # Exact symmetries of the cost that residuals left make look determined: scale without a measured length
+    # (shrinking every length shrinks them) and the rotations of ``held``. Held like the exact gauges.
+    has_scale = scale is not None and np.linalg.norm(scale) > 0
+    lifted = []
+    for k, h in enumerate(([scale] if has_scale else []) + list(held)):
         hc = c_safe * h
         hc /= np.linalg.norm(hc)
         outside = hc - Ns @ (Ns.T @ hc)
@@ -108,6 +101,7 @@ def analyse(
             Ns = np.column_stack([Ns, outside / np.linalg.norm(outside)])
             rank -= 1
             lifted.append(hc)
+            held_scale = held_scale or (has_scale and k == 0)
     identifiable = np.linalg.norm(Ns, axis=1) < IDENTIFIABLE_TOL
     N = _orth(Ns / c_safe[:, None])
     R = _complement(N, p)
