@@ -61,3 +61,52 @@ def test_thesis_method_from_a_job_is_validated_like_kincal(tmp_path, capsys):
     assert saved["iterations"].endswith(")") and len(saved["validation"]) == 2
     v = saved["validation"][0]
     assert v["position_rms_after"] < v["position_rms_before"]  # the thesis method does improve, if not exactly
+
+
+def test_calibrate_writes_plots(tmp_path):
+    """--plots: residuals, identifiability, uncertainty and prediction PNGs next to the results; a second run
+    into the same directory does not replace them."""
+    from kincal.cli import main
+
+    assert main(["demo", "-o", str(tmp_path / "demo"), "-n", "40", "--quiet"]) == 0
+    out = tmp_path / "out"
+    assert main(["calibrate", str(tmp_path / "demo" / "job.yaml"), "-o", str(out), "--plots", "--quiet"]) == 0
+    names = sorted(p.name for p in (out / "plots").iterdir())
+    assert names == ["identifiability.png", "prediction.png", "residuals.png", "uncertainty.png"]
+    for p in (out / "plots").iterdir():
+        data = p.read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000
+    (out / "model.yaml").unlink()
+    (out / "result.yaml").unlink()
+    assert main(["calibrate", str(tmp_path / "demo" / "job.yaml"), "-o", str(out), "--plots", "--quiet"]) == 2
+
+
+def test_plots_report_per_sample_errors_before_and_after(tmp_path):
+    """The residual plot's numbers: per-sample position errors at the nominal model and at the result."""
+    from kincal.report.plots import per_sample_errors
+    from kincal.robots import load
+    from kincal.estimation import calibrate
+    from kincal.simulate import generate_dual
+
+    frida = load("frida")
+    true = frida
+    for a in ("left", "right"):  # offsets only, which the calibration frees
+        true = true.replace_arm(a, true[a].replace(offsets=true[a].offsets + 0.02))
+    ds, _, _ = generate_dual(true, n=40, rng=2, known_clamp=True)
+    res = calibrate(frida, [ds], "offsets")
+    ((name, before, after),) = per_sample_errors(res, [ds])
+    assert name == ds.name and before.shape == after.shape == (40,)
+    assert before.min() > 1e-3 and after.max() < 1e-9  # millimetres of error before, exact after (noise-free)
+
+
+def test_plots_without_matplotlib_say_what_to_install(monkeypatch, tmp_path):
+    import sys
+
+    import pytest
+
+    from kincal.errors import KincalError
+    from kincal.report import plots
+
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # as if not installed
+    with pytest.raises(KincalError, match=r'pip install "kincal\[plot\]"'):
+        plots.write_plots(None, [], tmp_path / "p")

@@ -109,10 +109,11 @@ def _progress(console: Console, quiet: bool):
               help="Directory for model.yaml and result.yaml (existing files are never replaced).")
 @click.option("--quiet", is_flag=True, help="Print nothing but errors.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
-def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool) -> None:
+@click.option("--plots", is_flag=True, help='Also write PNG plots to OUT/plots (needs "kincal[plot]").')
+def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool) -> None:
     """Calibrate as described by JOB.yaml (docs/job-format.md) and write the results to OUT."""
     console = _console()
-    _refuse_existing(out, ("model.yaml", "result.yaml"))
+    _refuse_existing(out, ("model.yaml", "result.yaml") + (("plots",) if plots else ()))
     j = load_job(job)
     if not (quiet or as_json):
         console.print(f"calibrating '{j.name}': {len(j.datasets)} data set(s), free: {j.free}, method: {j.method}")
@@ -123,11 +124,17 @@ def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool) -> None:
             raise SystemExit(1)
         return
     paths = write_results(result, out)
+    figures = []
+    if plots:
+        from kincal.report import write_plots
+
+        figures = write_plots(result, j.datasets, out / "plots")
     if as_json:
         click.echo(json.dumps(result_to_dict(result)))
     elif not quiet:
         print_summary(console, result, j.name)
-        console.print(f"wrote {paths['model']} and {paths['result']}")
+        console.print(f"wrote {paths['model']} and {paths['result']}"
+                      + (f", plots: {', '.join(str(f) for f in figures)}" if figures else ""))
     if result.status != "converged":
         raise SystemExit(1)
 
