@@ -138,9 +138,9 @@ def _prediction(plt, result):
     ax.bar(x - 0.2, predicted, 0.4, label="predicted std (RMS)")
     ax.bar(x + 0.2, measured, 0.4, label="actual error (RMS)")
     for xi, ok in zip(x, trusted):
-        if not ok:
-            ax.annotate("not trusted", (xi, 0), textcoords="offset points", xytext=(0, 4), ha="center",
-                        color="red", fontsize=8)
+        if not ok:  # x in data, y in axes coordinates: readable whatever the log scale's range
+            ax.text(xi, 0.92, "not trusted", transform=ax.get_xaxis_transform(), ha="center", color="red",
+                    fontsize=9)
     ax.set_xticks(x, labels, fontsize=8)
     ax.set_yscale("log")
     values = [v for v in predicted + measured if np.isfinite(v) and v > 0]
@@ -148,5 +148,5 @@ def _prediction(plt, result):
         ax.set_ylim(min(values) / 5, max(values) * 2)
     ax.set_ylabel("tool position [mm]")
     ax.set_title("predicted against actual accuracy on held-out configurations")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="lower right")
     return fig
