@@ -84,7 +84,7 @@ def _residuals(plt, result, datasets):
         ax.set_title(name)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend()
-    fig.suptitle("residuals before and after calibration")
+    fig.suptitle("residuals before and after calibration", y=1.02)
     return fig
 
 
@@ -121,7 +121,13 @@ def _uncertainty(plt, result, limit: int = 40):
         ax.set_xlabel(f"standard deviation [{unit}]")
         ax.set_title(f"angles ({unit})" if unit == "deg" else f"lengths ({unit})")
         ax.tick_params(axis="y", labelsize=7)
-    fig.suptitle("standard deviations of the identifiable estimates (largest first)")
+        if not sel:
+            ax.set_xticks([])
+            ax.set_yticks([])
+            ax.text(0.5, 0.5, "no parameter of this kind is identifiable on its own:\neach trades off against "
+                    "others (identifiability.png,\nresult.yaml); only combinations are determined",
+                    transform=ax.transAxes, ha="center", va="center", fontsize=8)
+    fig.suptitle("standard deviations of the identifiable estimates (largest first)", y=1.02)
     return fig
 
 
