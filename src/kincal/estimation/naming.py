@@ -142,7 +142,7 @@ def rotation_nulls(problem, state, lin: Linearization) -> list[np.ndarray]:
     ``J g`` equals the turned residuals."""
     layout = problem.layout
     col = {int(i): k for k, i in enumerate(problem.free_idx)}
-    residuals = problem._residuals(state)
+    residuals = None  # evaluated only for an arm that passes the structural checks
     out = []
     for arm, a in state.arms.items():
         exps = [e for e in problem.experiments if arm in e.arms]
@@ -175,6 +175,7 @@ def rotation_nulls(problem, state, lin: Linearization) -> list[np.ndarray]:
         if not ok or any(g[i] != 0 and i not in col for i in np.flatnonzero(g)):
             continue
         target = []
+        residuals = problem._residuals(state) if residuals is None else residuals
         for e, W, res in zip(problem.experiments, lin.W, residuals):
             t = np.zeros_like(res.r)
             if e.kind == "socket" and arm in e.arms:
