@@ -9,7 +9,7 @@ import numpy as np
 from kincal.analysis import analyse
 from kincal.analysis.covariance import right_svd
 from kincal.estimation.steps import Linearization
-from kincal.kinematics import chain
+from kincal.kinematics import REVOLUTE, chain
 from kincal.lie import se3
 from kincal.params import scale_direction
 
@@ -149,7 +149,7 @@ def rotation_nulls(problem, state, lin: Linearization) -> list[np.ndarray]:
         if not exps or any(len(e.arms) > 1 for e in exps):
             continue  # another arm in the loop does not turn along
         i1 = layout.index(f"{arm}.{a.joint_names[0]}.offset")
-        if i1 not in col or a.joint_types[0] != "revolute":
+        if i1 not in col or a.joint_types[0] != REVOLUTE:
             continue
         xi = se3.adjoint(a.base) @ a.screws[0]  # joint 1's screw in world coordinates
         v, w = se3.split(xi)
@@ -178,7 +178,7 @@ def rotation_nulls(problem, state, lin: Linearization) -> list[np.ndarray]:
         residuals = problem._residuals(state) if residuals is None else residuals
         for e, W, res in zip(problem.experiments, lin.W, residuals):
             t = np.zeros_like(res.r)
-            if e.kind == "socket" and arm in e.arms:
+            if e.WORLD_VECTOR and arm in e.arms:
                 t = np.cross(w, res.r)
             target.append((W @ t[:, :, None]).ravel())
         target.append(np.zeros(len(lin.r) - sum(len(x) for x in target)))

@@ -177,7 +177,6 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
         W = lin.W
         if first:
             before = problem.statistics(state, W)
-        if first:
             ana = id_before = analyse_named(problem, state, lin, rank_rtol, order, describe_ctx)
             if degenerate(problem, lin.Rf, ana):
                 status = "degenerate"

@@ -1,7 +1,7 @@
 """One linearization of the calibration problem and the steps taken from it.
 
 A linearization evaluates every experiment once and reduces the tall whitened Jacobian to the triangular
-factor of ``[J_free | J_fixed | r]``; the Gauss-Newton step, its predicted cost and the convergence test read
+factor of ``[J_free | J_fixed | r_len | r]`` (``Linearization``); the Gauss-Newton step, its predicted cost and the convergence test read
 that factor only. ``inner_solve`` is the fallback: ``scipy.optimize.least_squares`` on the identifiable
 subspace with the analytic Jacobian.
 """

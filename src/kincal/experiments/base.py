@@ -40,6 +40,9 @@ class Experiment:
     KIND: ClassVar[str] = ""
     ROLES: ClassVar[Mapping[str, str]] = {}
     COMPONENTS: ClassVar[tuple[str, ...]] = ()
+    # The residual is a vector in world coordinates, which turns when the world does (a socket point); the
+    # others are written in a frame that turns along, or are scalars (identifiability's rotation test).
+    WORLD_VECTOR: ClassVar[bool] = False
 
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)

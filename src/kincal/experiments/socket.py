@@ -14,6 +14,7 @@ from kincal.experiments.base import Experiment, Residual
 class SocketExperiment(Experiment):
     KIND = "socket"
     COMPONENTS = ("position",) * 3
+    WORLD_VECTOR = True
 
     def frame_shape(self, role):
         return (3,)
