@@ -84,7 +84,7 @@ def make_data(seed: int, sizes):
     sets = {}
     for n in sizes:
         ds, truth, _ = generate_markers(
-            true, ARM, n=n, rng=rng, noise=Noise(tracker_m=SIGMA_M), markers=p_tool_marker,
+            true, ARM, n=n, rng=rng, noise=Noise(position=SIGMA_M), markers=p_tool_marker,
             T_world_tracker=T_world_tracker, n_validation=1,
         )
         sets[n] = ds
@@ -109,12 +109,12 @@ def errors_mm(pred, truth) -> tuple[float, float]:
 
 def nominal_errors(nominal, ds, q_val, y_val):
     """Validation error of the nominal model with only the tracker frame and marker fitted (same for both)."""
-    res = calibrate(nominal, [ds], free=[], noise=StatedNoise(sigma_position=SIGMA_M, sigma_joint=0.0))
+    res = calibrate(nominal, [ds], free=[], noise=StatedNoise(position=SIGMA_M, joint=0.0))
     return errors_mm(marker_in_tracker(nominal[ARM], res.extras["tracker"], res.extras["markers"], q_val), y_val)
 
 
 def run_kincal(nominal, ds, q_val, y_val, profile: bool = False) -> Run:
-    noise = StatedNoise(sigma_position=SIGMA_M, sigma_joint=0.0)
+    noise = StatedNoise(position=SIGMA_M, joint=0.0)
     prof = None
     if profile:
         import cProfile

@@ -39,7 +39,7 @@ experiment:
   clamp: {xyz: [0.10, 0.0, 0.10], rpy: [0, -90, 0]}
   known_clamp: false
   explore: {n_seeds: 24, n_steps: 30}
-noise: {joint_sigma_deg: 0.01}
+noise: {joint_deg: 0.01}
 validation: 10
 output: {angle: deg, length: mm}
 """
@@ -73,7 +73,7 @@ def test_cli_simulate_prints_spread(tmp_path, capsys):
 
 
 def test_bad_scenario_names_the_field(tmp_path):
-    (tmp_path / "s.yaml").write_text(SMALL_DUAL.replace("joint_sigma_deg", "joint_sigma_furlong"))
+    (tmp_path / "s.yaml").write_text(SMALL_DUAL.replace("joint_deg", "joint_sigma_furlong"))
     with pytest.raises(DataFormatError, match=r"s\.yaml: noise\.joint_sigma_furlong: unknown key"):
         load_scenario(tmp_path / "s.yaml")
     (tmp_path / "s.yaml").write_text(SMALL_DUAL.replace("kind: dual", "kind: laser"))

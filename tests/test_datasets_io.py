@@ -20,7 +20,7 @@ def frida():
 
 @pytest.fixture(scope="module")
 def dual(frida):
-    ds, truth, val = generate_dual(perturb_robot(frida, "fine", rng=1), n=12, rng=2, noise=Noise(1e-4),
+    ds, truth, val = generate_dual(perturb_robot(frida, "fine", rng=1), n=12, rng=2, noise=Noise(joint=1e-4),
                                    explore_options=FAST)
     return ds, truth, val
 
@@ -165,7 +165,7 @@ def test_hand_written_clamp_data_set(tmp_path):
         "format: kincal-dataset\nversion: 1\nkind: clamp\nmodel: ur10\narms: [arm]\ndata: c.csv\n"
         "units: {angle: deg, length: mm}\n"
         "known:\n  T_world_fixture: {xyz: [500, 0, 300], rpy: [180, 0, 90]}\n"
-        "noise: {joint_sigma_deg: 0.01}\n"
+        "noise: {joint_deg: 0.01}\n"
     )
     (tmp_path / "c.csv").write_text(
         "arm.shoulder_pan,arm.shoulder_lift,arm.elbow,arm.wrist_1,arm.wrist_2,arm.wrist_3\n"

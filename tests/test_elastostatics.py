@@ -131,7 +131,7 @@ def test_compliance_standard_deviations_match_the_scatter():
     configurations: (estimate - truth) / reported std over the 3 joints has unit spread."""
     r = load("klimchik3r")
     true = _with_compliance(perturb_robot(r, "fine", 3), np.random.default_rng(3))
-    noise = Noise(tracker_m=2e-5)
+    noise = Noise(position=2e-5)
     z = []
     start = time.perf_counter()
     for rep in range(120):
@@ -148,7 +148,7 @@ def test_compliance_standard_deviations_match_the_scatter():
 def _stated(sigma_m):
     from kincal.estimation.problem import Noise as Stated
 
-    return Stated(sigma_position=sigma_m, sigma_orientation=1e-5, sigma_joint=0.0)
+    return Stated(position=sigma_m, orientation=1e-5, joint=0.0)
 
 
 @pytest.mark.parametrize("kind", ["pose", "markers"])

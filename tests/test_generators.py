@@ -77,7 +77,7 @@ def test_pose_experiment_is_consistent_with_truth():
 
 def test_markers_experiment_with_noise():
     ur10 = perturb_robot(load("ur10"), "fine", rng=2)
-    noise = Noise(joint_rad=0.0, tracker_m=1e-4)
+    noise = Noise(joint=0.0, position=1e-4)
     ds, truth, _ = generate_markers(ur10, n=400, rng=4, markers=3, noise=noise, known_markers=True)
     p_tm = truth.values["p_tool_marker"]
     assert p_tm.shape == (3, 3) and np.allclose(np.linalg.norm(p_tm, axis=1), 0.1)

@@ -38,7 +38,7 @@ def test_job_parses_units_and_runs(clamp_dir):
     assert job.priors["right.j1.offset"].sigma == pytest.approx(np.pi / 180)
     assert job.priors["right.j1.offset"].mean == pytest.approx(0.5 * np.pi / 180)
     nz = job.noise[job.datasets[0].name]
-    assert nz.sigma_joint == pytest.approx(0.001 * np.pi / 180) and nz.sigma_position == pytest.approx(2e-5)
+    assert nz.joint == pytest.approx(0.001 * np.pi / 180) and nz.position == pytest.approx(2e-5)
     res = run_job(job)
     assert res.status == "converged" and res.identifiability.deficiency == 0
 

@@ -54,7 +54,7 @@ def plate(frida, plate_sim):
     """The plate scenario calibrated at level kinematic, as in docs/calibration.md."""
     true, ds, _, val = plate_sim
     res = calibrate(frida, [ds], "kinematic", validation=[val["right"]],
-                    noise=Noise(sigma_joint=8.7e-5, sigma_position=1e-9, sigma_orientation=1e-9))
+                    noise=Noise(joint=8.7e-5, position=1e-9, orientation=1e-9))
     return true, res, val["right"]
 
 
@@ -199,9 +199,9 @@ def test_std_matches_actual_error_dual_known_clamp(frida):
     rng = np.random.default_rng(1)
     acc = {r: ([], [], [], []) for r in (False, True)}
     for _ in range(50):
-        noisy = replace(ds, q={a: joint_readings(ds.q[a], SimNoise(joint_rad=1e-5), rng) for a in ds.arms})
-        res = calibrate(frida, [noisy], "offsets", noise=Noise(sigma_position=0.0, sigma_orientation=0.0,
-                                                               sigma_joint=1e-5))
+        noisy = replace(ds, q={a: joint_readings(ds.q[a], SimNoise(joint=1e-5), rng) for a in ds.arms})
+        res = calibrate(frida, [noisy], "offsets", noise=Noise(position=0.0, orientation=0.0,
+                                                               joint=1e-5))
         for arm in ("left", "right"):
             q = val[arm].q[arm]
             Tt = forward_kinematics(true[arm], q)
@@ -231,10 +231,10 @@ def test_std_matches_actual_error_ur10_markers(known_markers):
     rng = np.random.default_rng(5)
     ep, sp = [], []
     for _ in range(25):
-        noisy = replace(ds, q={arm: joint_readings(ds.q[arm], SimNoise(joint_rad=1e-5), rng)},
+        noisy = replace(ds, q={arm: joint_readings(ds.q[arm], SimNoise(joint=1e-5), rng)},
                         measured={"p_tracker_marker": tracker_points(ds.measured["p_tracker_marker"],
-                                                                     SimNoise(tracker_m=1e-5), rng)})
-        res = calibrate(ur, [noisy], "kinematic", noise=Noise(sigma_position=1e-5, sigma_joint=1e-5))
+                                                                     SimNoise(position=1e-5), rng)})
+        res = calibrate(ur, [noisy], "kinematic", noise=Noise(position=1e-5, joint=1e-5))
         p = res.predict(q, arm, register_tool=not known_markers)
         assert p.trusted
         ep.append(_errors(forward_kinematics(res.robot[arm], q), Tt, P)[0])

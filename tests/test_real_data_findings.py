@@ -80,7 +80,7 @@ def test_socket_joint1_offset_is_a_gauge_with_an_unknown_socket():
     socket (which leaves the cost unchanged but not the residual vector) was reported identifiable with residuals
     left, and estimated at -1.68 +- 0.087 rad (a Panda with twist errors at level 'offsets'). Now the symmetry is
     recognised and held; the other offsets stay identifiable."""
-    panda, ds = _panda_in_socket(noise=Added(joint_rad=1e-4))
+    panda, ds = _panda_in_socket(noise=Added(joint=1e-4))
     res = calibrate(panda, [ds], "offsets", noise=Stated(1e-5, 1e-5, 1e-4))
     assert not res.estimate("arm.j1.offset").identifiable
     # the gauge takes the minimum change in natural units: no more a 96 deg turn estimated from the noise
@@ -93,7 +93,7 @@ def test_socket_with_noise_at_level_kinematic_is_reported_degenerate():
     axis through the ball): the least-squares optimum itself is degenerate, holding the scale direction cannot
     prevent it. It must not be reported as 'converged' with numbers: the residuals of the solution no longer
     depend on the joint readings, which kincal reports as a degenerate solution, with standard deviations nan."""
-    panda, ds = _panda_in_socket(noise=Added(joint_rad=1e-4))
+    panda, ds = _panda_in_socket(noise=Added(joint=1e-4))
     res = calibrate(panda, [ds], "kinematic", noise=Stated(1e-5, 1e-5, 1e-4))
     assert res.status == "degenerate"
     assert any(m.startswith("degenerate solution for 'socket'") for m in res.messages)

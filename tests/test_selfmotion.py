@@ -85,7 +85,7 @@ def test_backlash_follows_the_direction_of_motion(rng):
 
 def test_joint_noise_statistics(frida_clamp):
     true, _, truth, _ = frida_clamp
-    ds, truth2, _ = generate_clamp(true, "right", n=120, rng=11, noise=Noise(joint_rad=1e-3), explore_options=FAST)
+    ds, truth2, _ = generate_clamp(true, "right", n=120, rng=11, noise=Noise(joint=1e-3), explore_options=FAST)
     err = ds.q["right"] - truth2.q["right"]
     assert np.array_equal(truth2.q["right"], truth.q["right"])  # noise is drawn after the configurations
     assert 0.8e-3 < err.std() < 1.2e-3 and abs(err.mean()) < 3e-4

@@ -29,13 +29,13 @@ def truth():
 
 def _z_scores(frida, true, ds, arms, seed):
     rng = np.random.default_rng(seed)
-    sim = SimNoise(joint_rad=SIGMA_Q)
+    sim = SimNoise(joint=SIGMA_Q)
     z = []
     for _ in range(REPS):
         q = {a: joint_readings(ds.q[a], sim, rng) for a in ds.arms}
         noisy = Dataset(ds.kind, ds.robot, ds.arms, q, ds.measured, ds.known, ds.name)
-        res = calibrate(frida, [noisy], "offsets", noise=Noise(sigma_position=0.0, sigma_orientation=0.0,
-                                                               sigma_joint=SIGMA_Q))
+        res = calibrate(frida, [noisy], "offsets", noise=Noise(position=0.0, orientation=0.0,
+                                                               joint=SIGMA_Q))
         assert res.status == "converged"
         for a in arms:
             for i in range(7):

@@ -1,7 +1,8 @@
 """One solver for any mix of experiments: assemble, whiten, gauge-fix, solve, report."""
 
 from kincal.estimation.constraints import FrameDistance
-from kincal.estimation.problem import Noise, Problem
+from kincal.estimation.problem import Problem
+from kincal.noise import Noise
 from kincal.estimation.result import Estimate, Result
 from kincal.estimation.solver import calibrate, evaluate
 

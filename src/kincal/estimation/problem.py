@@ -15,19 +15,12 @@ from typing import Sequence
 import numpy as np
 
 from kincal.estimation.constraints import constraint_rows
+from kincal.errors import ModelError
 from kincal.experiments import Experiment
+from kincal.noise import ORIENTATION, POSITION, Noise
 from kincal.params import Layout, State, displacement, pose_retraction_jacobians, retract
 
 VARIANCE_FLOOR = 1e-18
-
-
-@dataclass(frozen=True)
-class Noise:
-    """Stated noise of one experiment (SI): measurement position (m), orientation (rad), joint readings."""
-
-    sigma_position: float = 1e-5
-    sigma_orientation: float = 1e-5
-    sigma_joint: float = 1e-5
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,7 +46,7 @@ class Problem:
     @property
     def joint_noise(self) -> bool:
         """Whether any experiment states encoder noise (whitening then depends on the state through J_q)."""
-        return any(nz.sigma_joint > 0 for nz in self.noise)
+        return any(nz.joint_sigma() > 0 for nz in self.noise)
 
     def _residuals(self, state: State):
         """Residuals (with ``jq`` when encoder noise is stated, no parameter Jacobians) at ``state``; whitening and
@@ -83,12 +76,12 @@ class Problem:
     def _whiteners_of(self, residuals) -> list[np.ndarray]:
         out = []
         for exp, nz, res in zip(self.experiments, self.noise, residuals):
-            sig = np.array([nz.sigma_position if c == "position" else nz.sigma_orientation for c in exp.components()])
-            var = np.maximum(sig**2, VARIANCE_FLOOR)
-            if nz.sigma_joint > 0:
+            var = np.maximum(stated_sigmas(exp, nz) ** 2, VARIANCE_FLOOR)
+            sj = nz.joint_sigma()
+            if sj > 0:
                 cov = np.broadcast_to(np.diag(var), res.r.shape + (res.r.shape[1],)).copy()
                 for jq in res.jq.values():
-                    cov += nz.sigma_joint**2 * (jq @ np.swapaxes(jq, -1, -2))
+                    cov += sj**2 * (jq @ np.swapaxes(jq, -1, -2))
                 out.append(np.linalg.inv(np.linalg.cholesky(cov)))
             else:  # constant: a diagonal, broadcast over samples
                 out.append(np.broadcast_to(np.diag(1.0 / np.sqrt(var)), res.r.shape + (res.r.shape[1],)))
@@ -119,7 +112,7 @@ class Problem:
         the scale test compares it with the Jacobian's scale column."""
         out = []
         for exp, W, res in zip(self.experiments, whiteners, self._residuals(state)):
-            keep = np.array([c == "position" for c in exp.components()], float)
+            keep = np.array([c.length for c in exp.components()], float)
             out.append((W @ (res.r * keep)[:, :, None]).ravel())
         if len(self.prior_idx):
             out.append(np.zeros(len(self.prior_idx)))
@@ -184,7 +177,7 @@ class Problem:
         out = []
         for exp, Wi, res in zip(self.experiments, W, self._residuals(state)):
             r = res.r
-            comp = np.array(exp.components())
+            comp = exp.components()
             st = {"experiment": exp.name, "kind": exp.kind, "samples": exp.size}
             st.update(residual_norms(r, comp))
             st["chi2"] = float(np.sum(np.einsum("nij,nj->ni", Wi, r) ** 2))
@@ -193,11 +186,24 @@ class Problem:
         return out
 
 
+def stated_sigmas(exp: Experiment, noise: Noise) -> np.ndarray:
+    """Per residual component of ``exp``, the standard deviation ``noise`` states for its quantity."""
+    out = []
+    for q in exp.components():
+        sigma = noise.sigma(q)
+        if sigma is None:
+            raise ModelError(
+                f"data set '{exp.name}' ({exp.kind}) has {q.name} residuals ({q.unit}) but the stated noise gives no "
+                f"{q.name} standard deviation; state it (Noise({q.name}=...) or noise: {{{q.name}_<unit>: ...}})")
+        out.append(sigma)
+    return np.array(out, dtype=float)
+
+
 def residual_norms(r: np.ndarray, components) -> dict:
     """RMS and max over samples of the position-part and orientation-part norms (m, rad)."""
-    comp = np.asarray(components)
     st = {}
-    for key, mask in (("position", comp == "position"), ("orientation", comp == "orientation")):
+    for key, q in (("position", POSITION), ("orientation", ORIENTATION)):
+        mask = np.array([c == q for c in components], bool)
         if mask.any():
             if mask.sum() % 3 == 0 and key == "position" and mask.sum() > 1:
                 e = np.linalg.norm(r[:, mask].reshape(len(r), -1, 3), axis=-1).ravel()

@@ -21,11 +21,12 @@ from kincal.errors import DegenerateExperimentError, ModelError
 from kincal.estimation import steps
 from kincal.estimation.constraints import FrameDistance
 from kincal.estimation.naming import analyse_named, block_of, context, degenerate, rotation_nulls, scale_null
-from kincal.estimation.problem import Noise, Problem, residual_norms
+from kincal.estimation.problem import Problem, residual_norms
 from kincal.estimation.start import starting_state
 from kincal.estimation.result import Estimate, Result
 from kincal.experiments import build
 from kincal.kinematics import Robot
+from kincal.noise import DEFAULT as DEFAULT_NOISE, Noise
 from kincal.params import (
     Prior,
     State,
@@ -117,9 +118,9 @@ def _problem(robot, datasets, free, fixed, priors, noise, constraints=()):
         bad = set(noise) - {e.name for e in exps}
         if bad:
             raise ModelError(f"noise given for unknown data set(s) {sorted(bad)}; data sets: {[e.name for e in exps]}")
-        noises = [noise.get(e.name, Noise()) for e in exps]
+        noises = [noise.get(e.name, DEFAULT_NOISE) for e in exps]
     else:
-        noises = [noise or Noise()] * len(exps)
+        noises = [noise or DEFAULT_NOISE] * len(exps)
     for c in constraints:
         c.check(nominal)
     start, nominal = starting_state(nominal, exps, layout, unknown)

@@ -15,6 +15,7 @@ import numpy as np
 from kincal.data import ROLES, Dataset
 from kincal.experiments._kernel import ARM_PARTS, arm_jacobians
 from kincal.kinematics import Kinematics, chain, loaded_chain
+from kincal.noise import Quantity
 from kincal.params import State
 
 
@@ -39,7 +40,7 @@ class Experiment:
 
     KIND: ClassVar[str] = ""
     ROLES: ClassVar[Mapping[str, str]] = {}
-    COMPONENTS: ClassVar[tuple[str, ...]] = ()
+    COMPONENTS: ClassVar[tuple[Quantity, ...]] = ()
     # The residual is a vector in world coordinates, which turns when the world does (a socket point); the
     # others are written in a frame that turns along, or are scalars (identifiability's rotation test).
     WORLD_VECTOR: ClassVar[bool] = False
@@ -68,8 +69,8 @@ class Experiment:
     def size(self) -> int:
         return self.dataset.size
 
-    def components(self) -> tuple[str, ...]:
-        """Per residual column: 'position' (m) or 'orientation' (rad)."""
+    def components(self) -> tuple[Quantity, ...]:
+        """Per residual column, the quantity it measures (``kincal.noise``): whitening reads its stated noise."""
         return self.COMPONENTS
 
     def residual(self, state: State, want=None, jq: bool = True) -> Residual:

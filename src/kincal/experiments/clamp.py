@@ -8,11 +8,12 @@ from __future__ import annotations
 
 from kincal.experiments._kernel import pose_gap_in_b, pose_mean
 from kincal.experiments.base import Experiment, Residual
+from kincal.noise import ORIENTATION, POSITION
 
 
 class ClampExperiment(Experiment):
     KIND = "clamp"
-    COMPONENTS = ("position",) * 3 + ("orientation",) * 3
+    COMPONENTS = (POSITION,) * 3 + (ORIENTATION,) * 3
 
     def residual(self, state, want=None, jq=True) -> Residual:
         arm = self.arms[0]

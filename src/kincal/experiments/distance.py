@@ -9,11 +9,12 @@ import numpy as np
 
 from kincal.experiments._kernel import point_jacobian
 from kincal.experiments.base import Experiment, Residual
+from kincal.noise import POSITION
 
 
 class DistanceExperiment(Experiment):
     KIND = "distance"
-    COMPONENTS = ("position",)
+    COMPONENTS = (POSITION,)
 
     def residual(self, state, want=None, jq=True) -> Residual:
         a, b = self.arms

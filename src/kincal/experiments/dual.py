@@ -10,12 +10,13 @@ from __future__ import annotations
 
 from kincal.experiments._kernel import pose_gap_in_b, pose_mean
 from kincal.experiments.base import Experiment, Residual
+from kincal.noise import ORIENTATION, POSITION
 from kincal.lie import se3
 
 
 class DualExperiment(Experiment):
     KIND = "dual"
-    COMPONENTS = ("position",) * 3 + ("orientation",) * 3
+    COMPONENTS = (POSITION,) * 3 + (ORIENTATION,) * 3
 
     def residual(self, state, want=None, jq=True) -> Residual:
         a, b = self.arms

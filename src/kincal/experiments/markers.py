@@ -15,6 +15,7 @@ import numpy as np
 
 from kincal.experiments._kernel import fit_transform, point_jacobian
 from kincal.experiments.base import Experiment, Residual
+from kincal.noise import POSITION
 from kincal.lie import se3
 
 
@@ -25,7 +26,7 @@ class MarkersExperiment(Experiment):
         return (4, 4) if role == "tracker" else self.dataset.measured["p_tracker_marker"].shape[1:]
 
     def components(self):
-        return ("position",) * (3 * self.dataset.measured["p_tracker_marker"].shape[1])
+        return (POSITION,) * (3 * self.dataset.measured["p_tracker_marker"].shape[1])
 
     def residual(self, state, want=None, jq=True) -> Residual:
         arm = self.arms[0]

@@ -10,11 +10,12 @@ import numpy as np
 
 from kincal.experiments._kernel import point_jacobian
 from kincal.experiments.base import Experiment, Residual
+from kincal.noise import POSITION
 
 
 class PlaneExperiment(Experiment):
     KIND = "plane"
-    COMPONENTS = ("position",)
+    COMPONENTS = (POSITION,)
 
     def frame_shape(self, role):
         return (4,)  # [n, d]

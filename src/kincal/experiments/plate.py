@@ -11,12 +11,13 @@ import numpy as np
 from kincal.errors import DegenerateExperimentError
 from kincal.experiments._kernel import pose_gap_in_b, pose_mean
 from kincal.experiments.base import Experiment, Residual
+from kincal.noise import ORIENTATION, POSITION
 from kincal.lie import se3
 
 
 class PlateExperiment(Experiment):
     KIND = "plate"
-    COMPONENTS = ("position",) * 3 + ("orientation",) * 3
+    COMPONENTS = (POSITION,) * 3 + (ORIENTATION,) * 3
 
     def check(self):
         k = self.dataset.measured["fixture"]

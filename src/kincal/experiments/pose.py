@@ -10,12 +10,13 @@ from __future__ import annotations
 
 from kincal.experiments._kernel import pose_gap, pose_mean
 from kincal.experiments.base import Experiment, Residual
+from kincal.noise import ORIENTATION, POSITION
 from kincal.lie import se3
 
 
 class PoseExperiment(Experiment):
     KIND = "pose"
-    COMPONENTS = ("position",) * 3 + ("orientation",) * 3
+    COMPONENTS = (POSITION,) * 3 + (ORIENTATION,) * 3
 
     def residual(self, state, want=None, jq=True) -> Residual:
         arm = self.arms[0]

@@ -9,11 +9,12 @@ import numpy as np
 
 from kincal.experiments._kernel import point_jacobian
 from kincal.experiments.base import Experiment, Residual
+from kincal.noise import POSITION
 
 
 class SocketExperiment(Experiment):
     KIND = "socket"
-    COMPONENTS = ("position",) * 3
+    COMPONENTS = (POSITION,) * 3
     WORLD_VECTOR = True
 
     def frame_shape(self, role):

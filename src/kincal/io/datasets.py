@@ -45,9 +45,6 @@ _TOP_KEYS = {"format", "version", "name", "kind", "model", "arms", "data", "unit
              "meta", "frames"}
 POSE_COLUMNS = ("tool.x", "tool.y", "tool.z", "tool.qw", "tool.qx", "tool.qy", "tool.qz")
 WRENCH_COLUMNS = ("wrench.fx", "wrench.fy", "wrench.fz", "wrench.tx", "wrench.ty", "wrench.tz")
-# noise keys: base name -> quantity; the file key carries its unit, e.g. joint_sigma_deg, tracker_sigma_mm
-NOISE_KEYS = {"joint_sigma": ("angle", "joint_rad"), "tracker_sigma": ("length", "tracker_m"),
-              "tracker_rot_sigma": ("angle", "tracker_rad"), "backlash": ("angle", "backlash_rad")}
 
 
 def _fmt(x: float) -> str:
@@ -99,7 +96,7 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
     bad = frames_problem(kind, frames, tuple(robot.arms))
     if bad:
         raise ctx.fail(*bad)
-    noise = _noise(ctx, top.get("noise") or {})
+    noise = units.noise_from_file(top.get("noise") or {}, f"{ctx.file}: noise").as_si()
     csv_path = manifest.parent / str(top["data"])
     table = _read_csv(csv_path)
     q = {}
@@ -260,21 +257,6 @@ def _known(ctx, kind: str, data: Any) -> dict:
     return out
 
 
-def _noise(ctx, data: Any) -> dict:
-    if not isinstance(data, dict):
-        raise ctx.fail("noise", f"expected a mapping, found {type(data).__name__}")
-    out = {}
-    for key, value in data.items():
-        base, _, unit = str(key).rpartition("_")
-        if base not in NOISE_KEYS:
-            allowed = ", ".join(f"{b}_<{q} unit>" for b, (q, _) in NOISE_KEYS.items())
-            raise ctx.fail(f"noise.{key}", f"unknown key; expected {allowed}")
-        quantity, si = NOISE_KEYS[base]
-        x = _number(ctx, value, f"noise.{key}")
-        out[si] = x * units.factor(quantity, unit, f"{ctx.file}: noise.{key}")
-    return out
-
-
 # --------------------------------------------------------------------------------------------- writing
 
 
@@ -314,8 +296,7 @@ def dataset_to_dict(ds: Dataset, model: str, data_file: str, angle: str = "rad",
         out["frames"] = dict(ds.frames)
     noise = dict(ds.meta.get("noise") or {})
     if noise:
-        out["noise"] = {f"{base}_{'rad' if q == 'angle' else 'm'}": float(noise[si])
-                        for base, (q, si) in NOISE_KEYS.items() if si in noise}
+        out["noise"] = {k: float(v) for k, v in noise.items()}
     if ds.meta.get("description"):
         out["description"] = str(ds.meta["description"])
     return out
@@ -393,7 +374,7 @@ def write_truth(truth, directory, dataset: Dataset, *, overwrite: bool = False) 
             else v.tolist()
     content = {"format": "kincal-truth", "version": VERSION, "data_set": dataset.name, "robot": "robot.yaml",
                "units": {"angle": "rad", "length": "m"}, "values": values,
-               "noise": {k: float(x) for k, x in truth.noise.as_dict().items()}, "meta": _plain(dict(truth.meta))}
+               "noise": truth.noise.as_si(), "meta": _plain(dict(truth.meta))}
     with open(_new_file(directory / "truth.yaml", overwrite), "w", encoding="utf-8") as fh:
         yaml.safe_dump(content, fh, sort_keys=False, default_flow_style=None, width=120)
     with open(_new_file(directory / "q_true.csv", overwrite), "w", newline="", encoding="utf-8") as fh:
@@ -492,7 +473,6 @@ def scenario_path(name_or_path) -> Path:
 
 def load_scenario(path):
     """Read a scenario file (docs/simulation.md) into a ``kincal.simulate.scenario.Scenario``."""
-    from kincal.simulate.noise import Noise
     from kincal.simulate.perturb import Perturbation, perturbation
     from kincal.simulate.scenario import Scenario
 
@@ -536,10 +516,7 @@ def load_scenario(path):
         raise ctx.fail("truth.arms", f"expected a list of arms of '{robot.name}' ({', '.join(robot.arms)}), "
                        f"found {perturb_arms!r}")
 
-    noise_keys = {f"{b}_{u}" for b, (q, _) in NOISE_KEYS.items()
-                  for u in (units.ANGLE if q == "angle" else units.LENGTH)}
-    noise_in = _mapping(ctx, top.get("noise") or {}, "noise", noise_keys)
-    noise = Noise(**_noise(ctx, noise_in))
+    noise = units.noise_from_file(top.get("noise") or {}, f"{ctx.file}: noise")
 
     exp = top["experiment"]
     if not isinstance(exp, dict) or exp.get("kind") not in _EXPERIMENT_KEYS:

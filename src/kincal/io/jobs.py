@@ -14,7 +14,7 @@ from typing import Any, Mapping
 
 from kincal.data import Dataset, frames_problem
 from kincal.errors import DataFormatError
-from kincal.estimation import Noise
+from kincal.noise import DEFAULT as DEFAULT_NOISE, Noise
 from kincal.io import units
 from kincal.io.datasets import load_dataset
 from kincal.io.models import load_robot
@@ -26,7 +26,6 @@ _TOP = {"format", "version", "name", "model", "data", "validation", "free", "fix
         "description", "constraints"}
 _SOLVER = {"method", "loss", "f_scale", "max_outer", "rank_rtol", "correlation_threshold"}
 _LOSSES = ("linear", "huber", "soft_l1", "cauchy", "arctan")
-_NOISE = {"position": "length", "orientation": "angle", "joint": "angle"}
 
 
 @dataclass(frozen=True, eq=False)
@@ -161,19 +160,11 @@ def _frames(where, frames, ds: Dataset, robot: Robot) -> Dataset:
 
 
 def _noise(where, data, ds: Dataset) -> Noise:
-    """Job noise (position_mm, orientation_deg, joint_deg, ...) over the data set's own stated noise."""
-    stated = dict(ds.meta.get("noise") or {})
-    si = {"sigma_position": stated.get("tracker_m", 0.0), "sigma_orientation": stated.get("tracker_rad", 0.0),
-          "sigma_joint": stated.get("joint_rad", 0.0)}
-    for k, v in (data or {}).items():
-        base, _, unit = str(k).rpartition("_")
-        if base not in _NOISE:
-            raise DataFormatError(f"{where}: noise key {k!r}; expected position_<m|mm>, orientation_<rad|deg>, "
-                                  f"joint_<rad|deg>")
-        if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-            raise DataFormatError(f"{where}: noise.{k} must be a finite number >= 0, found {v!r}")
-        si[f"sigma_{base}"] = float(v) * units.factor(_NOISE[base], unit, f"{where}: noise.{k}")
-    return Noise(**si)
+    """Job noise (position_mm, orientation_deg, joint_deg, ...) over the data set's own stated noise, over
+    kincal's default for position and orientation."""
+    stated = Noise.from_si(ds.meta.get("noise") or {})
+    job = units.noise_from_file(data or {}, f"{where}: noise")
+    return job.over(stated).over(Noise(position=DEFAULT_NOISE.position, orientation=DEFAULT_NOISE.orientation))
 
 
 def _prior(f, name, spec) -> Prior:

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import math
+
 from kincal.errors import DataFormatError
+from kincal.noise import Noise
 
 LENGTH = {"m": 1.0, "mm": 1e-3}
 ANGLE = {"rad": 1.0, "deg": 0.017453292519943295}  # pi / 180
@@ -17,3 +20,41 @@ def factor(kind: str, name: str, where: str) -> float:
         raise DataFormatError(
             f"{where}: unknown {kind} unit {name!r}; expected one of {', '.join(repr(k) for k in table)}"
         ) from None
+
+
+# A noise key is ``<quantity>_<unit>``; the quantity decides which unit table applies.
+NOISE_UNITS = {"position": "length", "orientation": "angle", "joint": "angle", "backlash": "angle", "pixel": "pixel"}
+PIXEL = {"px": 1.0}
+
+
+def noise_from_file(data, where: str):
+    """A ``kincal.noise.Noise`` from a file's ``noise`` mapping (``position_mm: 0.02``, ``joint_deg: 0.001``, ...);
+    ``where`` names file and field."""
+    from_keys = {}
+    if not isinstance(data, dict):
+        raise DataFormatError(f"{where}: expected a mapping of <quantity>_<unit>: sigma, found {type(data).__name__}")
+    for key, value in data.items():
+        quantity, _, unit = str(key).rpartition("_")
+        if quantity not in NOISE_UNITS:
+            keys = ", ".join(f"{q}_<unit>" for q in NOISE_UNITS)
+            raise DataFormatError(f"{where}.{key}: unknown key; expected one of {keys}")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+            raise DataFormatError(f"{where}.{key}: expected a finite number >= 0, found {value!r}")
+        from_keys[quantity] = float(value) * _noise_factor(quantity, unit, f"{where}.{key}")
+    named = {k: from_keys.pop(k) for k in ("position", "orientation", "joint", "backlash") if k in from_keys}
+    return Noise(**named, other=from_keys)
+
+
+def noise_keys() -> set[str]:
+    """Every accepted noise key (for schema checks)."""
+    tables = {"length": LENGTH, "angle": ANGLE, "pixel": PIXEL}
+    return {f"{q}_{u}" for q, kind in NOISE_UNITS.items() for u in tables[kind]}
+
+
+def _noise_factor(quantity: str, unit: str, where: str) -> float:
+    kind = NOISE_UNITS[quantity]
+    if kind == "pixel":
+        if unit not in PIXEL:
+            raise DataFormatError(f"{where}: unknown pixel unit {unit!r}; expected 'px'")
+        return 1.0
+    return factor(kind, unit, where)

@@ -59,7 +59,7 @@ def per_sample_errors(result, datasets) -> list[tuple[str, np.ndarray, np.ndarra
     problem, _ = _problem(result.nominal_robot, list(datasets), [], (), None, None)
     out = []
     for exp in problem.experiments:
-        pos = np.array([c == "position" for c in exp.components()])
+        pos = np.array([c.length for c in exp.components()])
         if not pos.any():
             continue
         errs = []

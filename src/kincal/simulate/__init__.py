@@ -12,7 +12,7 @@ API summary (SI units; ``rng`` is a numpy Generator or an integer seed; same see
     dataset_spread(dataset, robot, truth) -> {arm: JointSpread}   per-joint range, weak joints, branches
     solve_ik(model, T_world_tool, q0) / solve_closed_chain(model_a, model_b, T_toolA_toolB, q0_a, q0_b) -> IKResult
     explore(constraint, rng, ...) -> Exploration                 self-motion walks (clamped / closed chain)
-    Noise(joint_rad, tracker_m, tracker_rad, backlash_rad)
+    Noise(position=, orientation=, joint=, backlash=)             kincal.noise.Noise (SI; None: none added)
 
 ``validation`` is ``{arm: Dataset(kind="pose")}``: fresh random configurations with the noise-free true tool
 poses (``T_world_tracker`` = identity). ``Truth`` holds the true robot, the true nuisance values (fixture,

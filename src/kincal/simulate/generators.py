@@ -177,7 +177,7 @@ def _stats(ex: Exploration) -> dict:
 
 
 def _meta(kind: str, noise: Noise, extra: dict | None = None) -> dict:
-    return {"generator": kind, "noise": noise.as_dict(), **(extra or {})}
+    return {"generator": kind, "noise": noise.as_si(), **(extra or {})}
 
 
 def _check_n(n: int, name: str = "n") -> int:

@@ -1,4 +1,4 @@
-"""Measurement noise: joint encoders (with optional backlash) and trackers.
+"""Simulated measurement noise (``kincal.noise.Noise``): joint encoders (with optional backlash) and trackers.
 
 Backlash is a dead band of width ``b`` between motor and link: the encoder sits on the motor, and the link
 lags it by ``b / 2`` against the direction of motion, so the reading is ``link + sign(motion) b / 2``.
@@ -8,34 +8,13 @@ The direction of a joint is the sign of its last non-zero move along the path th
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from kincal.errors import ModelError
 from kincal.lie import se3, so3
+from kincal.noise import NONE, Noise
 
 
-@dataclass(frozen=True)
-class Noise:
-    """Standard deviations (SI): ``joint_rad`` encoder noise, ``tracker_m`` tracker position noise,
-    ``tracker_rad`` tracker orientation noise (full-pose trackers), ``backlash_rad`` dead-band width."""
-
-    joint_rad: float = 0.0
-    tracker_m: float = 0.0
-    tracker_rad: float = 0.0
-    backlash_rad: float = 0.0
-
-    def __post_init__(self) -> None:
-        for k, v in self.__dict__.items():
-            if not (np.isfinite(v) and v >= 0):
-                raise ModelError(f"noise {k}: expected a finite value >= 0, got {v!r}")
-
-    def as_dict(self) -> dict[str, float]:
-        return dict(self.__dict__)
-
-
-NO_NOISE = Noise()
+NO_NOISE = NONE
 
 
 def backlash_offsets(q_path: np.ndarray, width: float, rng: np.random.Generator) -> np.ndarray:
@@ -53,23 +32,23 @@ def backlash_offsets(q_path: np.ndarray, width: float, rng: np.random.Generator)
 def joint_readings(q_true_readings: np.ndarray, noise: Noise, rng: np.random.Generator) -> np.ndarray:
     """What the controller reports for noise-free readings (N, n) taken in path order."""
     q = np.array(q_true_readings, dtype=float)
-    if noise.backlash_rad:
-        q += backlash_offsets(q, noise.backlash_rad, rng)
-    if noise.joint_rad:
-        q += rng.normal(0.0, noise.joint_rad, q.shape)
+    if noise.backlash:
+        q += backlash_offsets(q, noise.backlash, rng)
+    if noise.joint:
+        q += rng.normal(0.0, noise.joint, q.shape)
     return q
 
 
 def tracker_points(p: np.ndarray, noise: Noise, rng: np.random.Generator) -> np.ndarray:
-    """Tracker positions (..., 3) with isotropic Gaussian noise of ``tracker_m`` per axis."""
-    return p + rng.normal(0.0, noise.tracker_m, p.shape) if noise.tracker_m else np.array(p, dtype=float)
+    """Tracker positions (..., 3) with isotropic Gaussian noise of ``position`` per axis."""
+    return p + rng.normal(0.0, noise.position, p.shape) if noise.position else np.array(p, dtype=float)
 
 
 def tracker_poses(T: np.ndarray, noise: Noise, rng: np.random.Generator) -> np.ndarray:
-    """Full poses (N, 4, 4): position noise ``tracker_m`` per axis; rotation ``exp(w) R``, w ~ N(0, tracker_rad^2 I)."""
+    """Full poses (N, 4, 4): position noise ``position`` per axis; rotation ``exp(w) R``, w ~ N(0, tracker_rad^2 I)."""
     T = np.array(T, dtype=float)
-    if noise.tracker_rad:
-        T[..., :3, :3] = so3.exp(rng.normal(0.0, noise.tracker_rad, T.shape[:-2] + (3,))) @ T[..., :3, :3]
-    if noise.tracker_m:
-        T[..., :3, 3] += rng.normal(0.0, noise.tracker_m, T.shape[:-2] + (3,))
+    if noise.orientation:
+        T[..., :3, :3] = so3.exp(rng.normal(0.0, noise.orientation, T.shape[:-2] + (3,))) @ T[..., :3, :3]
+    if noise.position:
+        T[..., :3, 3] += rng.normal(0.0, noise.position, T.shape[:-2] + (3,))
     return se3.make(T[..., :3, :3], T[..., :3, 3])
