@@ -117,7 +117,7 @@ def test_dual_both_arms_unknown(frida, true_full):
     assert ana.scale_unidentifiable
     # estimate minus truth lies in the reported unidentifiable subspace (first order)
     true_state = type(res.state)({a: type(res.state.arms[a]).from_model(true_full[a]) for a in ("left", "right")},
-                                 {"clamp": truth.values["T_toolA_toolB"]})
+                                 {"clamp": truth.values["T_toolA_toolB"]}, res.state.kinds)
     d, _ = displacement(true_state, res.state, res.layout)
     d = d[res.layout.free]
     outside = d - ana.null_space @ (ana.null_space.T @ d)

@@ -5,14 +5,15 @@ import pytest
 
 from kincal.errors import ModelError
 from kincal.kinematics import Robot
-from kincal.params import Prior, State, build_layout, displacement, recentre, retract, scale_direction
+from kincal.params import POINTS, POSE, Prior, State, build_layout, displacement, recentre, retract, scale_direction
 from kincal.testing import random_arm, random_pose
 
 
 @pytest.fixture
 def state(rng):
     robot = Robot("r", {"right": random_arm(rng, 7, name="right"), "left": random_arm(rng, 3, (1,), name="left")})
-    return State.from_robot(robot, {"clamp": random_pose(rng), "markers": rng.normal(size=(2, 3))})
+    return State.from_robot(robot, {"clamp": random_pose(rng), "markers": rng.normal(size=(2, 3))},
+                            {"clamp": POSE, "markers": POINTS})
 
 
 def test_stable_names_and_units(state):
@@ -97,3 +98,38 @@ def test_twist_retraction_is_exact_and_its_basis_matches_differences(state, rng)
 
     num = numerical_jacobian(screws_at, d[b.start: b.stop])
     np.testing.assert_allclose(a.basis, num, atol=1e-8)
+
+
+@pytest.mark.parametrize("kind", ["pose", "point", "points", "plane"])
+def test_frame_kinds_retract_displace_and_turn_with_the_world(kind, rng):
+    """Each frame kind: displacement inverts retraction (first order), and ``world_motion`` is the local
+    displacement of the frame turned with the world by exp(e xi) (finite differences)."""
+    from kincal.lie import se3
+    from kincal.params import FRAME_KINDS, Plane
+
+    k = FRAME_KINDS[kind]
+    raw = {"pose": random_pose(rng), "point": rng.normal(size=3), "points": rng.normal(size=(3, 3)),
+           "plane": np.append(rng.normal(size=3), 0.4)}[kind]
+    value = k.from_raw(raw)
+    names, units = k.coordinates("f", value)
+    assert len(names) == len(units) == len(set(names))
+    d = rng.normal(scale=1e-6, size=len(names))
+    disp, D = k.displacement(k.retract(value, d), value)
+    np.testing.assert_allclose(disp, d, atol=1e-11)
+    xi, eps = rng.normal(size=6), 1e-6
+    T = se3.exp(eps * xi)
+    if kind == "pose":
+        turned = T @ value
+    elif kind == "plane":
+        n = T[:3, :3] @ value.normal
+        turned = Plane.from_array(np.append(n, value.d + n @ T[:3, 3]))
+    else:
+        turned = se3.transform_points(T, value)
+    np.testing.assert_allclose(k.displacement(turned, value)[0] / eps, k.world_motion(value, xi), atol=1e-5)
+
+
+def test_kinds_are_compared_by_identity_never_by_string():
+    from kincal.params import POSE
+
+    with pytest.raises(TypeError, match="compare parameter kinds by identity"):
+        POSE == "pose"  # noqa: B015 - a leftover string comparison must fail loudly

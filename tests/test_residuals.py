@@ -100,7 +100,7 @@ def test_residual_zero_at_truth_and_jacobian_matches_differences(rng, kind, pris
     state = State.from_robot(robot)
     exps, extras, unknown = experiments.build([ds], state)
     assert unknown == []
-    state = State(state.arms, extras)
+    state = State(state.arms, extras, experiments.frame_kinds(exps))
     exp = exps[0]
     np.testing.assert_allclose(exp.residual(state).r, 0.0, atol=1e-12)
 
@@ -137,7 +137,7 @@ def test_only_wanted_blocks_are_computed(rng):
     robot = _robot(rng)
     state = State.from_robot(robot)
     exps, extras, _ = experiments.build([_case("dual", rng, robot)], state)
-    res = exps[0].residual(State(state.arms, extras), want={"a.offsets"})
+    res = exps[0].residual(State(state.arms, extras, experiments.frame_kinds(exps)), want={"a.offsets"})
     assert set(res.jac) == {"a.offsets"}
 
 
@@ -201,7 +201,7 @@ def test_loaded_joint_reading_derivative_alone(rng):
     ds = _case("markers+wrench", rng, robot)
     state = State.from_robot(robot)
     exps, extras, _ = experiments.build([ds], state)
-    state = State(state.arms, extras)
+    state = State(state.arms, extras, experiments.frame_kinds(exps))
     np.testing.assert_array_equal(exps[0].residual(state, want=set()).jq["a"], exps[0].residual(state).jq["a"])
 
 

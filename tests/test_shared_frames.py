@@ -46,7 +46,7 @@ def _named(ds, **frames):
 
 
 def _frame_blocks(res, kind="pose"):
-    return [b.name for b in res.layout.blocks if b.arm is None and b.kind == kind]
+    return [b.name for b in res.layout.blocks if b.arm is None and b.kind.name == kind]
 
 
 def _marker_errors(res, true, T, p_tool_marker, markers_name):

@@ -11,7 +11,7 @@ from kincal.analysis.covariance import right_svd
 from kincal.estimation.steps import Linearization
 from kincal.kinematics import REVOLUTE, chain
 from kincal.lie import se3
-from kincal.params import scale_direction
+from kincal.params import POSE, scale_direction
 
 
 def degenerate(problem, J, ana) -> bool:
@@ -66,7 +66,7 @@ def analyse_named(problem, state, lin, rtol, order, context):
     col = {int(i): k for k, i in enumerate(problem.free_idx)}
     blocks = [block_of(problem, i) for i in problem.free_idx]
     pose_blocks = [(b, [col.get(i) for i in range(b.start, b.stop)]) for b in layout.blocks
-                   if b.kind == "pose" and b.arm is None]
+                   if b.kind is POSE]
 
     def describe(row):
         words = []
@@ -158,18 +158,10 @@ def rotation_nulls(problem, state, lin: Linearization) -> list[np.ndarray]:
         ok = True
         for e in exps:
             for role, name in e.frames.items():
-                b = layout.block(name)
-                value = state.extras[name]
-                if b.kind == "pose" and role in _WORLD_POSES:
-                    g[b.start: b.stop] = xi
-                elif b.kind == "points" and role == "socket":
-                    g[b.start: b.stop] = v + np.cross(w, np.asarray(value))
-                elif b.kind == "plane":
-                    n, _ = value.unit()
-                    g[b.start: b.start + 2] = value.U.T @ np.cross(w, n)
-                    g[b.stop - 1] = n @ v
-                else:
+                if role not in _WORLD_SIDE:
                     continue
+                b = layout.block(name)
+                g[b.slice] = b.kind.world_motion(state.extras[name], xi)
                 if not layout.free[b.start: b.stop].all():
                     ok = False  # a known frame anchors the rotation
         if not ok or any(g[i] != 0 and i not in col for i in np.flatnonzero(g)):
@@ -190,4 +182,4 @@ def rotation_nulls(problem, state, lin: Linearization) -> list[np.ndarray]:
     return out
 
 
-_WORLD_POSES = ("fixture", "plate", "tracker")  # pose frames on the world side of an arm's loop
+_WORLD_SIDE = ("fixture", "plate", "tracker", "socket", "plane")  # frames on the world side of an arm's loop

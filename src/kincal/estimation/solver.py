@@ -24,10 +24,12 @@ from kincal.estimation.naming import analyse_named, block_of, context, degenerat
 from kincal.estimation.problem import Problem, residual_norms
 from kincal.estimation.start import starting_state
 from kincal.estimation.result import Estimate, Result
-from kincal.experiments import build
+from kincal.experiments import build, frame_kinds
 from kincal.kinematics import Robot
 from kincal.noise import DEFAULT as DEFAULT_NOISE, Noise
 from kincal.params import (
+    HOME,
+    TWISTS,
     Prior,
     State,
     build_layout,
@@ -41,8 +43,6 @@ log = logging.getLogger(__name__)
 
 # Residual variance factor above which the fit is reported as not explaining the data (RMS 10x the noise).
 MISFIT_VARIANCE_FACTOR = 100.0
-
-_PART_RANK = {"offsets": 0, "twists": 1, "home": 2, "base": 3, "tool": 4}
 
 
 def calibrate(
@@ -108,7 +108,7 @@ def _problem(robot, datasets, free, fixed, priors, noise, constraints=()):
     nominal_arms = State.from_robot(robot)
     exps, extras, unknown = build(datasets, nominal_arms)
     arms = [a for a in robot.arms if any(a in e.arms for e in exps)]
-    nominal = State({a: nominal_arms.arms[a] for a in arms}, extras)
+    nominal = State({a: nominal_arms.arms[a] for a in arms}, extras, frame_kinds(exps))
     layout = build_layout(nominal, free, fixed=fixed, priors=priors, free_extras=unknown, arms=arms)
     for name in unknown:
         b = layout.block(name)
@@ -131,13 +131,8 @@ def _priority(problem: Problem, gauge) -> list[int]:
     """Free-coordinate order for pivots: user globs first (if any), then arm offsets, twists, home, base, tool,
     then experiment frames."""
     names = problem.free_names
-    layout = problem.layout
-    blk = {}
-    for b in layout.blocks:
-        for i in range(b.start, b.stop):
-            blk[i] = b
-    default = sorted(range(len(names)), key=lambda k: (
-        _PART_RANK.get(blk[problem.free_idx[k]].part, 9), k))
+    blk = [problem.layout.block_at(i) for i in range(problem.layout.size)]
+    default = sorted(range(len(names)), key=lambda k: (blk[problem.free_idx[k]].kind.rank, k))
     if isinstance(gauge, str):
         return default
     order: list[int] = []
@@ -289,7 +284,7 @@ def _solve(problem, robot, gauge, loss, f_scale, max_outer, rank_rtol, corr_thre
 def _misfit_advice(problem: Problem) -> str:
     """What to try when the model does not fit, from what is free already."""
     layout = problem.layout
-    geometric = [b for b in layout.blocks if b.arm is not None and b.part in ("twists", "home")]
+    geometric = [b for b in layout.blocks if b.kind in (TWISTS, HOME)]
     tips = []
     if not all(layout.free[b.start: b.stop].all() for b in geometric):
         tips.append("free more parameters (e.g. 'kinematic')")
@@ -356,15 +351,7 @@ def _estimates(problem, state, std, ok):
     out = []
     for k, i in enumerate(problem.free_idx):
         b = block_of(problem, i)
-        absolute = b.kind in ("offsets", "points", "compliance")
-        nominal = 0.0
-        if absolute:
-            arm = problem.nominal.arms[b.arm] if b.arm else None
-            if arm is None:
-                value = problem.nominal.extras[b.name]
-            else:
-                value = arm.joint_compliance if b.kind == "compliance" else arm.offsets
-            nominal = float(np.ravel(value)[i - b.start])
+        nominal = float(b.kind.values(b.value(problem.nominal))[i - b.start]) if b.kind.absolute else 0.0
         out.append(Estimate(layout.names[i], nominal + float(disp[i]), nominal, float(std[k]), layout.units[i],
                             bool(ok[k])))
     return out

@@ -43,10 +43,10 @@ def starting_state(nominal: State, experiments, layout: Layout, unknown) -> tupl
             arms[arm] = replace(a, home=a.home @ a.tool @ X @ se3.inverse(a.tool))
     if all(arms[k] is nominal.arms[k] for k in arms):
         return nominal, nominal
-    start = State(arms, extras)
+    start = nominal.replace(arms, extras)
     for exp in experiments:  # trackers of corrected arms, guessed again with the corrected tool
         corrected = arms[exp.arms[0]] is not nominal.arms[exp.arms[0]]
         if exp.kind == "pose" and exp.frames["tracker"] in unknown and corrected:
             F = exp._fk(start, exp.arms[0])
             extras[exp.frames["tracker"]] = pose_mean(F @ se3.inverse(exp.dataset.measured["T_tracker_tool"]))
-    return State(arms, extras), State(dict(nominal.arms), extras)
+    return nominal.replace(arms, extras), nominal.replace(extras=extras)

@@ -22,7 +22,7 @@ from kincal.experiments.markers import MarkersExperiment
 from kincal.experiments.plane import PlaneExperiment
 from kincal.experiments.plate import PlateExperiment
 from kincal.experiments.pose import PoseExperiment
-from kincal.experiments.sharing import frame_names, frame_values
+from kincal.experiments.sharing import frame_kinds, frame_names, frame_values
 from kincal.experiments.socket import SocketExperiment
 from kincal.params import State
 
@@ -32,7 +32,7 @@ KINDS: dict[str, type[Experiment]] = {
                 SocketExperiment, DistanceExperiment, PlaneExperiment)
 }
 
-__all__ = ["Experiment", "KINDS", "Residual", "build", "check_joints"]
+__all__ = ["Experiment", "KINDS", "Residual", "build", "check_joints", "frame_kinds"]
 
 
 def check_joints(ds: Dataset, state: State) -> None:

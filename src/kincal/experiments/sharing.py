@@ -16,8 +16,11 @@ import numpy as np
 
 from kincal.data import ROLES, Dataset, frames_problem
 from kincal.errors import DataFormatError
-from kincal.params import Plane, State
+from kincal.params import PLANE, POINT, POINTS, POSE, State
 
+# The parameter kind of each role's frame.
+ROLE_KINDS = {"tracker": POSE, "fixture": POSE, "plate": POSE, "clamp": POSE, "markers": POINTS, "socket": POINT,
+              "plane": PLANE}
 KNOWN_ATOL = 1e-9  # two data sets giving a shared frame as known must agree to this (m, and rotation entries)
 
 
@@ -50,7 +53,7 @@ def frame_names(datasets: Sequence[Dataset], arms: Sequence[str]) -> list[dict[s
 def frame_values(experiments, state: State) -> tuple[dict[str, object], list[str]]:
     """(extras, names of the unknown ones): known values as given, unknown ones initialized from the nominal arms."""
     _check_shapes(experiments)
-    values = _known(experiments)  # raw arrays by frame name; planes become ``Plane`` only in the extras
+    values = _known(experiments)  # raw arrays by frame name; each kind makes its value from them
     extras, unknown = {}, []
     for exp in experiments:
         given = {r: values[n] for r, n in exp.frames.items() if n in values}
@@ -61,8 +64,13 @@ def frame_values(experiments, state: State) -> tuple[dict[str, object], list[str
                 values[name] = value
                 unknown.append(name)
             if name not in extras:
-                extras[name] = Plane.from_array(value) if role == "plane" else value
+                extras[name] = ROLE_KINDS[role].from_raw(value)
     return extras, unknown
+
+
+def frame_kinds(experiments) -> dict[str, object]:
+    """Frame name -> its parameter kind (``kincal.params.kinds``)."""
+    return {name: ROLE_KINDS[role] for exp in experiments for role, name in exp.frames.items()}
 
 
 def _check_shapes(experiments) -> None:

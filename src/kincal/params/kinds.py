@@ -1,0 +1,286 @@
+"""Parameter kinds: how one block of parameters is named, moved and compared (compare jaxls' ``Var``).
+
+A kind owns every fact about its block: the names and units of its local coordinates, the retraction
+``value -> value (+) d``, the displacement of a value from a nominal one (the chart used for priors and
+reports) with its derivative, re-centring between linearizations, the direction that scales every length,
+and how a rigid motion of the world moves a frame of this kind. Nothing else switches on what a block is.
+
+Arm kinds act on an arm's ``ArmValues`` (offsets, twists, home/base/tool poses, compliance); frame kinds on
+a frame's value (pose 4x4, point (3,), points (m, 3), ``Plane``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from kincal.errors import ModelError
+from kincal.kinematics import PRISMATIC, REVOLUTE, conform_twists
+from kincal.lie import se3, so3
+from kincal.params.values import Plane, bases, generators, retract_twists
+
+POSE_COORDS = ("v_x", "v_y", "v_z", "w_x", "w_y", "w_z")
+POSE_UNITS = ("m", "m", "m", "rad", "rad", "rad")
+COMPLIANCE_UNITS = {REVOLUTE: "rad/Nm", PRISMATIC: "m/N"}
+
+
+class ParamKind:
+    """Base of every parameter kind. ``rank``: default pivot priority in the gauge (lower first);
+    ``absolute``: estimates are reported as values (offsets, points) rather than displacements from nominal."""
+
+    name = ""
+    rank = 9
+    absolute = False
+    on_arm = False
+
+    def coordinates(self, prefix: str, value) -> tuple[list[str], list[str]]:
+        raise NotImplementedError
+
+    def retract(self, value, d: np.ndarray):
+        raise NotImplementedError
+
+    def recentre(self, value):
+        """The value as the next linearization point (re-normalized, tangent bases recomputed)."""
+        return value
+
+    def displacement(self, value, nominal) -> tuple[np.ndarray, np.ndarray]:
+        """Local displacement from ``nominal`` and its derivative w.r.t. ``value``'s own local coordinates."""
+        raise NotImplementedError
+
+    def scale(self, value) -> np.ndarray:
+        """Local direction scaling every length of the value (zeros: nothing to scale)."""
+        raise NotImplementedError
+
+    def values(self, value) -> np.ndarray:
+        """The coordinates' own values (absolute kinds only)."""
+        raise ModelError(f"parameter kind '{self.name}' has no absolute values")
+
+    def world_motion(self, value, xi: np.ndarray) -> np.ndarray:
+        """Local coordinates of turning this frame along with the world by the twist ``xi`` (first order)."""
+        raise ModelError(f"parameter kind '{self.name}' does not move with the world")
+
+    def retraction_jacobian(self, d: np.ndarray) -> np.ndarray | None:
+        """d(retract(value, d)) / dd in the kind's own increments at d, when it is not the identity (poses:
+        the left Jacobian ``J_l(d)``); None otherwise (additive kinds; twists carry theirs in their bases)."""
+        return None
+
+    def from_raw(self, raw):
+        """A frame value from a known or initial array."""
+        return np.array(raw, dtype=float)
+
+    def __eq__(self, other):
+        if isinstance(other, str):  # kinds are objects: a leftover string comparison is a bug, not False
+            raise TypeError(f"compare parameter kinds by identity, not with the string {other!r}")
+        return self is other
+
+    __hash__ = object.__hash__
+
+    def __repr__(self) -> str:
+        return f"<parameter kind {self.name}>"
+
+
+def _pose_disp(T, T0):
+    x = se3.log(T @ se3.inverse(T0))
+    return x, se3.left_jacobian_inv(x)
+
+
+def _translation_scale(T) -> np.ndarray:
+    return se3.join(T[:3, 3], np.zeros(3))
+
+
+class _Offsets(ParamKind):
+    name, rank, absolute, on_arm = "offsets", 0, True, True
+
+    def coordinates(self, prefix, a):
+        return ([f"{prefix}.{j}.offset" for j in a.joint_names],
+                ["rad" if t == REVOLUTE else "m" for t in a.joint_types])
+
+    def retract(self, a, d):
+        return replace(a, offsets=a.offsets + d)
+
+    def displacement(self, a, a0):
+        return a.offsets - a0.offsets, np.eye(a.dof)
+
+    def scale(self, a):
+        return np.where(np.array(a.joint_types) == PRISMATIC, a.offsets, 0.0)
+
+    def values(self, a):
+        return a.offsets
+
+
+class _Twists(ParamKind):
+    """Joint screws moved rigidly: ``Ad(exp(G d)) xi`` (4 coordinates per revolute joint, 2 per prismatic)."""
+
+    name, rank, on_arm = "twists", 1, True
+
+    def coordinates(self, prefix, a):
+        names, units = [], []
+        for j, t in zip(a.joint_names, a.joint_types):
+            locs = ("shift_1", "shift_2", "tilt_1", "tilt_2") if t == REVOLUTE else ("tilt_1", "tilt_2")
+            names += [f"{prefix}.{j}.xi.{c}" for c in locs]
+            units += ["m" if c.startswith("shift") else "rad" for c in locs]
+        return names, units
+
+    def retract(self, a, d):
+        return retract_twists(a, d)
+
+    def recentre(self, a):
+        screws = conform_twists(a.screws, a.joint_types)  # removes round-off only: the retraction is exact
+        return replace(a, screws=screws, bases=bases(screws, a.joint_types),
+                       generators=generators(screws, a.joint_types))
+
+    def displacement(self, a, a0):
+        B0p = np.linalg.pinv(a0.basis)
+        return B0p @ (a.screws - a0.screws).ravel(), B0p @ a.basis
+
+    def scale(self, a):
+        v = np.zeros_like(a.screws)
+        rev = np.array(a.joint_types) == REVOLUTE
+        v[rev, :3] = a.screws[rev, :3]
+        return np.linalg.pinv(a.basis) @ v.ravel()
+
+
+class _ArmPose(ParamKind):
+    """One of an arm's fixed poses (``home``, ``base``, ``tool``), moved by a left increment ``exp(d) T``."""
+
+    on_arm = True
+
+    def __init__(self, field: str, rank: int):
+        self.name, self.rank, self.field = field, rank, field
+
+    def coordinates(self, prefix, a):
+        return [f"{prefix}.{self.field}.{c}" for c in POSE_COORDS], list(POSE_UNITS)
+
+    def retract(self, a, d):
+        return replace(a, **{self.field: se3.exp(d) @ getattr(a, self.field)})
+
+    def displacement(self, a, a0):
+        return _pose_disp(getattr(a, self.field), getattr(a0, self.field))
+
+    def scale(self, a):
+        return _translation_scale(getattr(a, self.field))
+
+    def retraction_jacobian(self, d):
+        return se3.left_jacobian(d)
+
+
+class _Compliance(ParamKind):
+    name, rank, absolute, on_arm = "compliance", 5, True, True
+
+    def coordinates(self, prefix, a):
+        return [f"{prefix}.{j}.compliance" for j in a.joint_names], [COMPLIANCE_UNITS[t] for t in a.joint_types]
+
+    def retract(self, a, d):
+        return replace(a, compliance=a.joint_compliance + d)
+
+    def displacement(self, a, a0):
+        return a.joint_compliance - a0.joint_compliance, np.eye(a.dof)
+
+    def scale(self, a):  # same deflection under a pure force: torques scale with length
+        c = a.joint_compliance
+        return np.where(np.array(a.joint_types) == PRISMATIC, c, -c)
+
+    def values(self, a):
+        return a.joint_compliance
+
+
+class _Pose(ParamKind):
+    name = "pose"
+
+    def coordinates(self, prefix, T):
+        return [f"{prefix}.{c}" for c in POSE_COORDS], list(POSE_UNITS)
+
+    def retract(self, T, d):
+        return se3.exp(d) @ T
+
+    def displacement(self, T, T0):
+        return _pose_disp(T, T0)
+
+    def scale(self, T):
+        return _translation_scale(T)
+
+    def world_motion(self, T, xi):
+        return np.array(xi, dtype=float)
+
+    def retraction_jacobian(self, d):
+        return se3.left_jacobian(d)
+
+
+class _Points(ParamKind):
+    """Points, ``p + d``: one point (3,) named ``x, y, z``, or several (m, 3) named ``m1.x ...``."""
+
+    absolute = True
+
+    def __init__(self, single: bool):
+        self.single = single
+        self.name = "point" if single else "points"
+
+    def coordinates(self, prefix, p):
+        p = np.asarray(p)
+        if self.single:
+            return [f"{prefix}.{c}" for c in "xyz"], ["m"] * 3
+        return [f"{prefix}.m{i + 1}.{c}" for i in range(p.shape[0]) for c in "xyz"], ["m"] * p.size
+
+    def retract(self, p, d):
+        return p + d.reshape(np.shape(p))
+
+    def displacement(self, p, p0):
+        d = (np.asarray(p) - np.asarray(p0)).ravel()
+        return d, np.eye(d.size)
+
+    def scale(self, p):
+        return np.asarray(p, dtype=float).ravel()
+
+    def values(self, p):
+        return np.ravel(p)
+
+    def world_motion(self, p, xi):
+        v, w = se3.split(xi)
+        return (v + so3.cross(w, np.asarray(p))).ravel()
+
+
+class _Plane(ParamKind):
+    """A plane ``n . p = d``: the normal moves in its 2-dimensional tangent, the offset additively."""
+
+    name = "plane"
+
+    def coordinates(self, prefix, pl):
+        return [f"{prefix}.n_1", f"{prefix}.n_2", f"{prefix}.d"], ["rad", "rad", "m"]
+
+    def retract(self, pl, d):
+        return replace(pl, normal=pl.normal + pl.U @ d[:2], d=pl.d + d[2])
+
+    def recentre(self, pl):
+        return Plane.from_array(pl.as_array())
+
+    def displacement(self, pl, pl0):
+        n, d = pl.unit()
+        m = np.linalg.norm(pl.normal)
+        D = np.zeros((3, 3))
+        D[:2, :2] = pl0.U.T @ ((np.eye(3) - np.outer(n, n)) / m) @ pl.U
+        D[2, 2] = 1.0
+        return np.append(pl0.U.T @ (n - pl0.normal), d - pl0.d), D
+
+    def scale(self, pl):
+        return np.array([0.0, 0.0, pl.d])
+
+    def world_motion(self, pl, xi):
+        v, w = se3.split(xi)
+        n, _ = pl.unit()
+        return np.append(pl.U.T @ so3.cross(w, n), n @ v)
+
+    def from_raw(self, raw):
+        return raw if isinstance(raw, Plane) else Plane.from_array(raw)
+
+
+OFFSETS = _Offsets()
+TWISTS = _Twists()
+HOME, BASE, TOOL = _ArmPose("home", 2), _ArmPose("base", 3), _ArmPose("tool", 4)
+COMPLIANCE = _Compliance()
+ARM_KINDS = (OFFSETS, TWISTS, HOME, BASE, TOOL, COMPLIANCE)  # every arm's blocks, in this order
+POSE = _Pose()
+POINT = _Points(single=True)
+POINTS = _Points(single=False)
+PLANE = _Plane()
+FRAME_KINDS = {k.name: k for k in (POSE, POINT, POINTS, PLANE)}  # by the names experiment schemas use

@@ -1,0 +1,188 @@
+"""The parameter layout: every coordinate's stable name, unit, block and status (free, fixed, prior).
+
+Every coordinate is free, fixed, or free with a Gaussian prior on its displacement from the nominal state.
+Selections are names or globs (``right.j*.offset``); a glob that matches a block name selects the whole block
+(``clamp``, ``right.home``), and a glob matching a joint's 6 twist coordinates (``left.j2.xi.v_x``) selects that
+joint's twist, which is always estimated as a whole in its minimal parametrization.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from kincal.errors import ModelError
+from kincal.params.kinds import ARM_KINDS, COMPLIANCE, HOME, OFFSETS, POSE_COORDS, TWISTS, ParamKind
+from kincal.params.values import State
+
+LEVELS = ("offsets", "kinematic", "elastic")
+
+
+@dataclass(frozen=True)
+class Prior:
+    """Gaussian prior on a coordinate's displacement from nominal: ``(disp - mean) / sigma``."""
+
+    sigma: float
+    mean: float = 0.0
+
+
+@dataclass(frozen=True)
+class Block:
+    """A contiguous run of coordinates of one kind: an arm's part (``arm`` set) or a frame."""
+
+    name: str
+    kind: ParamKind
+    start: int
+    stop: int
+    arm: str | None = None  # arm blocks only
+
+    @property
+    def part(self) -> str | None:
+        """The arm part's name (offsets, twists, home, base, tool, compliance); None for frames."""
+        return self.kind.name if self.arm is not None else None
+
+    @property
+    def slice(self) -> slice:
+        return slice(self.start, self.stop)
+
+    def value(self, state: State):
+        """What the kind acts on: the arm's ``ArmValues`` for arm blocks, else the frame's value."""
+        return state.arms[self.arm] if self.arm is not None else state.extras[self.name]
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Every coordinate's name, block and status. ``free``, ``prior_mean``, ``prior_sigma`` are (p,) arrays."""
+
+    names: tuple[str, ...]
+    units: tuple[str, ...]  # "rad", "m", "rad/Nm", "m/N" per coordinate
+    blocks: tuple[Block, ...]
+    free: np.ndarray
+    prior_mean: np.ndarray
+    prior_sigma: np.ndarray  # inf where no prior
+    twist_joint: Mapping[str, tuple[int, ...]]  # "right.j3" -> coordinate indices of its tangent coordinates
+
+    @property
+    def size(self) -> int:
+        return len(self.names)
+
+    def index(self, name: str) -> int:
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise ModelError(f"no parameter named {name!r}") from None
+
+    def block(self, name: str) -> Block:
+        for b in self.blocks:
+            if b.name == name:
+                return b
+        raise ModelError(f"no parameter block named {name!r}")
+
+    def block_at(self, i: int) -> Block:
+        """The block holding coordinate ``i``."""
+        for b in self.blocks:
+            if b.start <= i < b.stop:
+                return b
+        raise IndexError(i)
+
+    @property
+    def free_names(self) -> list[str]:
+        return [n for n, f in zip(self.names, self.free) if f]
+
+
+def level_patterns(level: str, arms: Sequence[str]) -> list[str]:
+    """The patterns a one-word level stands for."""
+    if level == "offsets":
+        return [f"{a}.*.offset" for a in arms]
+    if level == "kinematic":
+        return [f"{a}.{k.name}" for a in arms for k in (OFFSETS, TWISTS, HOME)]
+    if level == "elastic":
+        return [f"{a}.{COMPLIANCE.name}" for a in arms]
+    raise ModelError(f"unknown level {level!r}; levels: {', '.join(LEVELS)} (or a list of names/globs)")
+
+
+def _blocks(state: State, arms: Sequence[str]):
+    """Blocks with their coordinate names and units: every arm kind of each arm, then every frame."""
+    names: list[str] = []
+    units: list[str] = []
+    blocks: list[Block] = []
+    twist_joint: dict[str, tuple[int, ...]] = {}
+    items = [(f"{arm}.{k.name}", k, arm, state.arms[arm]) for arm in arms for k in ARM_KINDS]
+    items += [(name, state.kinds[name], None, value) for name, value in state.extras.items()]
+    for bname, kind, arm, value in items:
+        cn, cu = kind.coordinates(arm if arm is not None else bname, value)
+        if kind is TWISTS:
+            for j in value.joint_names:
+                twist_joint[f"{arm}.{j}"] = tuple(len(names) + k for k, c in enumerate(cn)
+                                                  if c.startswith(f"{arm}.{j}.xi."))
+        blocks.append(Block(bname, kind, len(names), len(names) + len(cn), arm))
+        names += cn
+        units += cu
+    return names, units, blocks, twist_joint
+
+
+def build_layout(
+    state: State,
+    free: str | Sequence[str] = "offsets",
+    *,
+    fixed: Sequence[str] = (),
+    priors: Mapping[str, Prior] | None = None,
+    free_extras: Sequence[str] | None = None,
+    arms: Sequence[str] | None = None,
+) -> Layout:
+    """Coordinates of every arm in ``arms`` (default: all) and every frame in the state.
+
+    ``free``: a level word or names/globs. Frames listed in ``free_extras`` (default: all frames, i.e. the
+    unknowns of the experiments) are free too. ``fixed`` globs are removed afterwards. A coordinate with a
+    prior is free. Every pattern must match at least one coordinate.
+    """
+    arms = list(state.arms) if arms is None else list(arms)
+    names, units, blocks, twist_joint = _blocks(state, arms)
+    match = _Matcher(names, blocks, twist_joint)
+    mask = np.zeros(len(names), bool)
+    for pat in _patterns(free, arms):
+        mask |= match(pat, "free parameter", f" (e.g. {', '.join(names[:3])}, ...)")
+    for name in list(state.extras) if free_extras is None else list(free_extras):
+        mask[next(b for b in blocks if b.name == name).slice] = True
+    for pat in fixed:
+        mask &= ~match(pat, "fixed parameter")
+    mean, sigma = np.zeros(len(names)), np.full(len(names), np.inf)
+    for pat, prior in (priors or {}).items():
+        hit = match(pat, "prior")
+        if not (prior.sigma > 0 and np.isfinite(prior.sigma)):
+            raise ModelError(f"prior {pat!r}: sigma must be positive and finite, got {prior.sigma}")
+        mean[hit], sigma[hit] = prior.mean, prior.sigma
+        mask |= hit
+    return Layout(tuple(names), tuple(units), tuple(blocks), mask, mean, sigma, twist_joint)
+
+
+def _patterns(free, arms) -> list[str]:
+    if isinstance(free, str) and free not in LEVELS:
+        level_patterns(free, arms)  # raises: a bare string must be a level word
+    items = [free] if isinstance(free, str) else list(free)
+    return [p for it in items for p in (level_patterns(it, arms) if it in LEVELS else [it])]
+
+
+@dataclass(frozen=True)
+class _Matcher:
+    """Coordinates matched by a glob: by name, by block name, or by a joint's twist aliases."""
+
+    names: Sequence[str]
+    blocks: Sequence[Block]
+    twist_joint: Mapping[str, tuple[int, ...]]
+
+    def __call__(self, pattern: str, what: str, hint: str = "") -> np.ndarray:
+        hit = np.array([fnmatch.fnmatchcase(n, pattern) for n in self.names], bool)
+        for b in self.blocks:
+            if fnmatch.fnmatchcase(b.name, pattern):
+                hit[b.slice] = True
+        for joint, idx in self.twist_joint.items():
+            aliases = [f"{joint}.xi"] + [f"{joint}.xi.{c}" for c in POSE_COORDS]
+            if any(fnmatch.fnmatchcase(a, pattern) for a in aliases):
+                hit[list(idx)] = True
+        if not hit.any():
+            raise ModelError(f"{what} pattern {pattern!r} matches no parameter{hint}")
+        return hit

@@ -1,0 +1,86 @@
+"""Operations over a whole layout, each delegated block by block to the block's parameter kind."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kincal.params.kinds import ARM_KINDS, POSE_COORDS, TWISTS
+from kincal.params.layout import Layout
+from kincal.params.values import State
+
+
+def retract(state: State, layout: Layout, delta: np.ndarray) -> State:
+    """Values at local coordinates ``delta`` (p,) around ``state`` (tangent bases kept: see ``recentre``)."""
+    arms, extras = dict(state.arms), dict(state.extras)
+    for b in layout.blocks:
+        d = delta[b.slice]
+        if not np.any(d):
+            continue
+        if b.arm is not None:
+            arms[b.arm] = b.kind.retract(arms[b.arm], d)
+        else:
+            extras[b.name] = b.kind.retract(extras[b.name], d)
+    return state.replace(arms, extras)
+
+
+def recentre(state: State) -> State:
+    """The next linearization point: every kind re-centres its values (twists conformed, planes normalized,
+    tangent bases recomputed)."""
+    arms = {}
+    for name, a in state.arms.items():
+        for kind in ARM_KINDS:
+            a = kind.recentre(a)
+        arms[name] = a
+    extras = {k: state.kinds[k].recentre(v) for k, v in state.extras.items()}
+    return state.replace(arms, extras)
+
+
+def pose_retraction_jacobians(layout: Layout, delta: np.ndarray) -> dict[str, np.ndarray]:
+    """Per block stepped away from its linearization point whose retraction is not additive (poses of arms and
+    frames): the map from d(delta) to the kind's own increment there (``J_l(d)``: exact, not first order)."""
+    out = {}
+    for b in layout.blocks:
+        d = delta[b.slice]
+        J = b.kind.retraction_jacobian(d) if np.any(d) else None
+        if J is not None:
+            out[b.name] = J
+    return out
+
+
+def displacement(state: State, nominal: State, layout: Layout) -> tuple[np.ndarray, np.ndarray]:
+    """Local displacement of ``state`` from ``nominal`` (p,) and its derivative w.r.t. ``state``'s own local
+    coordinates (diagonal blocks, returned as a dense (p, p) matrix). Used for priors and reports."""
+    disp = np.zeros(layout.size)
+    D = np.zeros((layout.size, layout.size))
+    for b in layout.blocks:
+        disp[b.slice], D[b.slice, b.slice] = b.kind.displacement(b.value(state), b.value(nominal))
+    return disp, D
+
+
+def scale_direction(state: State, layout: Layout) -> np.ndarray:
+    """Local direction (p,) that scales every length (translations, twist moments, points, plane offsets)."""
+    s = np.zeros(layout.size)
+    for b in layout.blocks:
+        s[b.slice] = b.kind.scale(b.value(state))
+    return s
+
+
+def twist_coordinates(state: State, layout: Layout, cov: np.ndarray | None = None):
+    """Derived 6 twist coordinates per joint: (names, values, covariance or None), propagated through the bases."""
+    names, values, rows = [], [], []
+    for b in layout.blocks:
+        if b.kind is not TWISTS:
+            continue
+        a = state.arms[b.arm]
+        for j, name in enumerate(a.joint_names):
+            names += [f"{b.arm}.{name}.xi.{c}" for c in POSE_COORDS]
+            values.append(a.screws[j])
+        rows.append((b, a.basis))
+    if cov is None:
+        return names, np.concatenate(values) if values else np.zeros(0), None
+    Bfull = np.zeros((len(names), layout.size))
+    r = 0
+    for b, B in rows:
+        Bfull[r: r + B.shape[0], b.slice] = B
+        r += B.shape[0]
+    return names, np.concatenate(values), Bfull @ cov @ Bfull.T

@@ -1,0 +1,153 @@
+"""Parameter values: an arm's raw values with the tangent bases of its twists, planes, and the ``State``.
+
+Values live in a ``State``: arms by name, and the frames of experiments (fixture pose, tracker, markers, a
+plane, ...) by name with the parameter kind of each (``kincal.params.kinds``). Twists may sit slightly off the
+joint-screw manifold during an inner solve; ``recentre`` (``kincal.params.ops``) conforms them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Mapping
+
+import numpy as np
+
+from kincal.errors import ModelError
+from kincal.kinematics import ArmModel, Robot, conform_twists, tangent_basis, tangent_generators
+from kincal.lie import se3, so3
+
+
+@dataclass(frozen=True)
+class ArmValues:
+    """Raw values of one arm's parameters plus the tangent bases of its twists at the linearization point."""
+
+    screws: np.ndarray  # (n, 6)
+    offsets: np.ndarray  # (n,)
+    base: np.ndarray  # (4, 4) T_world_base
+    home: np.ndarray  # (4, 4) T_base_flange(0)
+    tool: np.ndarray  # (4, 4) T_flange_tool
+    bases: tuple  # per joint (6, k_i): d screw / d tangent coordinates at the current values
+    joint_names: tuple
+    joint_types: tuple
+    generators: tuple = ()  # per joint (6, k_i): Ad(exp(G d)) retraction generators at the linearization point
+    compliance: np.ndarray | None = None  # (n,) rad/(N m) or m/N; None: zeros
+
+    @property
+    def dof(self) -> int:
+        return self.screws.shape[0]
+
+    @property
+    def joint_compliance(self) -> np.ndarray:
+        """(n,) compliances (zeros when none are set)."""
+        return np.zeros(self.dof) if self.compliance is None else self.compliance
+
+    @property
+    def basis(self) -> np.ndarray:
+        """Block-diagonal (6n, t) map from all tangent coordinates to the stacked twist coordinates."""
+        t = sum(b.shape[1] for b in self.bases)
+        out = np.zeros((6 * self.dof, t))
+        c = 0
+        for i, b in enumerate(self.bases):
+            out[6 * i: 6 * i + 6, c: c + b.shape[1]] = b
+            c += b.shape[1]
+        return out
+
+    @staticmethod
+    def from_model(model: ArmModel) -> "ArmValues":
+        return ArmValues(
+            np.array(model.screws), np.array(model.offsets), np.array(model.base), np.array(model.home),
+            np.array(model.tool), bases(model.screws, model.joint_types), model.joint_names, model.joint_types,
+            generators(model.screws, model.joint_types), np.array(model.compliance),
+        )
+
+
+def bases(screws, types) -> tuple:
+    return tuple(tangent_basis(s, t) for s, t in zip(screws, types))
+
+
+def generators(screws, types) -> tuple:
+    return tuple(tangent_generators(s, t) for s, t in zip(screws, types))
+
+
+def retract_twists(a: ArmValues, d: np.ndarray) -> ArmValues:
+    """Exact retraction of the joint screws: xi_j = Ad(exp(G_j d_j)) xi_j, which stays a valid joint screw,
+    with the basis at d: d xi_j = -ad(xi_j) J_l(G_j d_j) G_j dd_j."""
+    screws, bs, gens, c = a.screws.copy(), [], [], 0
+    for j, G in enumerate(a.generators):
+        g = G @ d[c: c + G.shape[1]]
+        c += G.shape[1]
+        screws[j] = se3.adjoint(se3.exp(g)) @ a.screws[j]
+        gens.append(se3.left_jacobian(g) @ G)  # retracting again from here keeps basis == -ad(xi) G
+        bs.append(-se3.ad(screws[j]) @ gens[-1])
+    return replace(a, screws=screws, bases=tuple(bs), generators=tuple(gens))
+
+
+@dataclass(frozen=True)
+class Plane:
+    """A plane ``n . p = d``; ``normal`` may be unnormalized inside an inner solve, ``U`` spans its tangent."""
+
+    normal: np.ndarray  # (3,)
+    d: float
+    U: np.ndarray  # (3, 2)
+
+    @staticmethod
+    def from_array(a) -> "Plane":
+        a = np.asarray(a, dtype=float)
+        n = a[:3] / np.linalg.norm(a[:3])
+        return Plane(n, float(a[3] / np.linalg.norm(a[:3])), _perp(n))
+
+    def unit(self) -> tuple[np.ndarray, float]:
+        return self.normal / np.linalg.norm(self.normal), self.d
+
+    def as_array(self) -> np.ndarray:
+        n, d = self.unit()
+        return np.append(n, d)
+
+
+def _perp(n: np.ndarray) -> np.ndarray:
+    a = np.eye(3)[np.argmin(np.abs(n))]
+    u1 = so3.cross(n, a)
+    u1 /= np.linalg.norm(u1)
+    return np.stack([u1, so3.cross(n, u1)], axis=-1)
+
+
+@dataclass(frozen=True)
+class State:
+    """All parameter values: arms by name, experiment frames (``extras``) by name, and each frame's
+    parameter kind (``kinds``, name -> ``kincal.params.kinds.ParamKind``)."""
+
+    arms: Mapping[str, ArmValues]
+    extras: Mapping[str, object] = field(default_factory=dict)
+    kinds: Mapping[str, object] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        missing = [k for k in self.extras if k not in self.kinds]
+        if missing:
+            raise ModelError(f"frame(s) {', '.join(map(repr, missing))} have no parameter kind")
+
+    @staticmethod
+    def from_robot(robot: Robot, extras: Mapping[str, object] | None = None,
+                   kinds: Mapping[str, object] | None = None) -> "State":
+        return State({k: ArmValues.from_model(m) for k, m in robot.arms.items()}, dict(extras or {}),
+                     dict(kinds or {}))
+
+    def replace(self, arms: Mapping[str, ArmValues] | None = None, extras: Mapping[str, object] | None = None,
+                kinds: Mapping[str, object] | None = None) -> "State":
+        """A new state with ``arms`` and/or ``extras`` (and their ``kinds``) replaced."""
+        return State(dict(self.arms if arms is None else arms), dict(self.extras if extras is None else extras),
+                     {**self.kinds, **(kinds or {})})
+
+    def to_robot(self, robot: Robot) -> Robot:
+        """The calibrated Robot: ``robot`` with this state's (conformed) values."""
+        arms = {}
+        for key, model in robot.arms.items():
+            if key not in self.arms:  # an arm no experiment involves stays as it was
+                arms[key] = model
+                continue
+            a = self.arms[key]
+            screws = conform_twists(a.screws, a.joint_types)
+            arms[key] = model.replace(  # a compliance estimated below 0 (noise) is held at 0 in the model
+                screws=screws, offsets=a.offsets, base=a.base, home=a.home, tool=a.tool,
+                compliance=np.maximum(a.joint_compliance, 0.0),
+            )
+        return Robot(robot.name, arms, dict(robot.meta))
