@@ -8,7 +8,7 @@ from kincal import robots
 from kincal.errors import DataFormatError
 from kincal.io import load_robot
 from kincal.kinematics import forward_kinematics
-from kincal.kinematics.urdf import to_urdf
+from kincal.io.urdf import to_urdf
 from reference_dh import dh_fk
 
 pin = pytest.importorskip("pinocchio")

@@ -14,8 +14,15 @@ from rich.console import Console
 from rich.table import Table
 
 from kincal.errors import DataFormatError
-from kincal.io.jobs import load_job, run_job
+from kincal.estimation import evaluate
+from kincal.io.datasets import load_scenario, write_simulation
+from kincal.io.jobs import load_job
+from kincal.io.models import save_robot
 from kincal.io.results import prediction_rows, result_to_dict, write_results
+from kincal.report import write_plots
+from kincal.simulate.perturb import perturbation
+from kincal.simulate.scenario import run
+from kincal.workflow import run_job
 
 DEG = 180.0 / math.pi
 DEMO_SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "frida_dual_bracket.yaml"
@@ -126,8 +133,6 @@ def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool)
     paths = write_results(result, out)
     figures = []
     if plots:
-        from kincal.report import write_plots
-
         figures = write_plots(result, j.datasets, out / "plots")
     if as_json:
         click.echo(json.dumps(result_to_dict(result)))
@@ -141,9 +146,6 @@ def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool)
 
 def _write_thesis(res, job, out: Path, console, quiet, as_json) -> None:
     """Write and print a thesis baseline's result, validated on the job's held-out sets like kincal's."""
-    from kincal.estimation import evaluate
-    from kincal.io.models import save_robot
-
     robot = job.robot
     for arm, model in res.models.items():
         robot = robot.replace_arm(arm, model)
@@ -214,10 +216,6 @@ def demo_cmd(out: Path | None, samples: int, quiet: bool, as_json: bool) -> None
     Writes the simulated data (data.yaml, truth/, validation/), a job file (job.yaml) that re-runs the
     calibration with ``kincal calibrate``, and the results (model.yaml, result.yaml).
     """
-    from kincal.io.datasets import load_scenario, write_simulation
-    from kincal.simulate.perturb import perturbation
-    from kincal.simulate.scenario import run
-
     console = _console()
     say = (lambda msg: None) if (quiet or as_json) else (lambda msg: console.print(msg))
     out = _free_directory(Path("kincal-demo-out")) if out is None else out
