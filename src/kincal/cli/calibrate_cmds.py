@@ -16,7 +16,7 @@ from rich.table import Table
 from kincal.errors import DataFormatError
 from kincal.estimation import evaluate
 from kincal.io.datasets import load_scenario, write_simulation
-from kincal.io.jobs import load_job
+from kincal.io.jobs import load_job, write_job
 from kincal.io.models import save_robot
 from kincal.io.results import prediction_rows, result_to_dict, write_results
 from kincal.report import write_plots
@@ -228,11 +228,8 @@ def demo_cmd(out: Path | None, samples: int, quiet: bool, as_json: bool) -> None
     say(f"simulating {samples} configurations of Frida's clamped arms (true robot: joint offsets up to 0.07 rad) ...")
     true, ds, truth, validation = run(scenario)
     write_simulation(out, ds, truth, validation, scenario.robot, model=scenario.model)
-    job = {"format": "kincal-job", "version": 1, "name": "frida-dual-offsets", "model": scenario.model,
-           "data": [{"manifest": "data.yaml"}], "validation": [{"manifest": f"validation/{a}.yaml"} for a in validation],
-           "free": "offsets"}
-    with open(out / "job.yaml", "x", encoding="utf-8") as fh:
-        yaml.safe_dump(job, fh, sort_keys=False)
+    write_job(out / "job.yaml", name="frida-dual-offsets", model=scenario.model, data=["data.yaml"],
+              validation=[f"validation/{a}.yaml" for a in validation], free="offsets")
     say(f"calibrating joint offsets of both arms (job {out / 'job.yaml'}) ...")
     j = load_job(out / "job.yaml")
     result = run_job(j, _progress(console, quiet or as_json))

@@ -13,6 +13,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping
 
+import yaml
+
 from kincal.data import Dataset, frames_problem
 from kincal.errors import DataFormatError
 from kincal.estimation import FrameDistance
@@ -101,6 +103,20 @@ def load_job(path) -> Job:
     constraints = tuple(_constraint(f"{f}: constraints[{i}]", c) for i, c in enumerate(constraints))
     return Job(path, str(top.get("name", path.stem)), robot, datasets, validation, free, fixed, priors, noise, gauge,
                method, options, constraints)
+
+
+def write_job(path, *, name: str, model: str, data, validation=(), free: str | list[str] = "offsets") -> Path:
+    """Write a minimal job file (manifest paths relative to it); refuses to replace an existing file."""
+    path = Path(path)
+    job = {"format": "kincal-job", "version": 1, "name": name, "model": model,
+           "data": [{"manifest": str(m)} for m in data], "validation": [{"manifest": str(m)} for m in validation],
+           "free": free}
+    try:
+        with open(path, "x", encoding="utf-8") as fh:
+            yaml.safe_dump(job, fh, sort_keys=False)
+    except FileExistsError:
+        raise DataFormatError(f"{path}: file exists; not overwritten (choose another output directory)") from None
+    return path
 
 
 def _constraint(where, spec):
