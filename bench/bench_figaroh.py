@@ -41,7 +41,7 @@ import yaml  # noqa: E402
 from kincal.estimation import Noise as StatedNoise  # noqa: E402
 from kincal.estimation import calibrate  # noqa: E402
 from kincal.kinematics import ArmModel, forward_kinematics  # noqa: E402
-from kincal.kinematics.urdf import to_urdf  # noqa: E402
+from kincal.io.urdf import to_urdf  # noqa: E402
 from kincal.lie import se3  # noqa: E402
 from kincal.robots import load  # noqa: E402
 from kincal.simulate import Noise, generate_markers, perturb_robot, random_configurations  # noqa: E402

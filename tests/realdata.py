@@ -18,7 +18,7 @@ from kincal.data import Dataset
 from kincal.estimation.problem import Noise
 from kincal.kinematics import ArmModel, Robot
 from kincal.kinematics.dh import from_dh
-from kincal.kinematics.urdf import from_urdf
+from kincal.io.urdf import from_urdf
 from kincal.lie import se3
 
 DATASETS = Path(__file__).resolve().parents[2] / "shared" / "datasets"

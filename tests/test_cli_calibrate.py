@@ -1,10 +1,19 @@
 """``kincal demo`` and ``kincal calibrate``: end to end, JSON output, never overwriting."""
 
 import json
+import sys
 
+import pytest
 import yaml
 
 from kincal.cli import main
+from kincal.errors import DataFormatError, KincalError
+from kincal.estimation import calibrate
+from kincal.io.jobs import write_job
+from kincal.report import plots
+from kincal.report.plots import per_sample_errors
+from kincal.robots import load
+from kincal.simulate import generate_dual
 
 
 def test_demo_then_calibrate_its_job(tmp_path, capsys):
@@ -66,8 +75,6 @@ def test_thesis_method_from_a_job_is_validated_like_kincal(tmp_path, capsys):
 def test_calibrate_writes_plots(tmp_path):
     """--plots: residuals, identifiability, uncertainty and prediction PNGs next to the results; a second run
     into the same directory does not replace them."""
-    from kincal.cli import main
-
     assert main(["demo", "-o", str(tmp_path / "demo"), "-n", "40", "--quiet"]) == 0
     out = tmp_path / "out"
     assert main(["calibrate", str(tmp_path / "demo" / "job.yaml"), "-o", str(out), "--plots", "--quiet"]) == 0
@@ -83,11 +90,6 @@ def test_calibrate_writes_plots(tmp_path):
 
 def test_plots_report_per_sample_errors_before_and_after(tmp_path):
     """The residual plot's numbers: per-sample position errors at the nominal model and at the result."""
-    from kincal.report.plots import per_sample_errors
-    from kincal.robots import load
-    from kincal.estimation import calibrate
-    from kincal.simulate import generate_dual
-
     frida = load("frida")
     true = frida
     for a in ("left", "right"):  # offsets only, which the calibration frees
@@ -100,13 +102,17 @@ def test_plots_report_per_sample_errors_before_and_after(tmp_path):
 
 
 def test_plots_without_matplotlib_say_what_to_install(monkeypatch, tmp_path):
-    import sys
-
-    import pytest
-
-    from kincal.errors import KincalError
-    from kincal.report import plots
-
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # as if not installed
     with pytest.raises(KincalError, match=r'pip install "kincal\[plot\]"'):
         plots.write_plots(None, [], tmp_path / "p")
+
+
+def test_write_job_writes_what_load_job_reads_and_never_overwrites(tmp_path):
+    path = write_job(tmp_path / "job.yaml", name="j", model="frida", data=["data.yaml"],
+                     validation=["validation/left.yaml"], free=["offsets", "clamp"])
+    assert yaml.safe_load(path.read_text()) == {
+        "format": "kincal-job", "version": 1, "name": "j", "model": "frida", "data": [{"manifest": "data.yaml"}],
+        "validation": [{"manifest": "validation/left.yaml"}], "free": ["offsets", "clamp"]}
+    with pytest.raises(DataFormatError, match="job.yaml: file exists; not overwritten"):
+        write_job(path, name="k", model="ur10", data=["other.yaml"])
+    assert yaml.safe_load(path.read_text())["name"] == "j"

@@ -9,7 +9,7 @@ from click.testing import CliRunner
 from kincal import robots
 from kincal.cli import cli, main
 from kincal.io import save_robot
-from kincal.io.rotations import rpy_to_matrix
+from kincal.lie.rotations import rpy_to_matrix
 from kincal.kinematics import forward_kinematics
 
 

@@ -10,7 +10,7 @@ from kincal import robots
 from kincal.errors import DataFormatError, ModelError, ShapeError
 from kincal.kinematics import forward_kinematics
 from kincal.kinematics.dh import from_dh
-from kincal.kinematics.urdf import from_urdf, to_urdf
+from kincal.io.urdf import from_urdf, to_urdf
 from kincal.testing import random_arm
 
 from reference_dh import dh_fk, tr

@@ -6,10 +6,11 @@ import yaml
 
 from kincal.errors import DataFormatError
 from kincal.io.datasets import write_dataset
-from kincal.io.jobs import load_job, run_job
+from kincal.io.jobs import load_job
 from kincal.robots import load
 from kincal.simulate.generators import generate_clamp
 from kincal.simulate.perturb import perturb_robot
+from kincal.workflow import run_job
 
 
 @pytest.fixture(scope="module")

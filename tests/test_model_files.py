@@ -12,6 +12,7 @@ from kincal import robots
 from kincal.errors import DataFormatError
 from kincal.io import dump_robot, load_robot, parse_robot, save_robot
 from kincal.kinematics import ArmModel, Robot, forward_kinematics
+from kincal.lie.rotations import matrix_to_quat_wxyz, matrix_to_rpy, quat_wxyz_to_matrix, rpy_to_matrix
 from kincal.testing import random_arm
 
 GOOD = textwrap.dedent(
@@ -185,8 +186,6 @@ def test_docs_example_parses():
 
 
 def test_rotation_helpers_match_scipy_including_gimbal_lock_and_pi():
-    from kincal.io.rotations import matrix_to_quat_wxyz, matrix_to_rpy, quat_wxyz_to_matrix, rpy_to_matrix
-
     R = Rotation.random(500, random_state=7)
     M = R.as_matrix()
     special = Rotation.from_euler("xyz", [[0.3, np.pi / 2, 0.5], [0.3, -np.pi / 2, 0.5], [np.pi, 0, 0],

@@ -1,14 +1,17 @@
 """Built-in robots: golden values from the seeds and FK against independent implementations (1e-12 m / rad)."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from kincal import robots
 from kincal.errors import DataFormatError
-from kincal.io import load_robot
+from kincal.io import builtin_names, load_robot
+from kincal.io.urdf import to_urdf
 from kincal.kinematics import forward_kinematics
-from kincal.kinematics.urdf import to_urdf
 from reference_dh import dh_fk
 
 pin = pytest.importorskip("pinocchio")
@@ -67,6 +70,16 @@ def test_builtin_names_and_loading_by_name_or_path(tmp_path):
         load_robot("yumi")
     with pytest.raises(DataFormatError, match="unknown built-in robot"):
         robots.load("nope")
+
+
+def test_io_resolves_builtin_names_without_the_robots_catalogue():
+    """io sits below robots: reading a built-in model never imports kincal.robots (no cycle)."""
+    assert builtin_names() == robots.names()
+    code = ("import sys; from kincal.io import load_robot; r = load_robot('frida'); "
+            "assert 'kincal.robots' not in sys.modules, 'io imported robots'; print(sorted(r.arms))")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip() == "['left', 'right']"
 
 
 # -------------------------------------------------------------------------------------- Frida golden

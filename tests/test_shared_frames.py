@@ -11,13 +11,14 @@ from kincal.errors import DataFormatError, ShapeError
 from kincal.estimation import calibrate, evaluate
 from kincal.experiments import build
 from kincal.io.datasets import load_dataset, write_dataset
-from kincal.io.jobs import load_job, run_job
+from kincal.io.jobs import load_job
 from kincal.kinematics import Robot, forward_kinematics
 from kincal.lie import se3
 from kincal.params import State
 from kincal.robots import load
 from kincal.simulate import generate_markers, perturb_robot, random_configurations
 from kincal.simulate.generators import generate_dual, random_tracker_pose
+from kincal.workflow import run_job
 
 EXACT = 1e-9
 FAST = {"n_seeds": 32, "n_steps": 40}

@@ -2,20 +2,13 @@
 
 from __future__ import annotations
 
-import importlib
 import sys
 
 import click
 
 from kincal import __version__
+from kincal.cli import calibrate_cmds, model_cmds, simulate_cmds
 from kincal.errors import KincalError
-
-# Sub-command modules; each defines ``register(group)``.
-_COMMAND_MODULES = (
-    "kincal.cli.model_cmds",
-    "kincal.cli.simulate_cmds",
-    "kincal.cli.calibrate_cmds",
-)
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -24,12 +17,8 @@ def cli() -> None:
     """kincal: kinematic calibration of robot arms."""
 
 
-for _name in _COMMAND_MODULES:
-    try:
-        importlib.import_module(_name).register(cli)
-    except ModuleNotFoundError as exc:  # a sub-command still being written
-        if exc.name != _name:
-            raise
+for _module in (model_cmds, simulate_cmds, calibrate_cmds):  # each defines ``register(group)``
+    _module.register(cli)
 
 
 def main(argv=None) -> int:

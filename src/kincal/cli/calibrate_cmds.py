@@ -14,8 +14,15 @@ from rich.console import Console
 from rich.table import Table
 
 from kincal.errors import DataFormatError
-from kincal.io.jobs import load_job, run_job
+from kincal.estimation import evaluate
+from kincal.io.datasets import load_scenario, write_simulation
+from kincal.io.jobs import load_job, write_job
+from kincal.io.models import save_robot
 from kincal.io.results import prediction_rows, result_to_dict, write_results
+from kincal.report import write_plots
+from kincal.simulate.perturb import perturbation
+from kincal.simulate.scenario import run
+from kincal.workflow import run_job
 
 DEG = 180.0 / math.pi
 DEMO_SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "frida_dual_bracket.yaml"
@@ -126,8 +133,6 @@ def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool)
     paths = write_results(result, out)
     figures = []
     if plots:
-        from kincal.report import write_plots
-
         figures = write_plots(result, j.datasets, out / "plots")
     if as_json:
         click.echo(json.dumps(result_to_dict(result)))
@@ -141,9 +146,6 @@ def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool)
 
 def _write_thesis(res, job, out: Path, console, quiet, as_json) -> None:
     """Write and print a thesis baseline's result, validated on the job's held-out sets like kincal's."""
-    from kincal.estimation import evaluate
-    from kincal.io.models import save_robot
-
     robot = job.robot
     for arm, model in res.models.items():
         robot = robot.replace_arm(arm, model)
@@ -214,10 +216,6 @@ def demo_cmd(out: Path | None, samples: int, quiet: bool, as_json: bool) -> None
     Writes the simulated data (data.yaml, truth/, validation/), a job file (job.yaml) that re-runs the
     calibration with ``kincal calibrate``, and the results (model.yaml, result.yaml).
     """
-    from kincal.io.datasets import load_scenario, write_simulation
-    from kincal.simulate.perturb import perturbation
-    from kincal.simulate.scenario import run
-
     console = _console()
     say = (lambda msg: None) if (quiet or as_json) else (lambda msg: console.print(msg))
     out = _free_directory(Path("kincal-demo-out")) if out is None else out
@@ -230,11 +228,8 @@ def demo_cmd(out: Path | None, samples: int, quiet: bool, as_json: bool) -> None
     say(f"simulating {samples} configurations of Frida's clamped arms (true robot: joint offsets up to 0.07 rad) ...")
     true, ds, truth, validation = run(scenario)
     write_simulation(out, ds, truth, validation, scenario.robot, model=scenario.model)
-    job = {"format": "kincal-job", "version": 1, "name": "frida-dual-offsets", "model": scenario.model,
-           "data": [{"manifest": "data.yaml"}], "validation": [{"manifest": f"validation/{a}.yaml"} for a in validation],
-           "free": "offsets"}
-    with open(out / "job.yaml", "x", encoding="utf-8") as fh:
-        yaml.safe_dump(job, fh, sort_keys=False)
+    write_job(out / "job.yaml", name="frida-dual-offsets", model=scenario.model, data=["data.yaml"],
+              validation=[f"validation/{a}.yaml" for a in validation], free="offsets")
     say(f"calibrating joint offsets of both arms (job {out / 'job.yaml'}) ...")
     j = load_job(out / "job.yaml")
     result = run_job(j, _progress(console, quiet or as_json))

@@ -13,7 +13,7 @@ from rich.table import Table
 
 from kincal.errors import ShapeError
 from kincal.io.models import load_robot, select_arm
-from kincal.io.rotations import matrix_to_quat_wxyz, matrix_to_rpy
+from kincal.lie.rotations import matrix_to_quat_wxyz, matrix_to_rpy
 from kincal.kinematics import forward_kinematics
 from kincal.kinematics.model import REVOLUTE, ArmModel
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -10,6 +11,11 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from kincal.errors import DataFormatError
+from kincal.io.datasets import load_scenario, write_simulation
+from kincal.io.logs import EXTCTRL_PERIOD_S, convert_log as convert, write_joint_csv
+from kincal.io.models import load_robot
+from kincal.simulate.generators import dataset_spread
+from kincal.simulate.scenario import run
 
 
 def register(group: click.Group) -> None:
@@ -26,12 +32,6 @@ def register(group: click.Group) -> None:
 @click.option("--quiet", is_flag=True, help="No progress bar or summary.")
 def simulate(scenario: str, output: Path, seed: int | None, overwrite: bool, quiet: bool) -> None:
     """Simulate the experiment of SCENARIO.yaml (examples: kincal/scenarios/*.yaml)."""
-    from dataclasses import replace
-
-    from kincal.io.datasets import load_scenario, write_simulation
-    from kincal.simulate.generators import dataset_spread
-    from kincal.simulate.scenario import run
-
     sc = load_scenario(scenario)
     if not overwrite and (output / "data.yaml").exists():
         raise DataFormatError(f"{output / 'data.yaml'}: exists; refusing to overwrite it (pass --overwrite)")
@@ -91,9 +91,6 @@ def simulate(scenario: str, output: Path, seed: int | None, overwrite: bool, qui
 def convert_log(log: Path, model: str, arms: tuple[str, ...], output: Path, every: int, still_rad_s: float | None,
                 window: int, per_stop: bool, no_header: bool, period_s: float | None, overwrite: bool) -> None:
     """Convert a controller LOG in motor radians (controller joint order) to arm radians in model order."""
-    from kincal.io.logs import EXTCTRL_PERIOD_S, convert_log as convert, write_joint_csv
-    from kincal.io.models import load_robot
-
     if output.resolve() == log.resolve():
         raise DataFormatError(f"{output}: is the input log; choose another output file")
     robot = load_robot(model)

@@ -33,10 +33,10 @@ from kincal.data import KINDS, Dataset, frames_problem
 from kincal.errors import DataFormatError, KincalError
 from kincal.io import units
 from kincal.io.models import _Ctx, _mapping, _matrix, _number, _pose, _vector, load_robot, save_robot
-from kincal.io.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix
 from kincal.io.yamlfile import read_yaml
 from kincal.kinematics import PRISMATIC, Robot
 from kincal.lie import se3
+from kincal.lie.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix
 
 FORMAT = "kincal-dataset"
 VERSION = 1

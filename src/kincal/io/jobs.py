@@ -1,5 +1,7 @@
 """Calibration job files (YAML, ``format: kincal-job``) <-> ``Job``; see docs/job-format.md.
 
+Reading only: ``kincal.workflow.run_job`` runs a Job.
+
 Paths in a job are relative to the job file. Units appear only here, in suffixed keys
 (``sigma_deg``, ``position_mm``); everything is converted to SI on reading.
 """
@@ -11,9 +13,11 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping
 
+import yaml
 
 from kincal.data import Dataset, frames_problem
 from kincal.errors import DataFormatError
+from kincal.estimation import FrameDistance
 from kincal.noise import DEFAULT as DEFAULT_NOISE, Noise
 from kincal.io import units
 from kincal.io.datasets import load_dataset
@@ -101,10 +105,22 @@ def load_job(path) -> Job:
                method, options, constraints)
 
 
+def write_job(path, *, name: str, model: str, data, validation=(), free: str | list[str] = "offsets") -> Path:
+    """Write a minimal job file (manifest paths relative to it); refuses to replace an existing file."""
+    path = Path(path)
+    job = {"format": "kincal-job", "version": 1, "name": name, "model": model,
+           "data": [{"manifest": str(m)} for m in data], "validation": [{"manifest": str(m)} for m in validation],
+           "free": free}
+    try:
+        with open(path, "x", encoding="utf-8") as fh:
+            yaml.safe_dump(job, fh, sort_keys=False)
+    except FileExistsError:
+        raise DataFormatError(f"{path}: file exists; not overwritten (choose another output directory)") from None
+    return path
+
+
 def _constraint(where, spec):
     """``{distance: [frame_a, frame_b], value_<unit>: d, sigma_<unit>: s}`` -> FrameDistance (SI)."""
-    from kincal.estimation import FrameDistance
-
     if not isinstance(spec, dict) or "distance" not in spec:
         raise DataFormatError(f"{where}: expected {{distance: [frame_a, frame_b], value_mm: ..., sigma_mm: ...}}, "
                               f"found {spec!r}")
@@ -183,30 +199,3 @@ def _prior(f, name, spec) -> Prior:
     if out["sigma"] <= 0:
         raise DataFormatError(f"{where}: sigma must be positive, found {spec}")
     return Prior(out["sigma"], out.get("mean", 0.0))
-
-
-def run_job(job: Job, progress=None):
-    """Run the job's solver: kincal's (a ``Result``) or the thesis baseline (a ``BaselineResult``)."""
-    if job.method == "thesis":
-        return _thesis(job)
-    from kincal.estimation import calibrate
-
-    return calibrate(job.robot, job.datasets, job.free, fixed=job.fixed, priors=job.priors, noise=job.noise,
-                     gauge=job.gauge, validation=job.validation, constraints=job.constraints, progress=progress,
-                     **job.options)
-
-
-def _thesis(job: Job):
-    from kincal.baselines import thesis
-
-    if len(job.datasets) != 1:
-        raise DataFormatError(f"{job.path}: solver.method 'thesis' takes exactly one data set, found {len(job.datasets)}")
-    ds = job.datasets[0]
-    level = job.free if isinstance(job.free, str) else None
-    method = {"clamp": "single_offsets", "plate": "several_points"}.get(ds.kind)
-    if ds.kind == "dual":
-        method = "dual_kinematic" if level == "kinematic" else "dual_offsets"
-    if method is None:
-        raise DataFormatError(f"{job.path}: the thesis has no method for '{ds.kind}' data sets "
-                              "(clamp, plate and dual only)")
-    return thesis.run(method, ds, job.robot)

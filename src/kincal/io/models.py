@@ -4,7 +4,8 @@ The format is documented in docs/model-format.md. Files are read with ``yaml.saf
 field by field; every error is a DataFormatError naming the file and the field path
 (``arms.left.joints[3].axis``), what was expected and what was found.
 
-``load_robot`` accepts a file path or the name of a built-in robot (``kincal.robots.names()``).
+``load_robot`` accepts a file path or the name of a built-in robot (``builtin_names()``, the model files shipped
+in ``kincal/io/builtin_robots``; ``kincal.robots`` is the user-facing catalogue over them).
 ``save_robot`` writes SI units (m, rad), joints as twists and poses as matrices, with shortest
 round-trip float text, so ``load_robot(save_robot(x)) == x`` exactly.
 """
@@ -12,6 +13,7 @@ round-trip float text, so ``load_robot(save_robot(x)) == x`` exactly.
 from __future__ import annotations
 
 import math
+from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -20,7 +22,7 @@ import yaml
 
 from kincal.errors import DataFormatError, KincalError, ModelError
 from kincal.io import units
-from kincal.io.rotations import quat_wxyz_to_matrix, rpy_to_matrix
+from kincal.lie.rotations import quat_wxyz_to_matrix, rpy_to_matrix
 from kincal.io.yamlfile import parse_yaml, read_text
 from kincal.kinematics.model import PRISMATIC, REVOLUTE, ArmModel, Robot
 from kincal.lie import se3, so3
@@ -29,6 +31,7 @@ FORMAT = "kincal-model"
 VERSION = 1
 ROTATION_TOL = 1e-6  # published matrices are rounded; larger errors need `orthonormalize: true`
 AXIS_TOL = 1e-6
+_BUILTIN = resources.files(__package__) / "builtin_robots"
 TWIST_TOL = 1e-9  # twists are what save_robot writes: they must already be exact joint screws
 
 _TOP_KEYS = {"format", "version", "name", "units", "meta", "arms"}
@@ -53,20 +56,30 @@ class _Ctx:
 
 
 def load_robot(source) -> Robot:
-    """A Robot from a model file path or a built-in robot name (see ``kincal.robots.names()``)."""
+    """A Robot from a model file path or a built-in robot name (see ``builtin_names()``)."""
     if isinstance(source, Robot):
         return source
     path = Path(source)
     if path.is_file():
         return read_robot(path)
-    from kincal import robots
-
-    if str(source) in robots.names():
-        return robots.load(str(source))
+    if str(source) in builtin_names():
+        return load_builtin(str(source))
     raise DataFormatError(
         f"{source}: no such model file and no built-in robot of that name "
-        f"(built-in robots: {', '.join(robots.names())})"
+        f"(built-in robots: {', '.join(builtin_names())})"
     )
+
+
+def builtin_names() -> list[str]:
+    """Names of the built-in robots (the model files in ``kincal/io/builtin_robots``), sorted."""
+    return sorted(f.name[: -len(".yaml")] for f in _BUILTIN.iterdir() if f.name.endswith(".yaml"))
+
+
+def load_builtin(name: str) -> Robot:
+    """The built-in robot ``name`` (e.g. ``"frida"``); DataFormatError lists the names if unknown."""
+    if name not in builtin_names():
+        raise DataFormatError(f"unknown built-in robot {name!r}; built-in robots: {', '.join(builtin_names())}")
+    return parse_robot((_BUILTIN / f"{name}.yaml").read_text(encoding="utf-8"), f"{name}.yaml (built-in)")
 
 
 def read_robot(path) -> Robot:

@@ -1,5 +1,6 @@
-"""Lie groups SO(3) and SE(3), numpy only, batch-first. See docs/conventions.md."""
+"""Lie groups SO(3) and SE(3), and the rpy/quaternion parametrizations; numpy only, batch-first.
+See docs/conventions.md."""
 
-from kincal.lie import se3, so3
+from kincal.lie import rotations, se3, so3
 
-__all__ = ["se3", "so3"]
+__all__ = ["rotations", "se3", "so3"]

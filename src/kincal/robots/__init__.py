@@ -1,23 +1,20 @@
-"""Built-in robot models, shipped as model files (``robots/*.yaml``, format in docs/model-format.md)."""
+"""Built-in robots by name: the catalogue of the model files kincal ships (format in docs/model-format.md).
+
+The files live with the reader, ``kincal/io/builtin_robots/*.yaml``, so that ``kincal.io.load_robot("frida")``
+and every file that says ``model: frida`` resolve built-in names without importing this package.
+"""
 
 from __future__ import annotations
 
-from importlib import resources
-
+from kincal.io.models import builtin_names, load_builtin
 from kincal.kinematics.model import Robot
 
 
 def names() -> list[str]:
     """Names of the built-in robots, sorted."""
-    return sorted(f.name[:-5] for f in resources.files(__name__).iterdir() if f.name.endswith(".yaml"))
+    return builtin_names()
 
 
 def load(name: str) -> Robot:
     """The built-in robot ``name`` (e.g. ``"frida"``); DataFormatError lists the names if unknown."""
-    from kincal.errors import DataFormatError
-    from kincal.io.models import parse_robot
-
-    if name not in names():
-        raise DataFormatError(f"unknown built-in robot {name!r}; built-in robots: {', '.join(names())}")
-    res = resources.files(__name__) / f"{name}.yaml"
-    return parse_robot(res.read_text(encoding="utf-8"), f"{name}.yaml (built-in)")
+    return load_builtin(name)

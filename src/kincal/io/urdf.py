@@ -1,4 +1,4 @@
-"""URDF <-> POE: import a chain base_link -> tip_link as an ArmModel (via yourdfpy), export an ArmModel.
+"""URDF files <-> POE: read a chain base_link -> tip_link as an ArmModel (via yourdfpy), write an ArmModel as URDF.
 
 Import: the joint frames are composed at q = 0 along the chain (fixed joints fold into the next
 transform). Joint i with URDF origin ``O_i`` and unit axis ``a_i`` (in its own frame) sits at
@@ -23,12 +23,13 @@ import numpy as np
 from kincal.errors import DataFormatError, ModelError
 from kincal.kinematics.model import PRISMATIC, REVOLUTE, ArmModel
 from kincal.lie import se3
+from kincal.lie.rotations import matrix_to_rpy
 
 _MOVING = {"revolute": REVOLUTE, "continuous": REVOLUTE, "prismatic": PRISMATIC}
 
 
 def _yourdfpy():
-    try:
+    try:  # optional extra (kincal[urdf]), imported only when a URDF is read
         import yourdfpy
     except ImportError:
         raise ModelError(
@@ -119,8 +120,6 @@ def from_urdf(source, base_link: str, tip_link: str, *, name: str | None = None,
 
 
 def _origin_xml(T: np.ndarray) -> str:
-    from kincal.io.rotations import matrix_to_rpy  # pure math helper (no file access)
-
     xyz = " ".join(repr(float(x)) for x in T[:3, 3])
     rpy = " ".join(repr(float(x)) for x in matrix_to_rpy(T[:3, :3]))
     return f'<origin xyz="{xyz}" rpy="{rpy}"/>'

@@ -1,4 +1,4 @@
-"""Rotation parametrizations used at the edges (files, CLI): roll-pitch-yaw and unit quaternions.
+"""Rotation parametrizations used at the edges (files, CLI, URDF): roll-pitch-yaw and unit quaternions.
 
 - rpy ``(r, p, y)``: ``R = Rz(y) @ Ry(p) @ Rx(r)`` (fixed axes x, then y, then z; URDF's convention).
 - quaternion ``(w, x, y, z)``, scalar first, Hamilton convention; returned with ``w >= 0``.
