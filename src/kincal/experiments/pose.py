@@ -9,13 +9,22 @@ deflect compliant joints (``Experiment._kin``).
 from __future__ import annotations
 
 from kincal.experiments._kernel import pose_gap, pose_mean
-from kincal.experiments.base import Experiment, Residual
+from kincal.experiments.base import WRENCH, Experiment, Residual
 from kincal.noise import ORIENTATION, POSITION
 from kincal.lie import se3
+from kincal.schema import LENGTH, WORLD, Field, Role, Schema
+
+
+SCHEMA = Schema(
+    "pose", arms=1,
+    measured=(Field("T_tracker_tool", "pose", LENGTH, columns=("tool",), doc="tool pose in the tracker frame"), WRENCH),
+    known=(Field("T_world_tracker", "pose", LENGTH, required=False),),
+    roles=(Role("tracker", "T_world_tracker", WORLD, "pose"),),
+)
 
 
 class PoseExperiment(Experiment):
-    KIND = "pose"
+    SCHEMA = SCHEMA
     COMPONENTS = (POSITION,) * 3 + (ORIENTATION,) * 3
 
     def residual(self, state, want=None, jq=True) -> Residual:
