@@ -216,14 +216,14 @@ def demo_cmd(out: Path | None, samples: int, quiet: bool, as_json: bool) -> None
     """
     from kincal.io.datasets import load_scenario, write_simulation
     from kincal.simulate.perturb import perturbation
-    from kincal.simulate.scenario import run
+    from kincal.simulate.scenario import build_scenario, run
 
     console = _console()
     say = (lambda msg: None) if (quiet or as_json) else (lambda msg: console.print(msg))
     out = _free_directory(Path("kincal-demo-out")) if out is None else out
     _refuse_existing(out, ("data.yaml", "job.yaml", "model.yaml", "result.yaml", "truth", "validation"))
     t0 = time.perf_counter()
-    scenario = load_scenario(DEMO_SCENARIO)
+    scenario = build_scenario(load_scenario(DEMO_SCENARIO))
     # thesis Table 4.5: nominal geometry, joint offsets of thesis size (up to 0.07 rad)
     scenario = replace(scenario, options={**scenario.options, "n": samples},
                        perturbation=perturbation("thesis", twist_m=0.0, twist_rad=0.0, home_m=0.0, home_rad=0.0))

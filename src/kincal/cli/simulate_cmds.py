@@ -30,9 +30,9 @@ def simulate(scenario: str, output: Path, seed: int | None, overwrite: bool, qui
 
     from kincal.io.datasets import load_scenario, write_simulation
     from kincal.simulate.generators import dataset_spread
-    from kincal.simulate.scenario import run
+    from kincal.simulate.scenario import build_scenario, run
 
-    sc = load_scenario(scenario)
+    sc = build_scenario(load_scenario(scenario))
     if not overwrite and (output / "data.yaml").exists():
         raise DataFormatError(f"{output / 'data.yaml'}: exists; refusing to overwrite it (pass --overwrite)")
     if seed is not None:

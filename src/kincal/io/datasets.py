@@ -40,6 +40,9 @@ from kincal.io.yamlfile import read_yaml
 from kincal.kinematics import PRISMATIC, Robot
 from kincal.lie import se3
 from kincal.schema import ANGLE, LENGTH, SCHEMAS, Field, Schema
+from kincal.simulate.generators import OPTIONS as GENERATOR_OPTIONS
+from kincal.simulate.perturb import LEVELS as PERTURBATION_LEVELS
+from kincal.simulate.perturb import Perturbation
 
 FORMAT = "kincal-dataset"
 VERSION = 1
@@ -471,15 +474,6 @@ def write_simulation(directory, dataset: Dataset, truth, validation: Mapping[str
 SCENARIO_FORMAT = "kincal-scenario"
 _SCENARIO_KEYS = {"format", "version", "name", "model", "seed", "units", "truth", "experiment", "noise", "validation",
                   "output", "description"}
-# experiment keys per kind (besides kind and n); pose blocks and points use the scenario's units
-_EXPERIMENT_KEYS = {
-    "pose": {"arm", "known_tracker", "T_world_tracker", "wrench_N"},
-    "markers": {"arm", "markers", "p_tool_marker", "known_markers", "known_tracker", "T_world_tracker", "wrench_N"},
-    "clamp": {"arm", "T_world_fixture", "known_fixture", "workspace", "explore"},
-    "plate": {"arm", "T_plate_fixture", "T_world_plate", "known_plate", "workspace", "explore"},
-    "dual": {"arms", "clamp", "known_clamp", "workspace", "explore"},
-    "socket": {"arm", "p_world_socket", "known_socket", "workspace", "explore"},
-}
 _EXPLORE_KEYS = {"n_seeds", "n_steps", "step_rad", "momentum"}
 COMPLIANCE_KEY = "compliance_rad_per_Nm"
 
@@ -509,11 +503,10 @@ def scenario_path(name_or_path) -> Path:
     raise DataFormatError(f"{name_or_path}: no such scenario file, and not a built-in scenario ({names})")
 
 
-def load_scenario(path):
-    """Read a scenario file (docs/simulation.md) into a ``kincal.simulate.scenario.Scenario``."""
-    from kincal.simulate.perturb import Perturbation, perturbation
-    from kincal.simulate.scenario import Scenario
-
+def load_scenario(path) -> dict:
+    """Read and check a scenario file (docs/simulation.md): plain data in SI units, for
+    ``kincal.simulate.scenario.build_scenario``. The ``experiment:`` keys are the options its generator
+    declares (``kincal.simulate.generators.OPTIONS``), each read by its type."""
     path = scenario_path(path)
     data = read_yaml(path, "scenario")
     ctx = _Ctx(str(path))
@@ -531,88 +524,7 @@ def load_scenario(path):
         robot = load_robot(model)
     except KincalError as exc:
         raise ctx.fail("model", str(exc)) from None
-
-    fields = [f for f in Perturbation.__dataclass_fields__ if f != "compliance"]
-    allowed = (set(fields) | {"level", "arms", COMPLIANCE_KEY}
-               | {f"{f.rpartition('_')[0]}_{u}" for f in fields for u in ("mm", "deg")})
-    truth = _mapping(ctx, top.get("truth") or {}, "truth", allowed)
-    over = dict(_si_key(ctx, k, v, f"truth.{k}") for k, v in truth.items()
-                if k not in ("level", "arms", COMPLIANCE_KEY))
-    if COMPLIANCE_KEY in truth:  # joint compliances drawn in [0, value] (rad/(N m); prismatic joints m/N)
-        c = _number(ctx, truth[COMPLIANCE_KEY], f"truth.{COMPLIANCE_KEY}")
-        if not (np.isfinite(c) and c >= 0):
-            raise ctx.fail(f"truth.{COMPLIANCE_KEY}", f"expected a compliance >= 0, found {c!r}")
-        over["compliance"] = c
-    try:
-        pert = perturbation(truth.get("level", "thesis"), **over)
-    except KincalError as exc:
-        raise ctx.fail("truth", str(exc)) from None
-    perturb_arms = truth.get("arms")
-    if perturb_arms is not None and (
-        not isinstance(perturb_arms, list) or any(a not in robot.arms for a in perturb_arms)
-    ):
-        raise ctx.fail("truth.arms", f"expected a list of arms of '{robot.name}' ({', '.join(robot.arms)}), "
-                       f"found {perturb_arms!r}")
-
-    noise = units.noise_from_file(top.get("noise") or {}, f"{ctx.file}: noise")
-
-    exp = top["experiment"]
-    if not isinstance(exp, dict) or exp.get("kind") not in _EXPERIMENT_KEYS:
-        raise ctx.fail("experiment.kind", f"expected one of {', '.join(_EXPERIMENT_KEYS)}, found "
-                       f"{exp.get('kind') if isinstance(exp, dict) else exp!r}")
-    kind = exp["kind"]
-    exp = _mapping(ctx, exp, "experiment", _EXPERIMENT_KEYS[kind] | {"kind", "n"})
-    options: dict[str, Any] = {}
-    for key, value in exp.items():
-        p = f"experiment.{key}"
-        if key == "kind":
-            continue
-        if key in ("n", "markers"):
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ctx.fail(p, f"expected a positive integer, found {value!r}")
-            options[key] = value
-        elif key.startswith("known_"):
-            if not isinstance(value, bool):
-                raise ctx.fail(p, f"expected true or false, found {value!r}")
-            options[key] = value
-        elif key == "arm":
-            if value not in robot.arms:
-                raise ctx.fail(p, f"expected an arm of '{robot.name}' ({', '.join(robot.arms)}), found {value!r}")
-            options[key] = value
-        elif key == "arms":
-            if not isinstance(value, list) or len(value) != 2 or any(a not in robot.arms for a in value):
-                raise ctx.fail(p, f"expected two arms of '{robot.name}' ({', '.join(robot.arms)}), found {value!r}")
-            options[key] = tuple(value)
-        elif key == "T_plate_fixture":
-            if not isinstance(value, list) or not value:
-                raise ctx.fail(p, "expected a non-empty list of poses (one per fixture)")
-            options[key] = np.stack([_pose(ctx, v, f"{p}[{i}]") for i, v in enumerate(value)])
-        elif key.startswith("T_") or key == "clamp":
-            options[key] = _pose(ctx, value, p)
-        elif key == "workspace":
-            w = _mapping(ctx, value, p, {"lower", "upper"}, ("lower", "upper"))
-            options[key] = (_vector(ctx, w["lower"], f"{p}.lower", 3) * ctx.length,
-                            _vector(ctx, w["upper"], f"{p}.upper", 3) * ctx.length)
-        elif key == "p_world_socket":
-            options[key] = _vector(ctx, value, p, 3) * ctx.length
-        elif key == "wrench_N":  # random loads of this magnitude, or one constant (fx, fy, fz, tx, ty, tz)
-            if isinstance(value, list):
-                options["wrench"] = _vector(ctx, value, p, 6)
-            else:
-                w = _number(ctx, value, p)
-                if not (np.isfinite(w) and w > 0):
-                    raise ctx.fail(p, f"expected a load magnitude > 0 (N) or [fx, fy, fz, tx, ty, tz], found {value!r}")
-                options["wrench"] = w
-        elif key == "p_tool_marker":
-            if not isinstance(value, list) or not value:
-                raise ctx.fail(p, "expected a list of [x, y, z]")
-            options["markers"] = _matrix(ctx, value, p, len(value), 3) * ctx.length
-        elif key == "explore":
-            e = _mapping(ctx, value, p, _EXPLORE_KEYS)
-            options["explore_options"] = {k: (int(_number(ctx, v, f"{p}.{k}")) if k in ("n_seeds", "n_steps")
-                                              else _number(ctx, v, f"{p}.{k}")) for k, v in e.items()}
-    if kind in ("pose", "markers", "clamp", "plate", "socket") and "arm" not in options and len(robot.arms) > 1:
-        raise ctx.fail("experiment.arm", f"name the arm; '{robot.name}' has {', '.join(robot.arms)}")
+    kind, options = _experiment(ctx, top["experiment"], robot)
     out = _mapping(ctx, top.get("output") or {"angle": "rad", "length": "m"}, "output", {"angle", "length"})
     for q in ("angle", "length"):
         units.factor(q, out.get(q, "rad" if q == "angle" else "m"), f"{path}: output.{q}")
@@ -622,8 +534,111 @@ def load_scenario(path):
     n_val = top.get("validation", 100)
     if isinstance(n_val, bool) or not isinstance(n_val, int) or n_val < 1:
         raise ctx.fail("validation", f"expected a positive number of configurations, found {n_val!r}")
-    return Scenario(
-        name=str(top.get("name") or path.stem), robot=robot, model=model, kind=kind, options=options,
-        perturbation=pert, perturb_arms=tuple(perturb_arms) if perturb_arms else None, noise=noise,
-        n_validation=n_val, seed=seed, angle_unit=out.get("angle", "rad"), length_unit=out.get("length", "m"),
-    )
+    return {"name": str(top.get("name") or path.stem), "robot": robot, "model": model, "kind": kind,
+            "options": options, "truth": _truth(ctx, top.get("truth") or {}, robot),
+            "noise": units.noise_from_file(top.get("noise") or {}, f"{ctx.file}: noise"), "validation": n_val,
+            "seed": seed, "output": {"angle": out.get("angle", "rad"), "length": out.get("length", "m")}}
+
+
+def _truth(ctx, data: Any, robot: Robot) -> dict:
+    """``truth:``: a perturbation level, magnitudes overriding it (SI) and the arms to perturb."""
+    fields = [f for f in Perturbation.__dataclass_fields__ if f != "compliance"]
+    allowed = (set(fields) | {"level", "arms", COMPLIANCE_KEY}
+               | {f"{f.rpartition('_')[0]}_{u}" for f in fields for u in ("mm", "deg")})
+    truth = _mapping(ctx, data, "truth", allowed)
+    over = dict(_si_key(ctx, k, v, f"truth.{k}") for k, v in truth.items()
+                if k not in ("level", "arms", COMPLIANCE_KEY))
+    if COMPLIANCE_KEY in truth:  # joint compliances drawn in [0, value] (rad/(N m); prismatic joints m/N)
+        c = _number(ctx, truth[COMPLIANCE_KEY], f"truth.{COMPLIANCE_KEY}")
+        if not (np.isfinite(c) and c >= 0):
+            raise ctx.fail(f"truth.{COMPLIANCE_KEY}", f"expected a compliance >= 0, found {c!r}")
+        over["compliance"] = c
+    level = truth.get("level", "thesis")
+    if level not in PERTURBATION_LEVELS:
+        raise ctx.fail("truth.level", f"expected one of {', '.join(PERTURBATION_LEVELS)}, found {level!r}")
+    arms = truth.get("arms")
+    if arms is not None and (not isinstance(arms, list) or any(a not in robot.arms for a in arms)):
+        raise ctx.fail("truth.arms", f"expected a list of arms of '{robot.name}' ({', '.join(robot.arms)}), "
+                       f"found {arms!r}")
+    return {"level": level, "overrides": over, "arms": arms}
+
+
+def _experiment(ctx, exp: Any, robot: Robot) -> tuple[str, dict]:
+    """(kind, generator keyword arguments) of ``experiment:``, each key read as its declared option."""
+    if not isinstance(exp, dict) or exp.get("kind") not in GENERATOR_OPTIONS:
+        raise ctx.fail("experiment.kind", f"expected one of {', '.join(GENERATOR_OPTIONS)}, found "
+                       f"{exp.get('kind') if isinstance(exp, dict) else exp!r}")
+    kind = exp["kind"]
+    declared = {o.name: o for o in GENERATOR_OPTIONS[kind]}
+    exp = _mapping(ctx, exp, "experiment", set(declared) | {"kind"})
+    options = {}
+    for key, value in exp.items():
+        if key != "kind":
+            o = declared[key]
+            options[o.argument] = _OPTION_READERS[o.type](ctx, o, value, f"experiment.{key}", robot)
+    arm = next((o for o in declared.values() if o.type == "arm"), None)
+    if arm is not None and arm.argument not in options and len(robot.arms) > 1:
+        raise ctx.fail(f"experiment.{arm.name}", f"name the arm; '{robot.name}' has {', '.join(robot.arms)}")
+    return kind, options
+
+
+def _read_count(ctx, o, value, p, robot):
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ctx.fail(p, f"expected a positive integer, found {value!r}")
+    return value
+
+
+def _read_bool(ctx, o, value, p, robot):
+    if not isinstance(value, bool):
+        raise ctx.fail(p, f"expected true or false, found {value!r}")
+    return value
+
+
+def _read_arm(ctx, o, value, p, robot):
+    if value not in robot.arms:
+        raise ctx.fail(p, f"expected an arm of '{robot.name}' ({', '.join(robot.arms)}), found {value!r}")
+    return value
+
+
+def _read_arms(ctx, o, value, p, robot):
+    if not isinstance(value, list) or len(value) != 2 or any(a not in robot.arms for a in value):
+        raise ctx.fail(p, f"expected two arms of '{robot.name}' ({', '.join(robot.arms)}), found {value!r}")
+    return tuple(value)
+
+
+def _read_box(ctx, o, value, p, robot):
+    w = _mapping(ctx, value, p, {"lower", "upper"}, ("lower", "upper"))
+    f = _factor(ctx, o.unit)
+    return _vector(ctx, w["lower"], f"{p}.lower", 3) * f, _vector(ctx, w["upper"], f"{p}.upper", 3) * f
+
+
+def _read_explore(ctx, o, value, p, robot):
+    e = _mapping(ctx, value, p, _EXPLORE_KEYS)
+    return {k: (int(_number(ctx, v, f"{p}.{k}")) if k in ("n_seeds", "n_steps") else _number(ctx, v, f"{p}.{k}"))
+            for k, v in e.items()}
+
+
+def _read_wrench(ctx, o, value, p, robot):
+    """Random loads of this magnitude (N), or one constant (fx, fy, fz, tx, ty, tz)."""
+    if isinstance(value, list):
+        return _vector(ctx, value, p, 6)
+    w = _number(ctx, value, p)
+    if not (np.isfinite(w) and w > 0):
+        raise ctx.fail(p, f"expected a load magnitude > 0 (N) or [fx, fy, fz, tx, ty, tz], found {value!r}")
+    return w
+
+
+_OPTION_READERS = {
+    "count": _read_count,
+    "bool": _read_bool,
+    "arm": _read_arm,
+    "arms": _read_arms,
+    "pose": lambda ctx, o, value, p, robot: _pose(ctx, value, p),
+    "poses": lambda ctx, o, value, p, robot: _READ_KNOWN["poses"](ctx, o, value, p),
+    "point": lambda ctx, o, value, p, robot: _vector(ctx, value, p, 3) * _factor(ctx, o.unit),
+    "points": lambda ctx, o, value, p, robot: _READ_KNOWN["points"](ctx, o, value, p),
+    "vector": lambda ctx, o, value, p, robot: _READ_KNOWN["vector"](ctx, o, value, p),
+    "box": _read_box,
+    "explore": _read_explore,
+    "wrench": _read_wrench,
+}
