@@ -377,7 +377,7 @@ def _with_validation(result: Result, validation, noise) -> Result:
     rows = []
     for b, a in zip(before, after):
         row = {"experiment": b["experiment"], "kind": b["kind"], "samples": b["samples"]}
-        for k in ("position_rms", "position_max", "orientation_rms", "orientation_max"):
+        for k in ("position_rms", "position_max", "orientation_rms", "orientation_max", "pixel_rms", "pixel_max"):
             if k in b:
                 row[f"{k}_before"], row[f"{k}_after"] = b[k], a[k]
         rows.append(row)

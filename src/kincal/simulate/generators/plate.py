@@ -85,8 +85,8 @@ def generate_plate(
     known = {"T_plate_fixture": T_pf}
     if known_plate:
         known["T_world_plate"] = T_wp
-    ds = Dataset("plate", robot.name, (arm,), noisy_readings({arm: q}, noise, rng), {"fixture": np.concatenate(fixture)},
-                 known, "plate", dataset_meta("plate", noise))
+    ds = Dataset("plate", robot.name, (arm,), noisy_readings({arm: q}, noise, rng),
+                 {"fixture": np.concatenate(fixture)}, known, "plate", dataset_meta("plate", noise))
     truth = Truth(robot, {"T_world_plate": T_wp, "T_plate_fixture": T_pf}, {arm: q}, noise,
                   {"generator": "plate", "fixtures": stats})
     return ds, truth, validation_set(robot, (arm,), n_validation, rng)

@@ -19,8 +19,9 @@ from kincal.simulate.truth import Truth
 __all__ = ["generate_pose"]
 
 
-@generator("pose", ARM, count_option(50), Option("T_world_tracker", "pose", LENGTH, doc="the tracker (default: random)"),
-           known_option("tracker"), WRENCH)
+@generator("pose", ARM, count_option(50),
+           Option("T_world_tracker", "pose", LENGTH, doc="the tracker (default: random)"), known_option("tracker"),
+           WRENCH)
 def generate_pose(
     robot: Robot,
     arm: str | None = None,
