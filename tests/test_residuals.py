@@ -8,7 +8,7 @@ from kincal.data import Dataset
 from kincal.errors import DataFormatError, DegenerateExperimentError
 from kincal.experiments._kernel import pose_gap
 from kincal.kinematics import Robot, forward_kinematics, loaded_forward_kinematics
-from kincal.lie import se3
+from kincal.lie import se3, so3
 from kincal.params import State, build_layout, retract
 from kincal.testing import numerical_jacobian, random_arm, random_pose
 
@@ -234,3 +234,26 @@ def test_hand_eye_recovers_the_tool_error_or_says_it_cannot(rng):
     turn = se3.exp(np.concatenate([np.zeros((20, 3)), np.outer(rng.uniform(0.3, 2.0, 20), [0, 0, 1.0])], axis=1))
     F1 = F[0] @ turn
     assert hand_eye(F1, se3.inverse(W) @ F1 @ X) is None
+
+
+def test_pose_kind_starts_from_the_hand_eye_tool_when_the_tool_is_far_off():
+    """Full-pose data, unknown tracker, a tool turned 120 deg from nominal: the pose kind's ``start`` hook gives
+    the tool's error (hand-eye) and the solve starts there; without it the local steps end in a minimum."""
+    from kincal.estimation import calibrate
+    from kincal.experiments.pose import PoseExperiment
+    from kincal.noise import Noise
+    from kincal.robots import load
+    from kincal.simulate.generators import generate_pose
+
+    ur = load("ur10")
+    X = se3.make(so3.exp(np.array([np.radians(120.0), 0.0, 0.0])), np.array([0.0, 0.02, 0.05]))
+    true = Robot("ur10", {"arm": ur["arm"].replace(tool=ur["arm"].tool @ X)})
+    ds, _, val = generate_pose(true, n=40, rng=3)
+    exp, = experiments.build([ds], State.from_robot(ur))[0]
+    free = ("arm.tool", "arm.home")
+    np.testing.assert_allclose(exp.start(State.from_robot(ur), free, {"tracker"})["arm.tool"], X, atol=1e-8)
+    assert exp.start(State.from_robot(ur), free, set()) == {}  # a known tracker: nothing to correct from
+    assert isinstance(exp, PoseExperiment)
+    res = calibrate(ur, [ds], ["arm.tool"], noise=Noise(position=1e-5, orientation=1e-5, joint=1e-5),
+                    validation=list(val.values()))
+    assert res.status == "converged" and res.validation[0]["position_max_after"] < 1e-9

@@ -108,10 +108,11 @@ class Experiment:
         shape = self.SCHEMA.field(self.ROLES[role]).shape
         return tuple(sizes.get(s, -1) if isinstance(s, str) else s for s in shape)
 
-    def start(self, nominal: State, free_parts) -> dict[str, np.ndarray]:
-        """Corrections of arm poses before solving (``{"<arm>.tool": X}``: start from ``tool @ X``) when this
-        data can tell that the nominal pose is too far off for the solver's local steps; none by default.
-        ``free_parts``: the free arm poses (``"<arm>.tool"``, ``"<arm>.home"``) of arms of this data set."""
+    def start(self, nominal: State, free_parts, unknown) -> dict[str, np.ndarray]:
+        """Corrections of tool frames before solving (``{"<arm>.tool": X}``: start from ``tool @ X``) when this
+        data can tell that the nominal tool is too far off for the solver's local steps; none by default.
+        ``free_parts``: the free arm poses (``"<arm>.tool"``, ``"<arm>.home"``) of the data set's arms not
+        corrected yet; ``unknown``: the names of the unknown frames."""
         return {}
 
     def increment_frames(self, state: State) -> dict[str, np.ndarray]:

@@ -62,8 +62,13 @@ def frame_values(experiments, state: State) -> tuple[dict[str, object], list[str
                 values[name] = value
                 unknown.append(name)
             if name not in extras:
-                extras[name] = Plane.from_array(value) if exp.SCHEMA.role(role).parameter == "plane" else value
+                extras[name] = as_extra(exp, role, value)
     return extras, unknown
+
+
+def as_extra(exp, role: str, value):
+    """A frame's value as the state holds it: a plane as ``Plane``, others as given."""
+    return Plane.from_array(value) if exp.SCHEMA.role(role).parameter == "plane" else value
 
 
 def _check_shapes(experiments) -> None:
