@@ -12,6 +12,7 @@ from kincal.estimation.steps import Linearization
 from kincal.kinematics import REVOLUTE, chain
 from kincal.lie import se3
 from kincal.params import scale_direction
+from kincal.schema import WORLD
 
 
 def degenerate(problem, J, ana) -> bool:
@@ -160,9 +161,10 @@ def rotation_nulls(problem, state, lin: Linearization) -> list[np.ndarray]:
             for role, name in e.frames.items():
                 b = layout.block(name)
                 value = state.extras[name]
-                if b.kind == "pose" and role in _WORLD_POSES:
+                world = e.SCHEMA.role(role).side == WORLD
+                if b.kind == "pose" and world:
                     g[b.start: b.stop] = xi
-                elif b.kind == "points" and role == "socket":
+                elif b.kind == "points" and world:
                     g[b.start: b.stop] = v + np.cross(w, np.asarray(value))
                 elif b.kind == "plane":
                     n, _ = value.unit()
@@ -189,5 +191,3 @@ def rotation_nulls(problem, state, lin: Linearization) -> list[np.ndarray]:
             out.append(gf)
     return out
 
-
-_WORLD_POSES = ("fixture", "plate", "tracker")  # pose frames on the world side of an arm's loop
