@@ -199,6 +199,26 @@ def test_scenario_through_the_generic_loader(tmp_path):
             load_scenario(tmp_path / "s.yaml")
 
 
+def test_job_with_camera_data_and_validation(tmp_path):
+    """Files all the way: the scenario simulated and written, a job calibrates from the data set's own pixel
+    noise and scores the written validation set (noise-free, stated as 0 px) in pixels."""
+    from kincal.io.datasets import write_simulation
+    from kincal.io.jobs import load_job, run_job
+
+    (tmp_path / "s.yaml").write_text(SCENARIO.replace("truth: {level: fine}", "truth: {level: thesis, twist_mm: 0, "
+                                                      "twist_deg: 0, home_mm: 0, home_deg: 0}"))
+    sc = build_scenario(load_scenario(tmp_path / "s.yaml"))
+    true, ds, truth, validation = run(sc)
+    write_simulation(tmp_path / "out", ds, truth, validation, sc.robot, model=sc.model)
+    (tmp_path / "job.yaml").write_text(yaml.safe_dump({
+        "format": "kincal-job", "version": 1, "model": "ur10", "data": ["out/data.yaml"],
+        "validation": ["out/validation/arm.yaml"], "free": "offsets"}))
+    res = run_job(load_job(tmp_path / "job.yaml"))
+    v = res.validation[0]
+    assert res.status == "converged" and v["kind"] == "camera"
+    assert v["pixel_rms_before"] > 2.0 and v["pixel_rms_after"] < 3 * 0.2
+
+
 def test_a_camera_that_cannot_see_the_arm_says_so(ur10):
     from kincal.errors import DegenerateExperimentError
 

@@ -61,6 +61,21 @@ def camera_from_views(p_world: np.ndarray, uv: np.ndarray, K: np.ndarray) -> np.
     return se3.inverse(se3.make(R, M[:, 3] / S.mean()))
 
 
+def point_from_views(F: np.ndarray, uv: np.ndarray, K: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """The tool point (3,) whose rays through the pixels (N, 2) best meet it, with tool poses F (N, 4, 4) and the
+    camera at C: each view says ``(e_k - m_k e_3) . R_C^T (F x - t_C) = 0`` (k = x, y), linear in x."""
+    fx, fy, cx, cy = K
+    m = np.stack([(uv[:, 0] - cx) / fx, (uv[:, 1] - cy) / fy], axis=-1)
+    Rt = C[:3, :3].T
+    A = (Rt[None, :2, :] - m[:, :, None] * Rt[None, 2:, :])  # (N, 2, 3)
+    lhs = (A @ F[:, :3, :3]).reshape(-1, 3)
+    rhs = -(A @ (F[:, :3, 3] - C[:3, 3])[:, :, None]).reshape(-1)
+    return np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+
+
+_ROUNDS = 10  # camera and point placed in turn when both are unknown
+
+
 class CameraExperiment(Experiment):
     SCHEMA = SCHEMA
     COMPONENTS = (PIXEL, PIXEL)
@@ -91,16 +106,20 @@ class CameraExperiment(Experiment):
         return Residual(uv - self.dataset.measured["pixel"], jac, jqs)
 
     def initial(self, state, known):
-        out = {}
+        """Camera by the direct linear transform of the tool point's world positions; an unknown point starts at
+        the tool origin and is refined with the camera in turn (``point_from_views``, a few rounds)."""
+        F = self._fk(state, self.arms[0])
+        uv, K = self.dataset.measured["pixel"], self.dataset.known["intrinsics"]
         x = np.asarray(known["point"]) if "point" in known else np.zeros(3)
-        if "point" not in known:
-            out["point"] = x
-        if "camera" not in known:
-            p = se3.transform_points(self._fk(state, self.arms[0]), x)
-            C = camera_from_views(p, self.dataset.measured["pixel"], self.dataset.known["intrinsics"])
-            if C is None:
-                raise DegenerateExperimentError(
-                    f"data set '{self.name}': cannot place the camera: expected at least 6 views of the point in "
-                    f"general position, found {self.size}")
-            out["camera"] = C
-        return out
+        C = known.get("camera")
+        for _ in range(1 if "point" in known or C is not None else _ROUNDS):
+            if "camera" not in known:
+                C = camera_from_views(se3.transform_points(F, x), uv, K)
+                if C is None:
+                    raise DegenerateExperimentError(
+                        f"data set '{self.name}': cannot place the camera: expected at least 6 views of the point "
+                        f"in general position, found {self.size}")
+            if "point" not in known:
+                x = point_from_views(F, uv, K, C)
+        out = {} if "camera" in known else {"camera": C}
+        return out if "point" in known else {**out, "point": x}

@@ -72,7 +72,8 @@ def generate_camera(
     # unknown (refitted); one point says nothing about the tool's orientation, which a pose set would score.
     qv = _views(model, n_validation, rng, margin, C, x, K, np.asarray(image, dtype=float))
     validation = {arm: Dataset("camera", robot.name, (arm,), {arm: qv}, {"pixel": _pixels(model, qv, C, x, K)},
-                               {"intrinsics": K}, f"validation-{arm}", {"noise_free": True})}
+                               {"intrinsics": K}, f"validation-{arm}",
+                               {"noise_free": True, "noise": {"pixel_px": 0.0}})}
     return ds, truth, validation
 
 
