@@ -29,7 +29,7 @@ def _import_kinds() -> None:
     """Import every kind module of this package: defining an Experiment subclass registers its kind (and its
     schema with the data layer), so a new kind is one new module here and nothing else."""
     for info in pkgutil.iter_modules(__path__):
-        if not info.name.startswith("_") and info.name not in ("base", "sharing", "handeye"):
+        if not info.name.startswith("_"):  # helpers (base, sharing, handeye) register nothing
             importlib.import_module(f"{__name__}.{info.name}")
 
 
