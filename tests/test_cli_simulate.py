@@ -20,7 +20,7 @@ def test_shipped_scenarios_parse():
     kinds = set()
     for name in SHIPPED:
         with resources.as_file(resources.files("kincal.scenarios") / name) as path:
-            kinds.add(load_scenario(path).kind)
+            kinds.add(load_scenario(path)["kind"])
     assert {"clamp", "plate", "dual", "markers"} <= kinds
 
 

@@ -136,3 +136,27 @@ def test_socket_keeps_the_tool_point_fixed(true_frida):
     p = forward_kinematics(true_frida["left"], truth.q["left"])[:, :3, 3]
     assert np.abs(p - truth.values["p_world_socket"]).max() < 1e-10
     np.testing.assert_array_equal(ds.known["p_world_socket"], truth.values["p_world_socket"])
+
+
+def test_every_generator_declares_its_scenario_options():
+    """Each option names a keyword argument of its generator, with the generator's default; every keyword a
+    scenario can set (besides rng, noise, n_validation, progress and tuning knobs) is an option."""
+    import inspect
+
+    from kincal.simulate.generators import GENERATORS, OPTIONS
+
+    assert {"pose", "markers", "clamp", "plate", "dual", "socket"} <= set(GENERATORS) == set(OPTIONS)
+    for kind, fn in GENERATORS.items():
+        params = inspect.signature(fn).parameters
+        for o in OPTIONS[kind]:
+            assert o.argument in params, (kind, o.name)
+            default = params[o.argument].default
+            if o.default is not None:  # (p_tool_marker declares none: the count 'markers' declares the default)
+                assert np.array_equal(np.asarray(o.default, dtype=object), np.asarray(default, dtype=object)), \
+                    (kind, o.name, o.default, default)
+            else:
+                assert default is None or any(p.argument == o.argument and p.default is not None
+                                              for p in OPTIONS[kind]), (kind, o.name, default)
+        declared = {o.argument for o in OPTIONS[kind]}
+        internal = {"robot", "rng", "noise", "n_validation", "progress", "margin", "candidates"}
+        assert set(params) - internal <= declared, (kind, set(params) - internal - declared)

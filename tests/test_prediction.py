@@ -44,9 +44,9 @@ def truths(frida):
 def plate_sim():
     """The 4-fixture plate scenario: what ``kincal simulate frida_plate4`` writes."""
     from kincal.io.datasets import load_scenario
-    from kincal.simulate.scenario import run
+    from kincal.simulate.scenario import build_scenario, run
 
-    return run(load_scenario("frida_plate4"))
+    return run(build_scenario(load_scenario("frida_plate4")))
 
 
 @pytest.fixture(scope="module")

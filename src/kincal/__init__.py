@@ -10,6 +10,9 @@ from kincal.errors import (
 )
 from kincal.kinematics import ArmModel, Robot, forward_kinematics, identification_jacobian
 
+# registers every experiment kind (its data schema) before any data set is built or read
+import kincal.experiments  # noqa: E402,F401  isort: skip
+
 __version__ = "0.1.0"
 
 __all__ = [

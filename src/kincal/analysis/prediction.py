@@ -29,16 +29,12 @@ from kincal.errors import ModelError, ShapeError
 from kincal.experiments._kernel import arm_jacobians, point_jacobian
 from kincal.kinematics import chain
 from kincal.lie import se3
+from kincal.schema import BETWEEN, TOOL, WORLD, schema_of
 
 # Tool motion (m or rad) per unit of a direction below which it does not matter here: exact gauges come out
 # at round-off (~1e-12), directions that matter at 1e-3 and above.
 NULL_TOL = 1e-6
 
-# Data sets whose world-side frame is given are compared in the world frame; the others fit it (registered).
-_WORLD_FRAME = {"pose": "T_world_tracker", "markers": "T_world_tracker", "clamp": "T_world_fixture",
-                "plate": "T_world_plate", "socket": "p_world_socket", "plane": "plane_world"}
-# Tool-side frames a data set fits when they are not given.
-_TOOL_FRAME = {"markers": "p_tool_marker", "dual": "T_toolA_toolB"}
 
 
 @dataclass(frozen=True)
@@ -139,7 +135,9 @@ def validation_predictions(result, datasets) -> tuple[tuple[str, Prediction], ..
     a dual-arm clamp). Per arm: a two-arm set's relative error is only approximated."""
     out = []
     for ds in datasets:
-        world, tool = _WORLD_FRAME.get(ds.kind), _TOOL_FRAME.get(ds.kind)
+        # a given world-side frame: compared in the world frame, else fitted; tool-side frames fitted unless given
+        schema = schema_of(ds.kind)
+        world, tool = schema.side_key(WORLD), schema.side_key(TOOL, BETWEEN)
         register = world is None or world not in ds.known
         register_tool = tool is not None and tool not in ds.known
         if (register or register_tool) and ds.size < 2:

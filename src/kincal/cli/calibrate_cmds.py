@@ -21,7 +21,7 @@ from kincal.io.models import save_robot
 from kincal.io.results import prediction_rows, result_to_dict, write_results
 from kincal.report import write_plots
 from kincal.simulate.perturb import perturbation
-from kincal.simulate.scenario import run
+from kincal.simulate.scenario import build_scenario, run
 from kincal.workflow import run_job
 
 DEG = 180.0 / math.pi
@@ -221,7 +221,7 @@ def demo_cmd(out: Path | None, samples: int, quiet: bool, as_json: bool) -> None
     out = _free_directory(Path("kincal-demo-out")) if out is None else out
     _refuse_existing(out, ("data.yaml", "job.yaml", "model.yaml", "result.yaml", "truth", "validation"))
     t0 = time.perf_counter()
-    scenario = load_scenario(DEMO_SCENARIO)
+    scenario = build_scenario(load_scenario(DEMO_SCENARIO))
     # thesis Table 4.5: nominal geometry, joint offsets of thesis size (up to 0.07 rad)
     scenario = replace(scenario, options={**scenario.options, "n": samples},
                        perturbation=perturbation("thesis", twist_m=0.0, twist_rad=0.0, home_m=0.0, home_rad=0.0))

@@ -15,7 +15,7 @@ from kincal.io.datasets import load_scenario, write_simulation
 from kincal.io.logs import EXTCTRL_PERIOD_S, convert_log as convert, write_joint_csv
 from kincal.io.models import load_robot
 from kincal.simulate.generators import dataset_spread
-from kincal.simulate.scenario import run
+from kincal.simulate.scenario import build_scenario, run
 
 
 def register(group: click.Group) -> None:
@@ -32,7 +32,7 @@ def register(group: click.Group) -> None:
 @click.option("--quiet", is_flag=True, help="No progress bar or summary.")
 def simulate(scenario: str, output: Path, seed: int | None, overwrite: bool, quiet: bool) -> None:
     """Simulate the experiment of SCENARIO.yaml (examples: kincal/scenarios/*.yaml)."""
-    sc = load_scenario(scenario)
+    sc = build_scenario(load_scenario(scenario))
     if not overwrite and (output / "data.yaml").exists():
         raise DataFormatError(f"{output / 'data.yaml'}: exists; refusing to overwrite it (pass --overwrite)")
     if seed is not None:

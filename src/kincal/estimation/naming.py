@@ -12,6 +12,7 @@ from kincal.estimation.steps import Linearization
 from kincal.kinematics import REVOLUTE, chain
 from kincal.lie import se3
 from kincal.params import POSE, scale_direction
+from kincal.schema import WORLD
 
 
 def degenerate(problem, J, ana) -> bool:
@@ -158,7 +159,7 @@ def rotation_nulls(problem, state, lin: Linearization) -> list[np.ndarray]:
         ok = True
         for e in exps:
             for role, name in e.frames.items():
-                if role not in _WORLD_SIDE:
+                if e.SCHEMA.role(role).side != WORLD:
                     continue
                 b = layout.block(name)
                 g[b.slice] = b.kind.world_motion(state.extras[name], xi)
@@ -181,5 +182,3 @@ def rotation_nulls(problem, state, lin: Linearization) -> list[np.ndarray]:
             out.append(gf)
     return out
 
-
-_WORLD_SIDE = ("fixture", "plate", "tracker", "socket", "plane")  # frames on the world side of an arm's loop

@@ -17,7 +17,7 @@ import numpy as np
 from kincal.estimation.constraints import constraint_rows
 from kincal.errors import ModelError
 from kincal.experiments import Experiment
-from kincal.noise import ORIENTATION, POSITION, Noise
+from kincal.noise import ORIENTATION, PIXEL, POSITION, Noise
 from kincal.params import Layout, State, displacement, pose_retraction_jacobians, retract
 
 VARIANCE_FLOOR = 1e-18
@@ -200,14 +200,14 @@ def stated_sigmas(exp: Experiment, noise: Noise) -> np.ndarray:
 
 
 def residual_norms(r: np.ndarray, components) -> dict:
-    """RMS and max over samples of the position-part and orientation-part norms (m, rad)."""
+    """RMS and max over samples of the position-part, orientation-part and pixel-part norms (m, rad, px)."""
     st = {}
-    for key, q in (("position", POSITION), ("orientation", ORIENTATION)):
+    for key, q in (("position", POSITION), ("orientation", ORIENTATION), ("pixel", PIXEL)):
         mask = np.array([c == q for c in components], bool)
         if mask.any():
             if mask.sum() % 3 == 0 and key == "position" and mask.sum() > 1:
                 e = np.linalg.norm(r[:, mask].reshape(len(r), -1, 3), axis=-1).ravel()
-            elif key == "orientation":
+            elif key in ("orientation", "pixel"):
                 e = np.linalg.norm(r[:, mask], axis=-1)
             else:
                 e = np.abs(r[:, mask]).ravel()

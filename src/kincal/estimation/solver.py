@@ -358,13 +358,15 @@ def _estimates(problem, state, std, ok):
 
 
 def _with_validation(result: Result, validation, noise) -> Result:
-    noise = None if isinstance(noise, Mapping) else noise  # per-set noise names the calibration data
+    if isinstance(noise, Mapping):  # per-set noise names the calibration data: kincal's default for the validation
+        # sets, and for quantities it does not state (pixels) what each validation set states
+        noise = {v.name: DEFAULT_NOISE.over(Noise.from_si(v.meta.get("noise") or {})) for v in validation}
     before = evaluate(result.nominal_robot, validation, noise)
     after = evaluate(result.robot, validation, noise)
     rows = []
     for b, a in zip(before, after):
         row = {"experiment": b["experiment"], "kind": b["kind"], "samples": b["samples"]}
-        for k in ("position_rms", "position_max", "orientation_rms", "orientation_max"):
+        for k in ("position_rms", "position_max", "orientation_rms", "orientation_max", "pixel_rms", "pixel_max"):
             if k in b:
                 row[f"{k}_before"], row[f"{k}_after"] = b[k], a[k]
         rows.append(row)

@@ -1,52 +1,44 @@
-"""Starting values beyond the nominal model: a tool frame far from nominal, seen by full-pose data.
+"""Starting values beyond the nominal model: a tool frame far from nominal.
 
 The solver's steps are local: from a nominal tool frame turned by more than about 110 deg from the real one,
-full-pose data with an unknown tracker end in a local minimum. When an arm's tool (or home) pose is free and a
-pose data set of that arm has an unknown tracker, the hand-eye solution (``experiments.handeye``) gives the
-tool's error; if it is a large rotation the solve starts from the corrected tool, with every unknown tracker
-of that arm re-initialised to match. The nominal model stays the reference of the report.
+the solve ends in a local minimum. Each experiment kind may tell, from its data, that an arm's free tool (or
+home) pose is far off (``Experiment.start``; full-pose data with an unknown tracker do, by the hand-eye
+solution); the solve then starts from the corrected tool, with the unknown frames of every experiment of that
+arm guessed again (``Experiment.initial``). The nominal model stays the reference of the report.
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
 
-import numpy as np
-
-from kincal.experiments._kernel import pose_mean
-from kincal.experiments.handeye import hand_eye
-from kincal.lie import se3, so3
+from kincal.experiments.sharing import as_extra
+from kincal.lie import se3
 from kincal.params import Layout, State
-
-# Below this rotation of the tool frame's error the local steps find the solution from the nominal tool.
-CORRECT_ABOVE_RAD = np.radians(30.0)
 
 
 def starting_state(nominal: State, experiments, layout: Layout, unknown) -> tuple[State, State]:
-    """(start, nominal) where ``start`` has corrected tool frames and both have the matching tracker guesses."""
-    arms, extras = dict(nominal.arms), dict(nominal.extras)
+    """(start, nominal) where ``start`` has corrected tool frames and both have the matching frame guesses."""
+    arms = dict(nominal.arms)
     for exp in experiments:
-        arm = exp.arms[0]
-        if exp.kind != "pose" or exp.frames["tracker"] not in unknown or arms[arm] is not nominal.arms[arm]:
-            continue
-        part = next((p for p in ("tool", "home") if layout.free[layout.block(f"{arm}.{p}").start]), None)
-        if part is None:
-            continue
-        M = exp.dataset.measured["T_tracker_tool"]
-        X = hand_eye(exp._fk(nominal, arm), M)
-        if X is None or np.linalg.norm(so3.log(X[:3, :3])) < CORRECT_ABOVE_RAD:
-            continue
-        a = arms[arm]
-        if part == "tool":
-            arms[arm] = replace(a, tool=a.tool @ X)
-        else:  # home @ tool becomes home @ tool @ X
-            arms[arm] = replace(a, home=a.home @ a.tool @ X @ se3.inverse(a.tool))
+        free = [f"{arm}.{p}" for arm in exp.arms if arms[arm] is nominal.arms[arm] for p in ("tool", "home")
+                if layout.free[layout.block(f"{arm}.{p}").start]]
+        for part, X in exp.start(nominal, free, unknown).items():
+            arm = part.split(".")[0]
+            a = arms[arm]
+            if f"{arm}.tool" in free:
+                arms[arm] = replace(a, tool=a.tool @ X)
+            else:  # home @ tool becomes home @ tool @ X
+                arms[arm] = replace(a, home=a.home @ a.tool @ X @ se3.inverse(a.tool))
     if all(arms[k] is nominal.arms[k] for k in arms):
         return nominal, nominal
-    start = nominal.replace(arms, extras)
-    for exp in experiments:  # trackers of corrected arms, guessed again with the corrected tool
-        corrected = arms[exp.arms[0]] is not nominal.arms[exp.arms[0]]
-        if exp.kind == "pose" and exp.frames["tracker"] in unknown and corrected:
-            F = exp._fk(start, exp.arms[0])
-            extras[exp.frames["tracker"]] = pose_mean(F @ se3.inverse(exp.dataset.measured["T_tracker_tool"]))
+    start = nominal.replace(arms)
+    extras, done = dict(nominal.extras), set()
+    for exp in experiments:  # unknown frames of corrected arms, guessed again with the corrected tool
+        if all(arms[a] is nominal.arms[a] for a in exp.arms):
+            continue
+        given = {r: start.extras[n] for r, n in exp.frames.items() if n not in unknown}
+        for role, value in exp.initial(start, given).items():
+            if exp.frames[role] not in done:  # a shared frame: the first data set's guess, as in the nominal
+                extras[exp.frames[role]] = as_extra(exp, role, value)
+                done.add(exp.frames[role])
     return nominal.replace(arms, extras), nominal.replace(extras=extras)

@@ -1,5 +1,9 @@
 """Experiment kinds: pure residuals with analytic Jacobians, one module per kind.
 
+Each kind module declares everything about its kind: its data (``SCHEMA``, ``kincal.schema``), its residual
+quantities (``COMPONENTS``), its residual and Jacobian, its starting values (``initial``, ``start``). Every
+module of this package is imported here, which registers its kind (``KINDS``).
+
 ``build(datasets, state)`` turns data sets into experiments and the state extras they read (known frames
 as given, unknown frames initialized from the nominal arms), plus the names of the unknown extras. Data sets
 naming the same frame in ``Dataset.frames`` share it (``sharing``).
@@ -7,6 +11,8 @@ naming the same frame in ``Dataset.frames`` share it (``sharing``).
 
 from __future__ import annotations
 
+import importlib
+import pkgutil
 from collections import Counter
 from typing import Sequence
 
@@ -14,23 +20,20 @@ import numpy as np
 
 from kincal.data import Dataset
 from kincal.errors import DataFormatError
-from kincal.experiments.base import Experiment, Residual
-from kincal.experiments.clamp import ClampExperiment
-from kincal.experiments.distance import DistanceExperiment
-from kincal.experiments.dual import DualExperiment
-from kincal.experiments.markers import MarkersExperiment
-from kincal.experiments.plane import PlaneExperiment
-from kincal.experiments.plate import PlateExperiment
-from kincal.experiments.pose import PoseExperiment
+from kincal.experiments.base import KINDS, Experiment, Residual
 from kincal.experiments.sharing import frame_kinds, frame_names, frame_values
-from kincal.experiments.socket import SocketExperiment
 from kincal.params import State
 
-KINDS: dict[str, type[Experiment]] = {
-    cls.KIND: cls
-    for cls in (PoseExperiment, MarkersExperiment, ClampExperiment, PlateExperiment, DualExperiment,
-                SocketExperiment, DistanceExperiment, PlaneExperiment)
-}
+
+def _import_kinds() -> None:
+    """Import every kind module of this package: defining an Experiment subclass registers its kind (and its
+    schema with the data layer), so a new kind is one new module here and nothing else."""
+    for info in pkgutil.iter_modules(__path__):
+        if not info.name.startswith("_"):  # helpers (base, sharing, handeye) register nothing
+            importlib.import_module(f"{__name__}.{info.name}")
+
+
+_import_kinds()
 
 __all__ = ["Experiment", "KINDS", "Residual", "build", "check_joints", "frame_kinds"]
 

@@ -12,11 +12,20 @@ from typing import ClassVar, Mapping
 
 import numpy as np
 
-from kincal.data import ROLES, Dataset
+from kincal.data import Dataset
 from kincal.experiments._kernel import ARM_PARTS, arm_jacobians
 from kincal.kinematics import Kinematics, chain, loaded_chain
 from kincal.noise import Quantity
 from kincal.params import State
+from kincal.schema import NONE, Field, Schema, register
+
+# Every registered experiment class by kind (filled as the kind modules are imported: ``kincal.experiments``).
+KINDS: dict[str, type["Experiment"]] = {}
+
+# The optional load on the tool (force, torque; N, N m; tool frame), a measured entry of tracker kinds.
+WRENCH = Field("wrench_tool", "vector", NONE, required=False, size=6,
+               columns=("wrench.fx", "wrench.fy", "wrench.fz", "wrench.tx", "wrench.ty", "wrench.tz"),
+               doc="the load applied TO the tool BY the environment, tool frame, acting at the tool origin")
 
 
 @dataclass(frozen=True)
@@ -32,12 +41,14 @@ class Residual:
 
 @dataclass(frozen=True, eq=False)
 class Experiment:
-    """Base class; subclasses set KIND and COMPONENTS. ROLES (role -> key in ``dataset.known``) comes from
-    ``kincal.data.ROLES``, the one table the data layer checks ``Dataset.frames`` against."""
+    """Base class; a kind sets SCHEMA (its data, ``kincal.schema``) and COMPONENTS. Defining the subclass
+    registers its schema with the data layer and the class in ``KINDS``; KIND and ROLES (role -> key in
+    ``dataset.known``) are read off the schema."""
 
     dataset: Dataset
     frames: Mapping[str, str]  # role -> name of the state extra holding it
 
+    SCHEMA: ClassVar[Schema | None] = None
     KIND: ClassVar[str] = ""
     ROLES: ClassVar[Mapping[str, str]] = {}
     COMPONENTS: ClassVar[tuple[Quantity, ...]] = ()
@@ -47,7 +58,12 @@ class Experiment:
 
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)
-        cls.ROLES = ROLES[cls.KIND]
+        if cls.SCHEMA is None:
+            raise TypeError(f"{cls.__name__}: an experiment kind declares its SCHEMA")
+        register(cls.SCHEMA)
+        cls.KIND = cls.SCHEMA.kind
+        cls.ROLES = cls.SCHEMA.role_keys
+        KINDS[cls.KIND] = cls
 
     @property
     def name(self) -> str:
@@ -85,8 +101,19 @@ class Experiment:
         """Raise on data this kind cannot use (beyond what Dataset checks)."""
 
     def frame_shape(self, role: str) -> tuple[int, ...]:
-        """Shape of the value of a role's frame (poses by default), to check data sets sharing it agree."""
-        return (4, 4)
+        """Shape of the value of a role's frame, to check data sets sharing it agree: the schema's shape, with
+        data-chosen sizes (markers ``m``) read off this data set."""
+        d = self.dataset
+        sizes = self.SCHEMA.sizes(d.measured, d.known, d.size)
+        shape = self.SCHEMA.field(self.ROLES[role]).shape
+        return tuple(sizes.get(s, -1) if isinstance(s, str) else s for s in shape)
+
+    def start(self, nominal: State, free_parts, unknown) -> dict[str, np.ndarray]:
+        """Corrections of tool frames before solving (``{"<arm>.tool": X}``: start from ``tool @ X``) when this
+        data can tell that the nominal tool is too far off for the solver's local steps; none by default.
+        ``free_parts``: the free arm poses (``"<arm>.tool"``, ``"<arm>.home"``) of the data set's arms not
+        corrected yet; ``unknown``: the names of the unknown frames."""
+        return {}
 
     def increment_frames(self, state: State) -> dict[str, np.ndarray]:
         """World pose of the frame in which each pose role's left increment is expressed (first sample)."""

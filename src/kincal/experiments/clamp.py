@@ -9,10 +9,18 @@ from __future__ import annotations
 from kincal.experiments._kernel import pose_gap_in_b, pose_mean
 from kincal.experiments.base import Experiment, Residual
 from kincal.noise import ORIENTATION, POSITION
+from kincal.schema import LENGTH, WORLD, Field, Role, Schema
+
+
+SCHEMA = Schema(
+    "clamp", arms=1,
+    known=(Field("T_world_fixture", "pose", LENGTH, required=False),),
+    roles=(Role("fixture", "T_world_fixture", WORLD, "pose"),),
+)
 
 
 class ClampExperiment(Experiment):
-    KIND = "clamp"
+    SCHEMA = SCHEMA
     COMPONENTS = (POSITION,) * 3 + (ORIENTATION,) * 3
 
     def residual(self, state, want=None, jq=True) -> Residual:

@@ -10,10 +10,17 @@ import numpy as np
 from kincal.experiments._kernel import point_jacobian
 from kincal.experiments.base import Experiment, Residual
 from kincal.noise import POSITION
+from kincal.schema import LENGTH, Field, Schema
+
+
+SCHEMA = Schema(
+    "distance", arms=2,
+    known=(Field("distance", "scalar", LENGTH, doc="|p_A - p_B| of the two arms' tool points"),),
+)
 
 
 class DistanceExperiment(Experiment):
-    KIND = "distance"
+    SCHEMA = SCHEMA
     COMPONENTS = (POSITION,)
 
     def residual(self, state, want=None, jq=True) -> Residual:

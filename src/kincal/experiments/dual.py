@@ -12,10 +12,18 @@ from kincal.experiments._kernel import pose_gap_in_b, pose_mean
 from kincal.experiments.base import Experiment, Residual
 from kincal.noise import ORIENTATION, POSITION
 from kincal.lie import se3
+from kincal.schema import BETWEEN, LENGTH, Field, Role, Schema
+
+
+SCHEMA = Schema(
+    "dual", arms=2,
+    known=(Field("T_toolA_toolB", "pose", LENGTH, required=False, doc="arm B's tool in arm A's tool"),),
+    roles=(Role("clamp", "T_toolA_toolB", BETWEEN, "pose"),),
+)
 
 
 class DualExperiment(Experiment):
-    KIND = "dual"
+    SCHEMA = SCHEMA
     COMPONENTS = (POSITION,) * 3 + (ORIENTATION,) * 3
 
     def residual(self, state, want=None, jq=True) -> Residual:

@@ -14,16 +14,24 @@ from __future__ import annotations
 import numpy as np
 
 from kincal.experiments._kernel import fit_transform, point_jacobian
-from kincal.experiments.base import Experiment, Residual
+from kincal.experiments.base import WRENCH, Experiment, Residual
 from kincal.noise import POSITION
 from kincal.lie import se3
+from kincal.schema import LENGTH, TOOL, WORLD, Field, Role, Schema
+
+
+SCHEMA = Schema(
+    "markers", arms=1,
+    measured=(Field("p_tracker_marker", "points", LENGTH, columns=("m",), doc="marker positions, tracker frame"),
+              WRENCH),
+    known=(Field("T_world_tracker", "pose", LENGTH, required=False),
+           Field("p_tool_marker", "points", LENGTH, required=False, doc="marker positions, tool frame")),
+    roles=(Role("tracker", "T_world_tracker", WORLD, "pose"), Role("markers", "p_tool_marker", TOOL, "points")),
+)
 
 
 class MarkersExperiment(Experiment):
-    KIND = "markers"
-
-    def frame_shape(self, role):
-        return (4, 4) if role == "tracker" else self.dataset.measured["p_tracker_marker"].shape[1:]
+    SCHEMA = SCHEMA
 
     def components(self):
         return (POSITION,) * (3 * self.dataset.measured["p_tracker_marker"].shape[1])

@@ -11,14 +11,19 @@ import numpy as np
 from kincal.experiments._kernel import point_jacobian
 from kincal.experiments.base import Experiment, Residual
 from kincal.noise import POSITION
+from kincal.schema import LENGTH, WORLD, Field, Role, Schema
+
+
+SCHEMA = Schema(
+    "plane", arms=1,
+    known=(Field("plane_world", "plane", LENGTH, required=False, doc="n . p = d with unit n, world frame"),),
+    roles=(Role("plane", "plane_world", WORLD, "plane"),),
+)
 
 
 class PlaneExperiment(Experiment):
-    KIND = "plane"
+    SCHEMA = SCHEMA
     COMPONENTS = (POSITION,)
-
-    def frame_shape(self, role):
-        return (4,)  # [n, d]
 
     def residual(self, state, want=None, jq=True) -> Residual:
         arm = self.arms[0]

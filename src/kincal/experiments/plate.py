@@ -13,10 +13,21 @@ from kincal.experiments._kernel import pose_gap_in_b, pose_mean
 from kincal.experiments.base import Experiment, Residual
 from kincal.noise import ORIENTATION, POSITION
 from kincal.lie import se3
+from kincal.schema import LENGTH, WORLD, Field, Role, Schema
+
+
+SCHEMA = Schema(
+    "plate", arms=1,
+    measured=(Field("fixture", "index", columns=("fixture",), bound="T_plate_fixture",
+                    doc="0-based index of the fixture each sample is clamped at"),),
+    known=(Field("T_plate_fixture", "poses", LENGTH, size="K", doc="the fixtures in the plate frame"),
+           Field("T_world_plate", "pose", LENGTH, required=False)),
+    roles=(Role("plate", "T_world_plate", WORLD, "pose"),),
+)
 
 
 class PlateExperiment(Experiment):
-    KIND = "plate"
+    SCHEMA = SCHEMA
     COMPONENTS = (POSITION,) * 3 + (ORIENTATION,) * 3
 
     def check(self):

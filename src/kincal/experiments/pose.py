@@ -8,14 +8,30 @@ deflect compliant joints (``Experiment._kin``).
 
 from __future__ import annotations
 
+import numpy as np
+
 from kincal.experiments._kernel import pose_gap, pose_mean
-from kincal.experiments.base import Experiment, Residual
+from kincal.experiments.base import WRENCH, Experiment, Residual
+from kincal.experiments.handeye import hand_eye
 from kincal.noise import ORIENTATION, POSITION
-from kincal.lie import se3
+from kincal.lie import se3, so3
+from kincal.schema import LENGTH, WORLD, Field, Role, Schema
+
+
+SCHEMA = Schema(
+    "pose", arms=1,
+    measured=(Field("T_tracker_tool", "pose", LENGTH, columns=("tool",), doc="tool pose in the tracker frame"), WRENCH),
+    known=(Field("T_world_tracker", "pose", LENGTH, required=False),),
+    roles=(Role("tracker", "T_world_tracker", WORLD, "pose"),),
+)
+
+
+# Below this rotation of the tool frame's error the solver's local steps find the solution from the nominal tool.
+CORRECT_ABOVE_RAD = np.radians(30.0)
 
 
 class PoseExperiment(Experiment):
-    KIND = "pose"
+    SCHEMA = SCHEMA
     COMPONENTS = (POSITION,) * 3 + (ORIENTATION,) * 3
 
     def residual(self, state, want=None, jq=True) -> Residual:
@@ -36,3 +52,15 @@ class PoseExperiment(Experiment):
             return {}
         F = self._fk(state, self.arms[0])
         return {"tracker": pose_mean(F @ se3.inverse(self.dataset.measured["T_tracker_tool"]))}
+
+    def start(self, nominal, free_parts, unknown):
+        """With an unknown tracker, a tool frame turned far from nominal (more than ``CORRECT_ABOVE_RAD``) would
+        end the solve in a local minimum: the hand-eye solution (``experiments.handeye``) gives the tool's
+        error X, to start from ``tool @ X``."""
+        arm = self.arms[0]
+        if self.frames["tracker"] not in unknown or not {f"{arm}.tool", f"{arm}.home"} & set(free_parts):
+            return {}
+        X = hand_eye(self._fk(nominal, arm), self.dataset.measured["T_tracker_tool"])
+        if X is None or np.linalg.norm(so3.log(X[:3, :3])) < CORRECT_ABOVE_RAD:
+            return {}
+        return {f"{arm}.tool": X}

@@ -14,13 +14,11 @@ from typing import Sequence
 
 import numpy as np
 
-from kincal.data import ROLES, Dataset, frames_problem
+from kincal.data import Dataset, frames_problem
 from kincal.errors import DataFormatError
-from kincal.params import PLANE, POINT, POINTS, POSE, State
+from kincal.params import FRAME_KINDS, State
+from kincal.schema import schema_of
 
-# The parameter kind of each role's frame.
-ROLE_KINDS = {"tracker": POSE, "fixture": POSE, "plate": POSE, "clamp": POSE, "markers": POINTS, "socket": POINT,
-              "plane": PLANE}
 KNOWN_ATOL = 1e-9  # two data sets giving a shared frame as known must agree to this (m, and rotation entries)
 
 
@@ -28,14 +26,14 @@ def frame_names(datasets: Sequence[Dataset], arms: Sequence[str]) -> list[dict[s
     """Per data set, role -> frame name. A name given in ``frames`` must be valid, and a frame may only be
     shared between data sets in which it plays the same role."""
     # every data set with the role counts, named or not, so naming one frame never renames another's
-    count = Counter(r for d in datasets for r in ROLES[d.kind])
+    count = Counter(r for d in datasets for r in schema_of(d.kind).role_keys)
     owner: dict[str, tuple[str, str]] = {}  # frame name -> (first data set, role)
     out = []
     for ds in datasets:
         bad = frames_problem(ds.kind, ds.frames, arms)
         if bad:
             raise DataFormatError(f"data set '{ds.name}': field {bad[0]}: {bad[1]}")
-        names = {r: ds.frames.get(r) or (r if count[r] == 1 else f"{ds.name}.{r}") for r in ROLES[ds.kind]}
+        names = {r: ds.frames.get(r) or (r if count[r] == 1 else f"{ds.name}.{r}") for r in schema_of(ds.kind).role_keys}
         for role, name in names.items():
             first, first_role = owner.setdefault(name, (ds.name, role))
             if first_role != role:
@@ -64,13 +62,23 @@ def frame_values(experiments, state: State) -> tuple[dict[str, object], list[str
                 values[name] = value
                 unknown.append(name)
             if name not in extras:
-                extras[name] = ROLE_KINDS[role].from_raw(value)
+                extras[name] = as_extra(exp, role, value)
     return extras, unknown
 
 
+def role_kind(exp, role: str):
+    """The parameter kind (``kincal.params.kinds``) of an experiment role's frame, from the kind's schema."""
+    return FRAME_KINDS[exp.SCHEMA.role(role).parameter]
+
+
+def as_extra(exp, role: str, value):
+    """A frame's value as the state holds it (a plane as ``Plane``): made by the role's parameter kind."""
+    return role_kind(exp, role).from_raw(value)
+
+
 def frame_kinds(experiments) -> dict[str, object]:
-    """Frame name -> its parameter kind (``kincal.params.kinds``)."""
-    return {name: ROLE_KINDS[role] for exp in experiments for role, name in exp.frames.items()}
+    """Frame name -> its parameter kind."""
+    return {name: role_kind(exp, role) for exp in experiments for role, name in exp.frames.items()}
 
 
 def _check_shapes(experiments) -> None:

@@ -10,15 +10,20 @@ import numpy as np
 from kincal.experiments._kernel import point_jacobian
 from kincal.experiments.base import Experiment, Residual
 from kincal.noise import POSITION
+from kincal.schema import LENGTH, WORLD, Field, Role, Schema
+
+
+SCHEMA = Schema(
+    "socket", arms=1,
+    known=(Field("p_world_socket", "vector", LENGTH, required=False, size=3, doc="the socket, world frame"),),
+    roles=(Role("socket", "p_world_socket", WORLD, "point"),),
+)
 
 
 class SocketExperiment(Experiment):
-    KIND = "socket"
+    SCHEMA = SCHEMA
     COMPONENTS = (POSITION,) * 3
     WORLD_VECTOR = True
-
-    def frame_shape(self, role):
-        return (3,)
 
     def residual(self, state, want=None, jq=True) -> Residual:
         arm = self.arms[0]

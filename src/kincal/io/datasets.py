@@ -7,11 +7,13 @@ transforms, the ``known`` quantities, optional ``noise`` levels and optional ``f
 for frames shared with other data sets). The CSV header names its columns:
 
 - joints ``<arm>.<joint>`` (e.g. ``left.j1``), every joint of every arm;
-- ``pose``: ``tool.x, tool.y, tool.z, tool.qw, tool.qx, tool.qy, tool.qz`` (tracker frame);
-- ``markers``: ``m1.x, m1.y, m1.z, m2.x, ...``;
-- ``pose`` and ``markers``: optional ``wrench.fx .. wrench.tz`` (N, N m; the load applied to the tool, tool frame);
-- ``plate``: ``fixture`` (0-based index into ``known.T_plate_fixture``);
+- the measured entries of the kind, as its schema declares them (``kincal.schema``, one generic codec per
+  form): a pose ``<prefix>.x, .y, .z, .qw, .qx, .qy, .qz``; points ``<prefix>1.x, <prefix>1.y, ...``; a vector
+  its named columns; an index one integer column. Optional entries are read when their columns are present;
 - optional ``t`` (s) in any kind, kept in ``Dataset.meta["t"]``.
+
+Known entries are written in the manifest by form as well (pose blocks, lists of numbers, numbers), lengths
+in ``units.length``. No kind has code here: a new kind's files follow from its schema.
 
 Every problem is a DataFormatError naming the file, the row (1-based line number in the CSV) and the
 column or manifest field. Writers never replace an existing file unless ``overwrite=True``. Ground truth
@@ -29,7 +31,7 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from kincal.data import KINDS, Dataset, frames_problem
+from kincal.data import Dataset, frames_problem
 from kincal.errors import DataFormatError, KincalError
 from kincal.io import units
 from kincal.io.models import _Ctx, _mapping, _matrix, _number, _pose, _vector, load_robot, save_robot
@@ -37,14 +39,17 @@ from kincal.io.yamlfile import read_yaml
 from kincal.kinematics import PRISMATIC, Robot
 from kincal.lie import se3
 from kincal.lie.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix
+from kincal.schema import ANGLE, LENGTH, SCHEMAS, Field, Schema
+from kincal.simulate.generators import OPTIONS as GENERATOR_OPTIONS
+from kincal.simulate.perturb import LEVELS as PERTURBATION_LEVELS
+from kincal.simulate.perturb import Perturbation
 
 FORMAT = "kincal-dataset"
 VERSION = 1
 QUAT_TOL = 1e-6
 _TOP_KEYS = {"format", "version", "name", "kind", "model", "arms", "data", "units", "known", "noise", "description",
              "meta", "frames"}
-POSE_COLUMNS = ("tool.x", "tool.y", "tool.z", "tool.qw", "tool.qx", "tool.qy", "tool.qz")
-WRENCH_COLUMNS = ("wrench.fx", "wrench.fy", "wrench.fz", "wrench.tx", "wrench.ty", "wrench.tz")
+POSE_SUFFIXES = ("x", "y", "z", "qw", "qx", "qy", "qz")
 
 
 def _fmt(x: float) -> str:
@@ -69,13 +74,14 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
     if top["version"] != VERSION or isinstance(top["version"], bool):
         raise ctx.fail("version", f"expected {VERSION}, found {top['version']!r}")
     kind = top["kind"]
-    if kind not in KINDS:
-        raise ctx.fail("kind", f"expected one of {', '.join(KINDS)}, found {kind!r}")
+    if kind not in SCHEMAS:
+        raise ctx.fail("kind", f"expected one of {', '.join(SCHEMAS)}, found {kind!r}")
+    schema = SCHEMAS[kind]
     arms = top["arms"]
     if not isinstance(arms, list) or not all(isinstance(a, str) and a for a in arms) or len(set(arms)) != len(arms):
         raise ctx.fail("arms", f"expected a list of distinct arm names, found {arms!r}")
-    if len(arms) != KINDS[kind][0]:
-        raise ctx.fail("arms", f"kind '{kind}' needs {KINDS[kind][0]} arm(s), found {arms}")
+    if len(arms) != schema.arms:
+        raise ctx.fail("arms", f"kind '{kind}' needs {schema.arms} arm(s), found {arms}")
     u = _mapping(ctx, top["units"], "units", {"angle", "length"}, ("angle", "length"))
     ctx.angle = units.factor("angle", u["angle"], f"{manifest}: units.angle")
     ctx.length = units.factor("length", u["length"], f"{manifest}: units.length")
@@ -91,7 +97,7 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
     for a in arms:
         if a not in robot.arms:
             raise ctx.fail("arms", f"model '{robot.name}' has no arm {a!r}; its arms: {', '.join(robot.arms)}")
-    known = _known(ctx, kind, top.get("known") or {})
+    known = _known(ctx, schema, top.get("known") or {})
     frames = top.get("frames") or {}
     bad = frames_problem(kind, frames, tuple(robot.arms))
     if bad:
@@ -104,7 +110,7 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
         model = robot[a]
         f = np.array([ctx.length if t == PRISMATIC else ctx.angle for t in model.joint_types])
         q[a] = table.take([f"{a}.{j}" for j in model.joint_names]) * f
-    measured = _measured(ctx, kind, table, known)
+    measured = _measured(ctx, schema, table, known)
     meta = {"noise": noise, "manifest": str(manifest), "description": top.get("description", "")}
     if "t" in table.header:
         meta["t"] = table.take(["t"])[:, 0]
@@ -192,69 +198,95 @@ def _read_csv(path: Path) -> _Table:
     return _Table(path, header, header_line, rows)
 
 
-def _measured(ctx, kind: str, table: _Table, known: dict) -> dict:
+def _factor(ctx, unit: str) -> float:
+    """The SI factor of a file's numbers of this unit kind."""
+    return ctx.length if unit == LENGTH else ctx.angle if unit == ANGLE else 1.0
+
+
+def _columns(f: Field, table: _Table | None = None, count: int = 0) -> list[str]:
+    """The CSV columns of a measured entry (points: as many as ``table``'s header lists, else ``count``)."""
+    if f.form == "pose":
+        return [f"{f.columns[0]}.{c}" for c in POSE_SUFFIXES]
+    if f.form == "points":
+        while table is not None and f"{f.columns[0]}{count + 1}.x" in table.col:
+            count += 1
+        return [f"{f.columns[0]}{i}.{c}" for i in range(1, count + 1) for c in "xyz"]
+    return list(f.columns)
+
+
+def _measured(ctx, schema: Schema, table: _Table, known: dict) -> dict:
     out = {}
-    if kind == "pose":
-        v = table.take(list(POSE_COLUMNS))
-        norm = np.linalg.norm(v[:, 3:], axis=-1)
-        bad = np.flatnonzero(np.abs(norm - 1) > QUAT_TOL)
-        if bad.size:
-            line = table.rows[bad[0]][0]
-            raise DataFormatError(f"{table.path}: line {line}, column 'tool.qw': expected a unit quaternion "
-                                  f"(norm 1 within {QUAT_TOL:g}), found norm {norm[bad[0]]:.9g}")
-        out["T_tracker_tool"] = se3.make(quat_wxyz_to_matrix(v[:, 3:] / norm[:, None]), v[:, :3] * ctx.length)
-    elif kind == "markers":
-        k = 1
-        while f"m{k}.x" in table.col:
-            k += 1
-        if k == 1:
-            raise DataFormatError(f"{table.path}: line {table.header_line}, column 'm1.x': missing; kind 'markers' "
-                                  "needs columns m1.x, m1.y, m1.z (and m2.x ... for more markers)")
-        cols = [f"m{i}.{c}" for i in range(1, k) for c in "xyz"]
-        out["p_tracker_marker"] = table.take(cols).reshape(-1, k - 1, 3) * ctx.length
-        if "p_tool_marker" in known and known["p_tool_marker"].shape[0] != k - 1:
-            m = known["p_tool_marker"].shape[0]
-            raise ctx.fail("known.p_tool_marker", f"lists {m} markers, the CSV has {k - 1}")
-    elif kind == "plate":
-        idx = table.take(["fixture"], integer=True)[:, 0].astype(int)
-        K = known["T_plate_fixture"].shape[0]
-        bad = np.flatnonzero((idx < 0) | (idx >= K))
-        if bad.size:
-            raise DataFormatError(f"{table.path}: line {table.rows[bad[0]][0]}, column 'fixture': expected a fixture "
-                                  f"index 0..{K - 1} (known.T_plate_fixture lists {K}), found {idx[bad[0]]}")
-        out["fixture"] = idx
-    if kind in ("pose", "markers") and any(c in table.col for c in WRENCH_COLUMNS):
-        out["wrench_tool"] = table.take(list(WRENCH_COLUMNS))
+    for f in schema.measured:
+        cols = _columns(f, table)
+        if not f.required and not any(c in table.col for c in cols):
+            continue
+        if f.form == "points" and not cols:
+            p = f.columns[0]
+            raise DataFormatError(f"{table.path}: line {table.header_line}, column '{p}1.x': missing; kind "
+                                  f"'{schema.kind}' needs columns {p}1.x, {p}1.y, {p}1.z (and {p}2.x ... for more)")
+        out[f.key] = _READ_COLUMNS[f.form](ctx, f, table, cols, known)
     return out
 
 
-def _known(ctx, kind: str, data: Any) -> dict:
-    _, _, _, req, opt = KINDS[kind]
-    d = _mapping(ctx, data, "known", set(req + opt), req)
-    out = {}
-    for key, value in d.items():
-        path = f"known.{key}"
-        if key.startswith("T_") and key != "T_plate_fixture":
-            out[key] = _pose(ctx, value, path)
-        elif key == "T_plate_fixture":
-            if not isinstance(value, list) or not value:
-                raise ctx.fail(path, "expected a non-empty list of poses (one per fixture)")
-            out[key] = np.stack([_pose(ctx, v, f"{path}[{i}]") for i, v in enumerate(value)])
-        elif key == "p_tool_marker":
-            if not isinstance(value, list) or not value:
-                raise ctx.fail(path, "expected a non-empty list of [x, y, z] (one per marker)")
-            out[key] = _matrix(ctx, value, path, len(value), 3) * ctx.length
-        elif key == "p_world_socket":
-            out[key] = _vector(ctx, value, path, 3) * ctx.length
-        elif key == "distance":
-            out[key] = np.array(_number(ctx, value, path) * ctx.length)
-        elif key == "plane_world":
-            v = _vector(ctx, value, path, 4)
-            if abs(np.linalg.norm(v[:3]) - 1) > 1e-6:
-                norm = np.linalg.norm(v[:3])
-                raise ctx.fail(path, f"expected [nx, ny, nz, d] with a unit normal, found |n| = {norm:.9g}")
-            out[key] = np.concatenate([v[:3], [v[3] * ctx.length]])
-    return out
+def _read_pose_columns(ctx, f: Field, table: _Table, cols, known) -> np.ndarray:
+    v = table.take(cols)
+    norm = np.linalg.norm(v[:, 3:], axis=-1)
+    bad = np.flatnonzero(np.abs(norm - 1) > QUAT_TOL)
+    if bad.size:
+        line = table.rows[bad[0]][0]
+        raise DataFormatError(f"{table.path}: line {line}, column '{cols[3]}': expected a unit quaternion "
+                              f"(norm 1 within {QUAT_TOL:g}), found norm {norm[bad[0]]:.9g}")
+    return se3.make(quat_wxyz_to_matrix(v[:, 3:] / norm[:, None]), v[:, :3] * ctx.length)
+
+
+def _read_index_column(ctx, f: Field, table: _Table, cols, known) -> np.ndarray:
+    idx = table.take(cols, integer=True)[:, 0].astype(int)
+    K = known[f.bound].shape[0]
+    bad = np.flatnonzero((idx < 0) | (idx >= K))
+    if bad.size:
+        raise DataFormatError(f"{table.path}: line {table.rows[bad[0]][0]}, column '{cols[0]}': expected an index "
+                              f"0..{K - 1} into known.{f.bound} (which lists {K}), found {idx[bad[0]]}")
+    return idx
+
+
+_READ_COLUMNS = {
+    "pose": _read_pose_columns,
+    "points": lambda ctx, f, table, cols, known: table.take(cols).reshape(-1, len(cols) // 3, 3) * _factor(ctx, f.unit),
+    "vector": lambda ctx, f, table, cols, known: table.take(cols) * _factor(ctx, f.unit),
+    "index": _read_index_column,
+}
+
+
+def _known(ctx, schema: Schema, data: Any) -> dict:
+    fields = {f.key: f for f in schema.known}
+    d = _mapping(ctx, data, "known", set(fields), tuple(k for k, f in fields.items() if f.required))
+    return {key: _READ_KNOWN[fields[key].form](ctx, fields[key], value, f"known.{key}") for key, value in d.items()}
+
+
+def _read_list(ctx, value, path: str, what: str) -> list:
+    if not isinstance(value, list) or not value:
+        raise ctx.fail(path, f"expected a non-empty list of {what}")
+    return value
+
+
+def _read_plane(ctx, f: Field, value, path: str) -> np.ndarray:
+    v = _vector(ctx, value, path, 4)
+    norm = np.linalg.norm(v[:3])
+    if abs(norm - 1) > 1e-6:
+        raise ctx.fail(path, f"expected [nx, ny, nz, d] with a unit normal, found |n| = {norm:.9g}")
+    return np.concatenate([v[:3], [v[3] * _factor(ctx, f.unit)]])
+
+
+_READ_KNOWN = {
+    "pose": lambda ctx, f, value, path: _pose(ctx, value, path),
+    "poses": lambda ctx, f, value, path: np.stack(
+        [_pose(ctx, v, f"{path}[{i}]") for i, v in enumerate(_read_list(ctx, value, path, "poses"))]),
+    "points": lambda ctx, f, value, path: _matrix(
+        ctx, _read_list(ctx, value, path, "[x, y, z]"), path, len(value), 3) * _factor(ctx, f.unit),
+    "vector": lambda ctx, f, value, path: _vector(ctx, value, path, f.size) * _factor(ctx, f.unit),
+    "scalar": lambda ctx, f, value, path: np.array(_number(ctx, value, path) * _factor(ctx, f.unit)),
+    "plane": _read_plane,
+}
 
 
 # --------------------------------------------------------------------------------------------- writing
@@ -273,21 +305,29 @@ def _pose_block(T: np.ndarray, length: float) -> dict:
     return {"matrix": [[float(x) for x in row] for row in M]}
 
 
+def _unit_factors(angle: str, length: str) -> dict[str, float]:
+    return {LENGTH: units.factor("length", length, "length unit"), ANGLE: units.factor("angle", angle, "angle unit")}
+
+
+def _plain_numbers(v, factors, unit) -> Any:
+    return (np.asarray(v, dtype=float) / factors.get(unit, 1.0)).tolist()
+
+
+_WRITE_KNOWN = {
+    "pose": lambda v, factors, unit: _pose_block(v, factors[LENGTH]),
+    "poses": lambda v, factors, unit: [_pose_block(T, factors[LENGTH]) for T in v],
+    "points": _plain_numbers,
+    "vector": _plain_numbers,
+    "scalar": _plain_numbers,
+    "plane": lambda v, factors, unit: [float(x) for x in v[:3]] + [float(v[3]) / factors.get(unit, 1.0)],
+}
+
+
 def dataset_to_dict(ds: Dataset, model: str, data_file: str, angle: str = "rad", length: str = "m") -> dict:
     """The manifest content of ``ds`` (known quantities in the given units)."""
-    fl = units.factor("length", length, "length unit")
-    known: dict[str, Any] = {}
-    for key, v in ds.known.items():
-        if key == "T_plate_fixture":
-            known[key] = [_pose_block(T, fl) for T in v]
-        elif key.startswith("T_"):
-            known[key] = _pose_block(v, fl)
-        elif key == "plane_world":
-            known[key] = [float(x) for x in v[:3]] + [float(v[3]) / fl]
-        elif key == "distance":
-            known[key] = float(v) / fl
-        else:
-            known[key] = (np.asarray(v) / fl).tolist()
+    factors = _unit_factors(angle, length)
+    schema = SCHEMAS[ds.kind]
+    known = {k: _WRITE_KNOWN[schema.field(k).form](v, factors, schema.field(k).unit) for k, v in ds.known.items()}
     out = {"format": FORMAT, "version": VERSION, "name": ds.name, "kind": ds.kind, "model": model,
            "arms": list(ds.arms), "data": data_file, "units": {"angle": angle, "length": length}}
     if known:
@@ -300,6 +340,14 @@ def dataset_to_dict(ds: Dataset, model: str, data_file: str, angle: str = "rad",
     if ds.meta.get("description"):
         out["description"] = str(ds.meta["description"])
     return out
+
+
+_WRITE_COLUMNS = {
+    "pose": lambda T, f: np.concatenate([T[:, :3, 3] / f, matrix_to_quat_wxyz(T[:, :3, :3])], axis=1),
+    "points": lambda p, f: p.reshape(len(p), -1) / f,
+    "vector": lambda v, f: v / f,
+    "index": lambda k, f: k[:, None].astype(float),
+}
 
 
 def write_dataset(
@@ -334,28 +382,21 @@ def write_dataset(
         header += [f"{a}.{j}" for j in m.joint_names]
         f = np.array([fl if t == PRISMATIC else fa for t in m.joint_types])
         cols.append(ds.q[a] / f)
-    if ds.kind == "pose":
-        T = ds.measured["T_tracker_tool"]
-        header += list(POSE_COLUMNS)
-        cols += [T[:, :3, 3] / fl, matrix_to_quat_wxyz(T[:, :3, :3])]
-    elif ds.kind == "markers":
-        p = ds.measured["p_tracker_marker"]
-        header += [f"m{i + 1}.{c}" for i in range(p.shape[1]) for c in "xyz"]
-        cols.append(p.reshape(len(p), -1) / fl)
-    if "wrench_tool" in ds.measured:
-        header += list(WRENCH_COLUMNS)
-        cols.append(ds.measured["wrench_tool"])
+    is_int = [False] * len(header)
+    for f in SCHEMAS[ds.kind].measured:
+        if f.key in ds.measured:
+            v = np.asarray(ds.measured[f.key])
+            header += _columns(f, count=v.shape[1] if f.form == "points" else 0)
+            cols.append(_WRITE_COLUMNS[f.form](v, {LENGTH: fl, ANGLE: fa}.get(f.unit, 1.0)))
+            is_int += [f.form == "index"] * cols[-1].shape[1]
     table = np.concatenate(cols, axis=1)
-    fixture = ds.measured.get("fixture") if ds.kind == "plate" else None
-    if fixture is not None:
-        header.append("fixture")
     _new_file(manifest, overwrite)
     _new_file(csv_path, overwrite)
     with open(csv_path, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(header)
-        for i, row in enumerate(table):
-            w.writerow([_fmt(x) for x in row] + ([str(int(fixture[i]))] if fixture is not None else []))
+        for row in table:
+            w.writerow([str(int(x)) if i else _fmt(x) for x, i in zip(row, is_int)])
     content = dataset_to_dict(ds, model, csv_path.name, angle, length)
     with open(manifest, "w", encoding="utf-8") as fh:
         yaml.safe_dump(content, fh, sort_keys=False, default_flow_style=None, width=120)
@@ -433,15 +474,6 @@ def write_simulation(directory, dataset: Dataset, truth, validation: Mapping[str
 SCENARIO_FORMAT = "kincal-scenario"
 _SCENARIO_KEYS = {"format", "version", "name", "model", "seed", "units", "truth", "experiment", "noise", "validation",
                   "output", "description"}
-# experiment keys per kind (besides kind and n); pose blocks and points use the scenario's units
-_EXPERIMENT_KEYS = {
-    "pose": {"arm", "known_tracker", "T_world_tracker", "wrench_N"},
-    "markers": {"arm", "markers", "p_tool_marker", "known_markers", "known_tracker", "T_world_tracker", "wrench_N"},
-    "clamp": {"arm", "T_world_fixture", "known_fixture", "workspace", "explore"},
-    "plate": {"arm", "T_plate_fixture", "T_world_plate", "known_plate", "workspace", "explore"},
-    "dual": {"arms", "clamp", "known_clamp", "workspace", "explore"},
-    "socket": {"arm", "p_world_socket", "known_socket", "workspace", "explore"},
-}
 _EXPLORE_KEYS = {"n_seeds", "n_steps", "step_rad", "momentum"}
 COMPLIANCE_KEY = "compliance_rad_per_Nm"
 
@@ -471,11 +503,10 @@ def scenario_path(name_or_path) -> Path:
     raise DataFormatError(f"{name_or_path}: no such scenario file, and not a built-in scenario ({names})")
 
 
-def load_scenario(path):
-    """Read a scenario file (docs/simulation.md) into a ``kincal.simulate.scenario.Scenario``."""
-    from kincal.simulate.perturb import Perturbation, perturbation
-    from kincal.simulate.scenario import Scenario
-
+def load_scenario(path) -> dict:
+    """Read and check a scenario file (docs/simulation.md): plain data in SI units, for
+    ``kincal.simulate.scenario.build_scenario``. The ``experiment:`` keys are the options its generator
+    declares (``kincal.simulate.generators.OPTIONS``), each read by its type."""
     path = scenario_path(path)
     data = read_yaml(path, "scenario")
     ctx = _Ctx(str(path))
@@ -493,88 +524,7 @@ def load_scenario(path):
         robot = load_robot(model)
     except KincalError as exc:
         raise ctx.fail("model", str(exc)) from None
-
-    fields = [f for f in Perturbation.__dataclass_fields__ if f != "compliance"]
-    allowed = (set(fields) | {"level", "arms", COMPLIANCE_KEY}
-               | {f"{f.rpartition('_')[0]}_{u}" for f in fields for u in ("mm", "deg")})
-    truth = _mapping(ctx, top.get("truth") or {}, "truth", allowed)
-    over = dict(_si_key(ctx, k, v, f"truth.{k}") for k, v in truth.items()
-                if k not in ("level", "arms", COMPLIANCE_KEY))
-    if COMPLIANCE_KEY in truth:  # joint compliances drawn in [0, value] (rad/(N m); prismatic joints m/N)
-        c = _number(ctx, truth[COMPLIANCE_KEY], f"truth.{COMPLIANCE_KEY}")
-        if not (np.isfinite(c) and c >= 0):
-            raise ctx.fail(f"truth.{COMPLIANCE_KEY}", f"expected a compliance >= 0, found {c!r}")
-        over["compliance"] = c
-    try:
-        pert = perturbation(truth.get("level", "thesis"), **over)
-    except KincalError as exc:
-        raise ctx.fail("truth", str(exc)) from None
-    perturb_arms = truth.get("arms")
-    if perturb_arms is not None and (
-        not isinstance(perturb_arms, list) or any(a not in robot.arms for a in perturb_arms)
-    ):
-        raise ctx.fail("truth.arms", f"expected a list of arms of '{robot.name}' ({', '.join(robot.arms)}), "
-                       f"found {perturb_arms!r}")
-
-    noise = units.noise_from_file(top.get("noise") or {}, f"{ctx.file}: noise")
-
-    exp = top["experiment"]
-    if not isinstance(exp, dict) or exp.get("kind") not in _EXPERIMENT_KEYS:
-        raise ctx.fail("experiment.kind", f"expected one of {', '.join(_EXPERIMENT_KEYS)}, found "
-                       f"{exp.get('kind') if isinstance(exp, dict) else exp!r}")
-    kind = exp["kind"]
-    exp = _mapping(ctx, exp, "experiment", _EXPERIMENT_KEYS[kind] | {"kind", "n"})
-    options: dict[str, Any] = {}
-    for key, value in exp.items():
-        p = f"experiment.{key}"
-        if key == "kind":
-            continue
-        if key in ("n", "markers"):
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ctx.fail(p, f"expected a positive integer, found {value!r}")
-            options[key] = value
-        elif key.startswith("known_"):
-            if not isinstance(value, bool):
-                raise ctx.fail(p, f"expected true or false, found {value!r}")
-            options[key] = value
-        elif key == "arm":
-            if value not in robot.arms:
-                raise ctx.fail(p, f"expected an arm of '{robot.name}' ({', '.join(robot.arms)}), found {value!r}")
-            options[key] = value
-        elif key == "arms":
-            if not isinstance(value, list) or len(value) != 2 or any(a not in robot.arms for a in value):
-                raise ctx.fail(p, f"expected two arms of '{robot.name}' ({', '.join(robot.arms)}), found {value!r}")
-            options[key] = tuple(value)
-        elif key == "T_plate_fixture":
-            if not isinstance(value, list) or not value:
-                raise ctx.fail(p, "expected a non-empty list of poses (one per fixture)")
-            options[key] = np.stack([_pose(ctx, v, f"{p}[{i}]") for i, v in enumerate(value)])
-        elif key.startswith("T_") or key == "clamp":
-            options[key] = _pose(ctx, value, p)
-        elif key == "workspace":
-            w = _mapping(ctx, value, p, {"lower", "upper"}, ("lower", "upper"))
-            options[key] = (_vector(ctx, w["lower"], f"{p}.lower", 3) * ctx.length,
-                            _vector(ctx, w["upper"], f"{p}.upper", 3) * ctx.length)
-        elif key == "p_world_socket":
-            options[key] = _vector(ctx, value, p, 3) * ctx.length
-        elif key == "wrench_N":  # random loads of this magnitude, or one constant (fx, fy, fz, tx, ty, tz)
-            if isinstance(value, list):
-                options["wrench"] = _vector(ctx, value, p, 6)
-            else:
-                w = _number(ctx, value, p)
-                if not (np.isfinite(w) and w > 0):
-                    raise ctx.fail(p, f"expected a load magnitude > 0 (N) or [fx, fy, fz, tx, ty, tz], found {value!r}")
-                options["wrench"] = w
-        elif key == "p_tool_marker":
-            if not isinstance(value, list) or not value:
-                raise ctx.fail(p, "expected a list of [x, y, z]")
-            options["markers"] = _matrix(ctx, value, p, len(value), 3) * ctx.length
-        elif key == "explore":
-            e = _mapping(ctx, value, p, _EXPLORE_KEYS)
-            options["explore_options"] = {k: (int(_number(ctx, v, f"{p}.{k}")) if k in ("n_seeds", "n_steps")
-                                              else _number(ctx, v, f"{p}.{k}")) for k, v in e.items()}
-    if kind in ("pose", "markers", "clamp", "plate", "socket") and "arm" not in options and len(robot.arms) > 1:
-        raise ctx.fail("experiment.arm", f"name the arm; '{robot.name}' has {', '.join(robot.arms)}")
+    kind, options = _experiment(ctx, top["experiment"], robot)
     out = _mapping(ctx, top.get("output") or {"angle": "rad", "length": "m"}, "output", {"angle", "length"})
     for q in ("angle", "length"):
         units.factor(q, out.get(q, "rad" if q == "angle" else "m"), f"{path}: output.{q}")
@@ -584,8 +534,111 @@ def load_scenario(path):
     n_val = top.get("validation", 100)
     if isinstance(n_val, bool) or not isinstance(n_val, int) or n_val < 1:
         raise ctx.fail("validation", f"expected a positive number of configurations, found {n_val!r}")
-    return Scenario(
-        name=str(top.get("name") or path.stem), robot=robot, model=model, kind=kind, options=options,
-        perturbation=pert, perturb_arms=tuple(perturb_arms) if perturb_arms else None, noise=noise,
-        n_validation=n_val, seed=seed, angle_unit=out.get("angle", "rad"), length_unit=out.get("length", "m"),
-    )
+    return {"name": str(top.get("name") or path.stem), "robot": robot, "model": model, "kind": kind,
+            "options": options, "truth": _truth(ctx, top.get("truth") or {}, robot),
+            "noise": units.noise_from_file(top.get("noise") or {}, f"{ctx.file}: noise"), "validation": n_val,
+            "seed": seed, "output": {"angle": out.get("angle", "rad"), "length": out.get("length", "m")}}
+
+
+def _truth(ctx, data: Any, robot: Robot) -> dict:
+    """``truth:``: a perturbation level, magnitudes overriding it (SI) and the arms to perturb."""
+    fields = [f for f in Perturbation.__dataclass_fields__ if f != "compliance"]
+    allowed = (set(fields) | {"level", "arms", COMPLIANCE_KEY}
+               | {f"{f.rpartition('_')[0]}_{u}" for f in fields for u in ("mm", "deg")})
+    truth = _mapping(ctx, data, "truth", allowed)
+    over = dict(_si_key(ctx, k, v, f"truth.{k}") for k, v in truth.items()
+                if k not in ("level", "arms", COMPLIANCE_KEY))
+    if COMPLIANCE_KEY in truth:  # joint compliances drawn in [0, value] (rad/(N m); prismatic joints m/N)
+        c = _number(ctx, truth[COMPLIANCE_KEY], f"truth.{COMPLIANCE_KEY}")
+        if not (np.isfinite(c) and c >= 0):
+            raise ctx.fail(f"truth.{COMPLIANCE_KEY}", f"expected a compliance >= 0, found {c!r}")
+        over["compliance"] = c
+    level = truth.get("level", "thesis")
+    if level not in PERTURBATION_LEVELS:
+        raise ctx.fail("truth.level", f"expected one of {', '.join(PERTURBATION_LEVELS)}, found {level!r}")
+    arms = truth.get("arms")
+    if arms is not None and (not isinstance(arms, list) or any(a not in robot.arms for a in arms)):
+        raise ctx.fail("truth.arms", f"expected a list of arms of '{robot.name}' ({', '.join(robot.arms)}), "
+                       f"found {arms!r}")
+    return {"level": level, "overrides": over, "arms": arms}
+
+
+def _experiment(ctx, exp: Any, robot: Robot) -> tuple[str, dict]:
+    """(kind, generator keyword arguments) of ``experiment:``, each key read as its declared option."""
+    if not isinstance(exp, dict) or exp.get("kind") not in GENERATOR_OPTIONS:
+        raise ctx.fail("experiment.kind", f"expected one of {', '.join(GENERATOR_OPTIONS)}, found "
+                       f"{exp.get('kind') if isinstance(exp, dict) else exp!r}")
+    kind = exp["kind"]
+    declared = {o.name: o for o in GENERATOR_OPTIONS[kind]}
+    exp = _mapping(ctx, exp, "experiment", set(declared) | {"kind"})
+    options = {}
+    for key, value in exp.items():
+        if key != "kind":
+            o = declared[key]
+            options[o.argument] = _OPTION_READERS[o.type](ctx, o, value, f"experiment.{key}", robot)
+    arm = next((o for o in declared.values() if o.type == "arm"), None)
+    if arm is not None and arm.argument not in options and len(robot.arms) > 1:
+        raise ctx.fail(f"experiment.{arm.name}", f"name the arm; '{robot.name}' has {', '.join(robot.arms)}")
+    return kind, options
+
+
+def _read_count(ctx, o, value, p, robot):
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ctx.fail(p, f"expected a positive integer, found {value!r}")
+    return value
+
+
+def _read_bool(ctx, o, value, p, robot):
+    if not isinstance(value, bool):
+        raise ctx.fail(p, f"expected true or false, found {value!r}")
+    return value
+
+
+def _read_arm(ctx, o, value, p, robot):
+    if value not in robot.arms:
+        raise ctx.fail(p, f"expected an arm of '{robot.name}' ({', '.join(robot.arms)}), found {value!r}")
+    return value
+
+
+def _read_arms(ctx, o, value, p, robot):
+    if not isinstance(value, list) or len(value) != 2 or any(a not in robot.arms for a in value):
+        raise ctx.fail(p, f"expected two arms of '{robot.name}' ({', '.join(robot.arms)}), found {value!r}")
+    return tuple(value)
+
+
+def _read_box(ctx, o, value, p, robot):
+    w = _mapping(ctx, value, p, {"lower", "upper"}, ("lower", "upper"))
+    f = _factor(ctx, o.unit)
+    return _vector(ctx, w["lower"], f"{p}.lower", 3) * f, _vector(ctx, w["upper"], f"{p}.upper", 3) * f
+
+
+def _read_explore(ctx, o, value, p, robot):
+    e = _mapping(ctx, value, p, _EXPLORE_KEYS)
+    return {k: (int(_number(ctx, v, f"{p}.{k}")) if k in ("n_seeds", "n_steps") else _number(ctx, v, f"{p}.{k}"))
+            for k, v in e.items()}
+
+
+def _read_wrench(ctx, o, value, p, robot):
+    """Random loads of this magnitude (N), or one constant (fx, fy, fz, tx, ty, tz)."""
+    if isinstance(value, list):
+        return _vector(ctx, value, p, 6)
+    w = _number(ctx, value, p)
+    if not (np.isfinite(w) and w > 0):
+        raise ctx.fail(p, f"expected a load magnitude > 0 (N) or [fx, fy, fz, tx, ty, tz], found {value!r}")
+    return w
+
+
+_OPTION_READERS = {
+    "count": _read_count,
+    "bool": _read_bool,
+    "arm": _read_arm,
+    "arms": _read_arms,
+    "pose": lambda ctx, o, value, p, robot: _pose(ctx, value, p),
+    "poses": lambda ctx, o, value, p, robot: _READ_KNOWN["poses"](ctx, o, value, p),
+    "point": lambda ctx, o, value, p, robot: _vector(ctx, value, p, 3) * _factor(ctx, o.unit),
+    "points": lambda ctx, o, value, p, robot: _READ_KNOWN["points"](ctx, o, value, p),
+    "vector": lambda ctx, o, value, p, robot: _READ_KNOWN["vector"](ctx, o, value, p),
+    "box": _read_box,
+    "explore": _read_explore,
+    "wrench": _read_wrench,
+}

@@ -9,13 +9,15 @@ API summary (SI units; ``rng`` is a numpy Generator or an integer seed; same see
     generate_plate(robot, arm, n=, rng=, noise=, T_plate_fixture=plate_layout(), T_world_plate=, known_plate=)
     generate_dual(robot, arms=("left", "right"), n=, rng=, noise=, clamp=BRACKET_90, known_clamp=, workspace=)
     generate_socket(robot, arm, n=, rng=, noise=, p_world_socket=, known_socket=)
+    GENERATORS[kind], OPTIONS[kind]                              every generator (kincal.simulate.generators, one
+                                                                 module per kind) and its scenario options
     dataset_spread(dataset, robot, truth) -> {arm: JointSpread}   per-joint range, weak joints, branches
     solve_ik(model, T_world_tool, q0) / solve_closed_chain(model_a, model_b, T_toolA_toolB, q0_a, q0_b) -> IKResult
     explore(constraint, rng, ...) -> Exploration                 self-motion walks (clamped / closed chain)
-    Noise(position=, orientation=, joint=, backlash=)             kincal.noise.Noise (SI; None: none added)
+    Noise(position=, orientation=, joint=, backlash=, other=)     kincal.noise.Noise (SI; None: none added)
 
 ``validation`` is ``{arm: Dataset(kind="pose")}``: fresh random configurations with the noise-free true tool
-poses (``T_world_tracker`` = identity). ``Truth`` holds the true robot, the true nuisance values (fixture,
+poses (``T_world_tracker`` = identity); markers and camera validate with their own kind, frames refitted. ``Truth`` holds the true robot, the true nuisance values (fixture,
 plate, clamp, tracker, markers, socket), the noise-free readings and generator statistics.
 Joint readings are what the controller reports: true joint value minus true offset, plus noise.
 """
@@ -23,6 +25,7 @@ Joint readings are what the controller reports: true joint value minus true offs
 from kincal.simulate.generators import (
     BRACKET_90,
     GENERATORS,
+    OPTIONS,
     dataset_spread,
     generate_clamp,
     generate_dual,
@@ -51,7 +54,7 @@ from kincal.simulate.selfmotion import Exploration, JointSpread, explore, joint_
 from kincal.simulate.truth import Truth
 
 __all__ = [
-    "BRACKET_90", "GENERATORS", "LEVELS", "ClosedChainConstraint", "Exploration", "IKResult", "JointSpread", "Noise",
+    "BRACKET_90", "GENERATORS", "LEVELS", "OPTIONS", "ClosedChainConstraint", "Exploration", "IKResult", "JointSpread", "Noise",
     "Perturbation", "PoseConstraint", "PositionConstraint", "Truth", "backlash_offsets", "closure_error",
     "dataset_spread", "explore", "generate_clamp", "generate_dual", "generate_markers", "generate_plate",
     "generate_pose", "generate_socket", "joint_spread", "perturb_arm", "perturb_robot", "perturbation",

@@ -1,14 +1,16 @@
 """A simulation scenario: nominal robot, how the true robot differs, one experiment, noise, validation size.
 
-Scenario files (YAML, ``format: kincal-scenario``) are read by ``kincal.io.datasets.load_scenario`` into a
-``Scenario``; ``run`` turns it into ``(true robot, Dataset, Truth, validation)``. Examples ship in
-``kincal/scenarios/*.yaml`` and the format is documented in docs/simulation.md.
+Scenario files (YAML, ``format: kincal-scenario``) are read and checked by ``kincal.io.datasets.load_scenario``
+into plain data (a mapping, SI units); ``build_scenario`` makes a ``Scenario`` of it and ``run`` turns that into
+``(true robot, Dataset, Truth, validation)``. Examples ship in ``kincal/scenarios/*.yaml`` and the format is
+documented in docs/simulation.md.
 """
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass, field
-from typing import Callable, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -16,7 +18,7 @@ from kincal.data import Dataset
 from kincal.kinematics import Robot
 from kincal.simulate.generators import GENERATORS
 from kincal.simulate.noise import Noise
-from kincal.simulate.perturb import Perturbation, perturb_robot
+from kincal.simulate.perturb import Perturbation, perturb_robot, perturbation
 
 
 @dataclass(frozen=True, eq=False)
@@ -41,6 +43,21 @@ class Scenario:
     length_unit: str = "m"
 
 
+def build_scenario(spec: Mapping[str, Any]) -> Scenario:
+    """A ``Scenario`` from the plain data of ``load_scenario``: ``name``, ``robot``, ``model``, ``kind``,
+    ``options`` (the generator's keyword arguments, SI), ``truth`` (``level``, ``overrides`` {field: SI value},
+    ``arms``), ``noise``, ``validation``, ``seed``, ``output`` ({angle, length} unit names)."""
+    truth = spec["truth"]
+    arms = truth.get("arms")
+    return Scenario(
+        name=spec["name"], robot=spec["robot"], model=spec["model"], kind=spec["kind"], options=dict(spec["options"]),
+        perturbation=perturbation(truth.get("level", "thesis"), **truth.get("overrides", {})),
+        perturb_arms=tuple(arms) if arms else None, noise=spec.get("noise", Noise()),
+        n_validation=spec.get("validation", 100), seed=spec.get("seed", 0),
+        angle_unit=spec.get("output", {}).get("angle", "rad"), length_unit=spec.get("output", {}).get("length", "m"),
+    )
+
+
 def run(scenario: Scenario, progress: Callable[[int, int], None] | None = None):
     """Simulate: returns ``(true_robot, dataset, truth, validation)``; the same seed gives the same output.
 
@@ -50,7 +67,7 @@ def run(scenario: Scenario, progress: Callable[[int, int], None] | None = None):
     true = perturb_robot(scenario.robot, scenario.perturbation, robot_rng, arms=scenario.perturb_arms)
     gen = GENERATORS[scenario.kind]
     options = dict(scenario.options)
-    if scenario.kind not in ("pose", "markers"):
+    if "progress" in inspect.signature(gen).parameters:  # generators walking a self-motion report progress
         options["progress"] = progress
     ds, truth, validation = gen(true, rng=data_rng, noise=scenario.noise, n_validation=scenario.n_validation, **options)
     # name the data set after the scenario and point it at the nominal model it belongs to

@@ -1,0 +1,83 @@
+"""Marker positions on the tool measured by a tracker (kind ``markers``)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kincal._validate import as_array
+from kincal.data import Dataset
+from kincal.errors import DegenerateExperimentError
+from kincal.kinematics import Robot
+from kincal.lie import se3
+from kincal.noise import Noise
+from kincal.schema import LENGTH
+from kincal.simulate.generators._common import (ARM, WRENCH, Option, check_n, count_option, dataset_meta, generator,
+                                                known_option, noisy_readings, pick_arm, pose_or,
+                                                random_configurations)
+from kincal.simulate.generators._tracker import (random_markers, random_tracker_pose, tool_loads, tool_poses,
+                                                 validation_loads)
+from kincal.simulate.noise import tracker_points
+from kincal.simulate.truth import Truth
+
+__all__ = ["generate_markers"]
+
+
+@generator("markers", ARM, count_option(50), count_option(3, "markers", "number of random markers"),
+           Option("p_tool_marker", "points", LENGTH, argument="markers", doc="the markers, tool frame"),
+           known_option("markers"), Option("T_world_tracker", "pose", LENGTH, doc="the tracker (default: random)"),
+           known_option("tracker"), WRENCH)
+def generate_markers(
+    robot: Robot,
+    arm: str | None = None,
+    *,
+    n: int = 50,
+    rng: np.random.Generator | int | None = None,
+    noise: Noise = Noise(),
+    markers: int | np.ndarray = 3,
+    known_markers: bool = False,
+    T_world_tracker: np.ndarray | None = None,
+    known_tracker: bool = False,
+    n_validation: int = 100,
+    margin: float = 0.05,
+    wrench=None,
+) -> tuple[Dataset, Truth, dict]:
+    """Positions of markers on the tool seen by a tracker (partial pose): ``p_tracker_marker`` (N, m, 3).
+
+    ``markers`` is a count (random offsets within 0.1 m of the tool origin) or ``p_tool_marker`` (m, 3).
+    ``wrench``: loads on the tool (``wrench_tool``, applied to the tool by the environment, tool frame): a
+    constant (6,) (force N, torque N m), one per sample (n, 6), or a magnitude in N for random loads
+    (``random_wrenches``); the true poses are deflected with the true robot's compliance
+    (``kincal.kinematics.elastic``) and the validation set carries loads too. Without it the draws, and so
+    the outputs for a seed, are those of earlier versions.
+    """
+    n, rng = check_n(n), np.random.default_rng(rng)
+    arm, model = pick_arm(robot, arm)
+    p_tm = random_markers(int(markers), rng) if np.ndim(markers) == 0 else as_array(markers, "markers", (3,))
+    if p_tm.ndim != 2 or len(p_tm) < 1:
+        raise DegenerateExperimentError(f"markers: expected a count >= 1 or an (m, 3) array, got {markers!r}")
+    T_wt = pose_or(T_world_tracker, "T_world_tracker", lambda: random_tracker_pose(robot, arm, rng))
+    q = random_configurations(model, n, rng, margin)
+    loads = tool_loads(wrench, n, rng)
+    T = se3.inverse(T_wt) @ tool_poses(model, q, loads)
+    p = se3.transform_points(T[:, None], p_tm[None])
+    known = {}
+    if known_tracker:
+        known["T_world_tracker"] = T_wt
+    if known_markers:
+        known["p_tool_marker"] = p_tm
+    measured = {"p_tracker_marker": tracker_points(p, noise, rng)}
+    if loads is not None:
+        measured["wrench_tool"] = loads
+    ds = Dataset("markers", robot.name, (arm,), noisy_readings({arm: q}, noise, rng), measured, known, "markers",
+                 dataset_meta("markers", noise))
+    truth = Truth(robot, {"T_world_tracker": T_wt, "p_tool_marker": p_tm}, {arm: q}, noise, {"generator": "markers"})
+    # Validate what this experiment observes: marker positions at fresh configurations, noise-free, with the
+    # tracker frame and marker offsets left unknown (refitted), not the world-frame tool pose (which a partial
+    # pose measurement does not determine: the tracker gauge, and with one marker the tool orientation).
+    qv = random_configurations(model, n_validation, rng, margin)
+    lv = validation_loads(wrench, loads, n_validation, rng)
+    pv = se3.transform_points((se3.inverse(T_wt) @ tool_poses(model, qv, lv))[:, None], p_tm[None])
+    mv = {"p_tracker_marker": pv} if lv is None else {"p_tracker_marker": pv, "wrench_tool": lv}
+    validation = {arm: Dataset("markers", robot.name, (arm,), {arm: qv}, mv, {}, f"validation-{arm}",
+                               {"noise_free": True})}
+    return ds, truth, validation
