@@ -11,11 +11,12 @@ import pytest
 
 from kincal import robots
 from kincal.baselines import thesis as th
+from kincal.baselines.identification import identification_jacobian
 from kincal.baselines.thesis_common import damped_step
 from kincal.baselines.thesis_dual import pose_errors
 from kincal.data import Dataset
 from kincal.errors import DegenerateExperimentError, ModelError, ShapeError
-from kincal.kinematics import chain, forward_kinematics, identification_jacobian, space_jacobian
+from kincal.kinematics import chain, forward_kinematics, space_jacobian
 from kincal.lie import se3, so3
 from kincal.simulate import generate_clamp, generate_dual, generate_plate, perturb_robot
 from kincal.testing import numerical_jacobian, random_pose

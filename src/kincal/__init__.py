@@ -8,7 +8,7 @@ from kincal.errors import (
     ModelError,
     ShapeError,
 )
-from kincal.kinematics import ArmModel, Robot, forward_kinematics, identification_jacobian
+from kincal.kinematics import ArmModel, Robot, forward_kinematics
 
 __version__ = "0.1.0"
 
@@ -22,5 +22,4 @@ __all__ = [
     "Robot",
     "ShapeError",
     "forward_kinematics",
-    "identification_jacobian",
 ]
