@@ -14,6 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
+from kincal.analysis.columns import scatter_columns
 from kincal.estimation.constraints import constraint_rows
 from kincal.errors import ModelError
 from kincal.experiments import Experiment
@@ -133,25 +134,13 @@ class Problem:
     def _stack(self, state, residuals, whiteners, cols, Rl):
         """Whiten and stack residuals and (``cols`` not None) the Jacobian columns ``cols`` of the layout;
         ``Rl``: retraction Jacobians of pose blocks stepped away from their linearization point."""
-        col = np.full(self.layout.size, -1)
-        if cols is not None:
-            col[cols] = np.arange(len(cols))
         rs, Js = [], []
         for res, W in zip(residuals, whiteners):
             rs.append((W @ res.r[:, :, None]).ravel())
             if cols is None:
                 continue
             N, k = res.r.shape
-            J = np.zeros((N, k, len(cols)))
-            for b in self.layout.blocks:
-                Jb = res.jac.get(b.name)
-                if Jb is None:
-                    continue
-                if b.name in Rl:
-                    Jb = Jb @ Rl[b.name]
-                c = col[b.start: b.stop]
-                sel = c >= 0
-                J[:, :, c[sel]] = Jb[:, :, sel]
+            J = scatter_columns(res.jac, self.layout, cols, (N, k), Rl)
             Js.append((W @ J).reshape(N * k, -1))
         if len(self.prior_idx):
             disp, D = displacement(state, self.nominal, self.layout)
@@ -164,10 +153,10 @@ class Problem:
                     Dfull[:, b.start: b.stop] = Dfull[:, b.start: b.stop] @ Jl
                 Js.append(Dfull[:, cols] / sig[:, None])
         if len(self.constraints):
-            rc, Jc = constraint_rows(self.constraints, state, self.layout, Rl)
+            rc, Jc = constraint_rows(self.constraints, state, self.layout, Rl, cols)
             rs.append(rc)
             if cols is not None:
-                Js.append(Jc[:, cols])
+                Js.append(Jc)
         r = np.concatenate(rs)
         return (r, np.concatenate(Js, axis=0)) if cols is not None else (r, None)
 
