@@ -122,12 +122,12 @@ def test_gauss_newton_and_least_squares_paths_agree(rng, monkeypatch, caplog):
                            home=se3.exp(rng.normal(scale=0.01, size=6)) @ true.home)
     data = [_pose_data(rng, true, W=se3.exp(rng.normal(size=6)))]
     robot = Robot("r", {"arm": nominal})
-    with caplog.at_level(logging.DEBUG, logger="kincal.estimation.solver"):
+    with caplog.at_level(logging.DEBUG, logger="kincal.estimation.iterate"):
         fast = calibrate(robot, data, "kinematic")
     assert "Gauss-Newton" in caplog.text and "least_squares" not in caplog.text
     caplog.clear()
     monkeypatch.setattr(steps, "gauss_newton", lambda lin, V: (np.zeros(V.shape[1]), 0.0))  # never helps
-    with caplog.at_level(logging.DEBUG, logger="kincal.estimation.solver"):
+    with caplog.at_level(logging.DEBUG, logger="kincal.estimation.iterate"):
         slow = calibrate(robot, data, "kinematic")
     assert "least_squares" in caplog.text
     assert fast.status == slow.status == "converged"
