@@ -136,3 +136,27 @@ def test_gauss_newton_and_least_squares_paths_agree(rng, monkeypatch, caplog):
         T = se3.inverse(res.extras["tracker"]) @ forward_kinematics(res.robot["arm"], q)
         np.testing.assert_allclose(T, se3.inverse(data[0].known["T_world_tracker"]) @ forward_kinematics(true, q),
                                    atol=1e-9)
+
+
+def test_spine_build_solve_equals_calibrate(rng):
+    """Problem.build + solve(SolverOptions) is what calibrate runs; the problem is frozen, the result keeps it,
+    statistics and twists are typed."""
+    import dataclasses
+
+    from kincal.estimation import Problem, ResidualStats, SolverOptions, TwistEstimate, solve
+
+    true = random_arm(rng, 6, name="arm")
+    ds = _pose_data(rng, true)
+    nominal = Robot("r", {"arm": true.replace(offsets=np.zeros(6))})
+    problem = Problem.build(nominal, [ds], "kinematic")
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        problem.start = problem.nominal
+    res = solve(problem, SolverOptions())
+    ref = calibrate(nominal, [ds], "kinematic")
+    assert res.status == ref.status == "converged" and res.iterations == ref.iterations
+    assert [e.value for e in res.estimates] == [e.value for e in ref.estimates]
+    assert res.problem is problem and res.linearization.state is res.state
+    assert isinstance(res.after[0], ResidualStats) and res.after[0].position_max < 1e-9
+    assert isinstance(res.twists[0], TwistEstimate) and res.twists[0].name == "arm.j1.xi.v_x"
+    with pytest.raises(ModelError, match="gauge must be"):
+        SolverOptions(gauge="smallest")
