@@ -17,6 +17,9 @@ from kincal.params import Layout, State
 
 @dataclass(frozen=True)
 class Estimate:
+    """One free coordinate's estimate: value and nominal in SI units (``unit``), standard deviation scaled by the
+    residual variance (nan when ``identifiable`` is false)."""
+
     name: str
     value: float  # displacement from nominal in local coordinates for twists/poses; absolute for offsets/points
     nominal: float
