@@ -35,7 +35,7 @@ import numpy as np  # noqa: E402
 from scipy.optimize import least_squares  # noqa: E402
 from scipy.optimize._numdiff import approx_derivative  # noqa: E402
 
-from kincal.estimation import calibrate, solver, steps  # noqa: E402
+from kincal.estimation import calibrate, steps  # noqa: E402
 from kincal.estimation.problem import Problem  # noqa: E402
 from kincal.params import retract  # noqa: E402
 from kincal.robots import load  # noqa: E402
@@ -56,7 +56,8 @@ def _fd_linearize(self: Problem, state, whiteners=None, cols=None):
         return self._stack(s, [e.residual(s, want=set(), jq=False) for e in self.experiments], W, None, {})[0]
 
     r = f(np.zeros(len(cols)))
-    return r, approx_derivative(f, np.zeros(len(cols)), method="2-point", f0=r), W
+    raw = [res.r for res in self.residuals(state)]
+    return r, approx_derivative(f, np.zeros(len(cols)), method="2-point", f0=r), W, raw
 
 
 @contextlib.contextmanager
@@ -105,13 +106,13 @@ def main() -> None:
 
     def line(label, t, res):
         ana = res.identifiability
-        closure = max(s["position_max"] for s in res.after)
+        closure = max(s.position_max for s in res.after)
         return (f"{label}: {t:.3f} s; rank {ana.rank} of {len(ana.names)}, {res.status}, {res.iterations} outer "
                 f"iterations, {res.evaluations} inner evaluations, max closure {closure * 1e3:.2e} mm")
 
     ta, res = timed(functools.partial(calibrate, frida, [ds], free), args.repeat)
     print(line("kincal, analytic Jacobians", ta, res))
-    problem, _ = solver._problem(frida, [ds], free, (), None, None)
+    problem = Problem.build(frida, [ds], free)
     if not args.quick:
         for method in ("lm", "trf"):
             tf, sol = timed(functools.partial(plain_fd, problem, method), 1)

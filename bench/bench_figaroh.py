@@ -131,7 +131,7 @@ def run_kincal(nominal, ds, q_val, y_val, profile: bool = False) -> Run:
     ident = res.identifiability
     run = Run("kincal", ds.size, 0.0, dt, f"{res.iterations} outer / {res.evaluations} evals",
               f"{ident.rank} of {len(ident.names)}", res.status, rms, mx, cpu)
-    run.notes["fit_rms_mm"] = res.after[0]["position_rms"] * 1e3
+    run.notes["fit_rms_mm"] = res.after[0].position_rms * 1e3
     if prof is not None:
         run.notes["profile"] = prof
     return run

@@ -9,7 +9,8 @@ import time
 
 import numpy as np
 
-from kincal.kinematics import forward_kinematics, identification_jacobian
+from kincal.baselines.identification import identification_jacobian
+from kincal.kinematics import forward_kinematics
 from kincal.testing import random_arm
 
 

@@ -46,7 +46,7 @@ def tracker_row(label, robot, ds, free, noise, folds, published="", **options):
     free_name = free if isinstance(free, str) else ("+".join(free) or "frames only")
     cells = [label, free_name + (f" ({options['loss']})" if "loss" in options else ""), str(ds.size),
              f"{res.identifiability.rank}/{len(res.identifiability.names)}", str(res.iterations), f"{wall:.2f}",
-             _fmt(a["position_rms"], MM), _fmt(a.get("orientation_rms"), DEG), f"{res.sigma2:.2f}",
+             _fmt(a.position_rms, MM), _fmt(a.orientation_rms, DEG), f"{res.sigma2:.2f}",
              _fmt(cv["pos_mean"], MM), _fmt(cv["pos_rms"], MM), _fmt(cv["pos_max"], MM),
              _fmt(cv.get("ori_rms"), DEG), res.status, published]
     return cells
@@ -73,7 +73,7 @@ def mukca_rows(path):
         spread = np.concatenate([s for s, _ in out])
         dist = np.array([d for _, d in out]) - rd.MUKCA_HOLE_DISTANCE
         rows.append([label, _fmt(spread.mean(), MM), _fmt(spread.max(), MM), _fmt(np.abs(dist).max(), MM)])
-    fit = max(a["position_rms"] for a in res.after)
+    fit = max(a.position_rms for a in res.after)
     print(f"\nMUKCa panda_2: offsets trained on {', '.join(rd.MUKCA_TRAIN)} ({sum(d.size for d in train)} "
           f"configurations, 12 sockets): {res.status}, rank {res.identifiability.rank}/"
           f"{len(res.identifiability.names)}, {res.iterations} iterations, {wall:.2f} s, fit RMS up to "
@@ -92,20 +92,20 @@ def motoman_rows(path):
     planes = [rd.motoman_plane(path, f"{s}{k}") for s in ("higher_table", "lower_table", "wall_table") for k in "12"]
     leica = rd.motoman_robot("leica")
     tracker = rd.motoman_leica(path)
-    rows = [["nominal", "-", "-", "-", "-", _fmt(evaluate(robot, [train])[0]["position_rms"], MM),
-             _fmt(evaluate(robot, [test])[0]["position_rms"], MM), _fmt(evaluate(robot, [ds])[0]["position_rms"], MM),
-             _fmt(evaluate(leica, [tracker])[0]["position_rms"], MM), "1.36 / 1.31"]]
+    rows = [["nominal", "-", "-", "-", "-", _fmt(evaluate(robot, [train])[0].position_rms, MM),
+             _fmt(evaluate(robot, [test])[0].position_rms, MM), _fmt(evaluate(robot, [ds])[0].position_rms, MM),
+             _fmt(evaluate(leica, [tracker])[0].position_rms, MM), "1.36 / 1.31"]]
     for label, data, ref in (("self-touch (train)", [train], "0.95 / 1.02"), ("planes (6 surfaces)", planes, "")):
         t = time.perf_counter()
         res = calibrate(robot, data, rd.MOTOMAN_FREE, noise=rd.NOISE["motoman"])
         wall = time.perf_counter() - t
         on_leica = leica.replace_arm("right", leica["right"].replace(offsets=res.robot["right"].offsets))
-        fit = np.sqrt(np.mean([a["position_rms"] ** 2 for a in res.after]))
+        fit = np.sqrt(np.mean([a.position_rms ** 2 for a in res.after]))
         rows.append([label, f"{res.identifiability.rank}/{len(res.identifiability.names)}", str(res.iterations),
-                     f"{wall:.2f}", _fmt(fit, MM), _fmt(evaluate(res.robot, [train])[0]["position_rms"], MM),
-                     _fmt(evaluate(res.robot, [test])[0]["position_rms"], MM),
-                     _fmt(evaluate(res.robot, [ds])[0]["position_rms"], MM),
-                     _fmt(evaluate(on_leica, [tracker])[0]["position_rms"], MM), ref])
+                     f"{wall:.2f}", _fmt(fit, MM), _fmt(evaluate(res.robot, [train])[0].position_rms, MM),
+                     _fmt(evaluate(res.robot, [test])[0].position_rms, MM),
+                     _fmt(evaluate(res.robot, [ds])[0].position_rms, MM),
+                     _fmt(evaluate(on_leica, [tracker])[0].position_rms, MM), ref])
     print(f"\nMotoman: right arm {', '.join(rd.MOTOMAN_FREE)} free; self-touch distance RMS (mm) on the 70/30 split "
           f"({train.size}/{test.size} poses) and Leica reflector RMS with the same offsets ({tracker.size} poses, "
           "tracker fitted); authors: train / test RMS")

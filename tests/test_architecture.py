@@ -47,3 +47,20 @@ def test_an_upward_import_breaks_the_layers_contract(lint_available, tmp_path):
     assert "kincal.lie.so3 -> kincal.cli" in run.stdout, run.stdout
     # the copy, not the installed tree, was analysed: the original still passes
     assert "kincal.lie.so3 -> kincal.cli" not in _lint(ROOT, ROOT / "src").stdout
+
+
+def test_no_function_over_60_lines_in_the_core():
+    """estimation/, analysis/ and params stay made of short functions (issue #8)."""
+    import ast
+
+    src = Path(__file__).resolve().parents[1] / "src" / "kincal"
+    long = []
+    for folder in ("estimation", "analysis", "params"):
+        files = sorted((src / folder).rglob("*.py"))
+        assert files, folder
+        for path in files:
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                    if node.end_lineno - node.lineno + 1 > 60:
+                        long.append(f"{path.relative_to(src)}:{node.name}")
+    assert long == []

@@ -126,7 +126,7 @@ def test_dual_both_arms_unknown(frida, true_full):
     fresh = _fresh_dual(true_full, truth.values["T_toolA_toolB"], 6)
     fresh = Dataset("dual", fresh.robot, fresh.arms, fresh.q, {}, {"T_toolA_toolB": res.extras["clamp"]}, "fresh")
     stats = evaluate(res.robot, [fresh])[0]
-    assert stats["position_max"] < EXACT and stats["orientation_max"] < EXACT
+    assert stats.position_max < EXACT and stats.orientation_max < EXACT
 
 
 @pytest.mark.parametrize("markers,rank", [(1, 27), (3, 33)])
@@ -146,7 +146,7 @@ def test_tracker_markers_unknown_tracker_and_markers(markers, rank):
     assert res.identifiability.rank == rank
     assert not any("weakly identifiable" in m for m in res.messages)
     v = res.validation[0]
-    assert v["position_rms_before"] > 1e-3 and v["position_max_after"] < EXACT
+    assert v.before.position_rms > 1e-3 and v.after.position_max < EXACT
     # the Python API reports, next to the validation error, what the model predicts about its accuracy there
     ((name, pred),) = res.predictions
-    assert name == v["experiment"] and pred.trusted and pred.null_moving == 0
+    assert name == v.experiment and pred.trusted and pred.null_moving == 0

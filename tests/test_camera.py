@@ -83,7 +83,7 @@ def test_offsets_recovered_with_known_camera_and_point(ur10, seed):
     assert np.all(np.abs(err) < 4 * std) and np.abs(err).max() < 5e-3
     assert np.abs(ur10["arm"].offsets - true["arm"].offsets).max() > 0.02
     v = res.validation[0]
-    assert v["kind"] == "camera" and v["pixel_rms_before"] > 2.0 and v["pixel_rms_after"] < 3 * PIXEL_SIGMA
+    assert v.kind == "camera" and v.before.pixel_rms > 2.0 and v.after.pixel_rms < 3 * PIXEL_SIGMA
 
 
 def test_unknown_camera_and_point_name_what_pixels_cannot_see(ur10):
@@ -98,7 +98,7 @@ def test_unknown_camera_and_point_name_what_pixels_cannot_see(ur10):
         "arm.shoulder_pan" in text
     assert "arm.wrist_3.offset cannot be identified" in text and "point.x" in text
     assert np.abs(_offset_errors(res, true)[1:5]).max() < 5e-3
-    assert res.validation[0]["pixel_rms_after"] < 3 * PIXEL_SIGMA
+    assert res.validation[0].after.pixel_rms < 3 * PIXEL_SIGMA
 
 
 def test_full_kinematic_calibration_from_pixels(ur10):
@@ -112,7 +112,7 @@ def test_full_kinematic_calibration_from_pixels(ur10):
     assert res.status == "converged" and res.identifiability.rank == 26  # a one-marker tracker gives 27, less scale
     assert any(m.startswith("scale cannot be identified") for m in res.messages)
     v = res.validation[0]
-    assert v["pixel_rms_before"] > 1.0 and v["pixel_rms_after"] < 2 * PIXEL_SIGMA
+    assert v.before.pixel_rms > 1.0 and v.after.pixel_rms < 2 * PIXEL_SIGMA
     # held out, nothing refitted: the calibrated arm, camera and point predict the true pixels
     qv = val["arm"].q["arm"]
     K = ds.known["intrinsics"]
@@ -216,8 +216,8 @@ def test_job_with_camera_data_and_validation(tmp_path):
         "validation": ["out/validation/arm.yaml"], "free": "offsets"}))
     res = run_job(load_job(tmp_path / "job.yaml"))
     v = res.validation[0]
-    assert res.status == "converged" and v["kind"] == "camera"
-    assert v["pixel_rms_before"] > 2.0 and v["pixel_rms_after"] < 3 * 0.2
+    assert res.status == "converged" and v.kind == "camera"
+    assert v.before.pixel_rms > 2.0 and v.after.pixel_rms < 3 * 0.2
 
 
 def test_a_camera_that_cannot_see_the_arm_says_so(ur10):

@@ -69,7 +69,7 @@ def test_thesis_method_from_a_job_is_validated_like_kincal(tmp_path, capsys):
     saved = yaml.safe_load((tmp_path / "thesis" / "result.yaml").read_text())
     assert saved["iterations"].endswith(")") and len(saved["validation"]) == 2
     v = saved["validation"][0]
-    assert v["position_rms_after"] < v["position_rms_before"]  # the thesis method does improve, if not exactly
+    assert v["position_mm_rms_after"] < v["position_mm_rms_before"]  # the thesis method does improve, if not exactly
 
 
 def test_calibrate_writes_plots(tmp_path):
@@ -96,7 +96,7 @@ def test_plots_report_per_sample_errors_before_and_after(tmp_path):
         true = true.replace_arm(a, true[a].replace(offsets=true[a].offsets + 0.02))
     ds, _, _ = generate_dual(true, n=40, rng=2, known_clamp=True)
     res = calibrate(frida, [ds], "offsets")
-    ((name, before, after),) = per_sample_errors(res, [ds])
+    ((name, before, after),) = per_sample_errors(res)
     assert name == ds.name and before.shape == after.shape == (40,)
     assert before.min() > 1e-3 and after.max() < 1e-9  # millimetres of error before, exact after (noise-free)
 
@@ -104,7 +104,7 @@ def test_plots_report_per_sample_errors_before_and_after(tmp_path):
 def test_plots_without_matplotlib_say_what_to_install(monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # as if not installed
     with pytest.raises(KincalError, match=r'pip install "kincal\[plot\]"'):
-        plots.write_plots(None, [], tmp_path / "p")
+        plots.write_plots(None, tmp_path / "p")
 
 
 def test_write_job_writes_what_load_job_reads_and_never_overwrites(tmp_path):

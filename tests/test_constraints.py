@@ -10,7 +10,7 @@ from kincal import robots
 from kincal.cli import main
 from kincal.errors import DataFormatError, ModelError
 from kincal.estimation import FrameDistance, calibrate
-from kincal.estimation.solver import _problem
+from kincal.estimation import Problem
 from kincal.io.datasets import write_dataset
 from kincal.io.jobs import load_job
 from kincal.kinematics import forward_kinematics
@@ -38,7 +38,7 @@ def _pairwise(points):
 def test_constraint_jacobian_matches_differences(two_sockets, rng):
     panda, _, sets = two_sockets
     c = FrameDistance("s1.socket", "s2.socket", APART, 1e-4)
-    problem, _ = _problem(panda, sets, ["kinematic"], (), None, None, [c])
+    problem = Problem.build(panda, sets, ["kinematic"], constraints=[c])
     W = problem.whiteners(problem.nominal)
     d0 = rng.normal(scale=1e-3, size=len(problem.free_idx))  # away from the linearization point
     r, J = problem.evaluate(problem.nominal, d0, W)

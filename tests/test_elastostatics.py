@@ -100,7 +100,7 @@ def test_ur10_geometry_and_compliance_from_loaded_markers_noise_free(ur10_case):
     assert not any("compliance" in m for m in res.messages)
     np.testing.assert_allclose(res.robot["arm"].compliance, c, rtol=0, atol=1e-18)
     v = res.validation[0]
-    assert v["position_rms_before"] > 1e-3 and v["position_max_after"] < EXACT
+    assert v.before.position_rms > 1e-3 and v.after.position_max < EXACT
     assert "wrench_tool" in val["arm"].measured  # the validation configurations are loaded too
 
 

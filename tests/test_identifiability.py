@@ -48,7 +48,7 @@ def test_tracker_pose_data_identify_everything_but_redundancies(rng):
     pivots = [d.pivot for d in ana.directions]
     assert pivots[:6] == [f"arm.j{i}.offset" for i in range(1, 7)]
     assert not res.estimate("tracker.v_x").identifiable
-    assert max(s["position_max"] for s in res.after) < 1e-9
+    assert max(s.position_max for s in res.after) < 1e-9
 
 
 def test_priority_gauge_holds_the_named_parameters(rng):

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
+from kincal.baselines.identification import identification_jacobian
 from kincal.errors import ModelError, ShapeError
 from kincal.kinematics import (
     ArmModel,
@@ -11,10 +12,11 @@ from kincal.kinematics import (
     chain,
     conform_twists,
     forward_kinematics,
-    identification_jacobian,
     kinematics,
     space_jacobian,
     tangent_basis,
+    tangent_generators,
+    tool_jacobians,
 )
 from kincal.lie import se3
 from kincal.testing import numerical_jacobian, pose_minus, random_arm
@@ -62,6 +64,39 @@ def _raw_fk(arm, q, block, delta):
     else:
         poses[block] = se3.exp(se3.log(poses[block]) + delta)
     return chain(screws, q + offsets, poses["base"], poses["home"], poses["tool"]).tool
+
+
+def _moved_fk(arm, q, gens, part, d):
+    """Tool pose after the increment d of one part as ``tool_jacobians`` parametrizes it: offsets additive,
+    joint screws moved rigidly by ``exp(G_j d_j)``, poses by left increments."""
+    screws, offsets = arm.screws.copy(), arm.offsets.copy()
+    poses = {b: getattr(arm, b) for b in ("base", "home", "tool")}
+    if part == "offsets":
+        offsets = offsets + d
+    elif part == "twists":
+        c = 0
+        for j, G in enumerate(gens):
+            screws[j] = se3.adjoint(se3.exp(G @ d[c: c + G.shape[1]])) @ screws[j]
+            c += G.shape[1]
+    else:
+        poses[part] = se3.exp(d) @ poses[part]
+    return chain(screws, q + offsets, poses["base"], poses["home"], poses["tool"]).tool
+
+
+@pytest.mark.parametrize("n,prismatic", ARMS)
+def test_tool_jacobians_match_finite_differences(rng, n, prismatic):
+    arm = random_arm(rng, n, prismatic)
+    q = _configs(rng, n, count=5)
+    gens = [tangent_generators(s, t) for s, t in zip(arm.screws, arm.joint_types)]
+    kin = chain(arm.screws, q + arm.offsets, arm.base, arm.home, arm.tool)
+    J, jq = tool_jacobians(kin, np.broadcast_to(np.eye(6), (len(q), 6, 6)), arm.screws, gens)
+    np.testing.assert_allclose(jq, space_jacobian(arm, q), atol=1e-12)
+    sizes = {"offsets": n, "twists": sum(G.shape[1] for G in gens), "home": 6, "base": 6, "tool": 6}
+    for part, size in sizes.items():
+        num = numerical_jacobian(lambda d: _moved_fk(arm, q, gens, part, d), np.zeros(size), minus=pose_minus)
+        assert J[part].shape == (len(q), 6, size)
+        np.testing.assert_allclose(J[part], num, atol=1e-6 * max(1.0, np.abs(num).max()), err_msg=part)
+    np.testing.assert_array_equal(J["compliance"], 0.0)  # no load: compliance has no effect
 
 
 @pytest.mark.parametrize("frame", ["space", "body"])

@@ -181,12 +181,12 @@ def test_plate_with_four_fixtures_is_flagged(plate):
     assert "weakly identifiable" in words and "should not be trusted" in words and "measure configurations" in words
     # the predicted standard deviation is large: millimetres, against 0.04 mm residuals in the data
     st = p.stats()
-    assert st["position_std_rms"] > 1e-3 and st["position_std_rms"] > 50 * res.after[0]["position_rms"]
+    assert st["position_std_rms"] > 1e-3 and st["position_std_rms"] > 50 * res.after[0].position_rms
     # and the actual error is larger still: the estimate wanders along the weak directions far beyond the
     # linearized standard deviation (about 30x here), which is what the weak-direction message warns of
     actual, _ = _errors(forward_kinematics(res.robot["right"], q), forward_kinematics(true["right"], q),
                         _point_map(forward_kinematics(true["right"], q)[:, :3, 3]))
-    assert _rms([actual]) > 0.1 and res.validation[0]["position_rms_after"] > 0.1
+    assert _rms([actual]) > 0.1 and res.validation[0].after.position_rms > 0.1
     assert _rms([actual]) > 5 * st["position_std_rms"]
     # without registration the whole-arm-with-plate motions count too
     assert res.predict(q, "right", register=False).null_moving == 6

@@ -69,7 +69,7 @@ def wu_pose(wu):
 def test_wu_markers_fit_rank_and_noise(wu_markers):
     _, res = wu_markers
     assert res.status == "converged"
-    before, after = res.before[0]["position_rms"], res.after[0]["position_rms"]
+    before, after = res.before[0].position_rms, res.after[0].position_rms
     assert before > 5 * MM  # at the starting values (nominal arm, initial tracker and markers): 10.5 mm RMS
     assert after < 0.30 * MM  # 0.245 mm measured; +20 %
     assert 0.5 < res.sigma2 < 2.0  # 1.0 measured: residuals match the stated noise within a factor sqrt(2)
@@ -106,8 +106,8 @@ def test_wu_pose_fit_rank_and_noise(wu_pose):
     _, res = wu_pose
     assert res.status == "converged"
     after = res.after[0]
-    assert after["position_rms"] < 0.26 * MM  # 0.213 mm measured; +20 %
-    assert after["orientation_rms"] < 0.125 * DEG  # 0.104 deg measured; +20 %
+    assert after.position_rms < 0.26 * MM  # 0.213 mm measured; +20 %
+    assert after.orientation_rms < 0.125 * DEG  # 0.104 deg measured; +20 %
     assert 0.5 < res.sigma2 < 2.0  # 0.9 measured
     ide = res.identifiability
     # 36 arm + 6 tracker coordinates, rank 30 = 4r + 2p + 6 with r = 6 (the minimal POE count): null are the
@@ -135,7 +135,7 @@ def test_wu_pose_from_the_flange_frame_reaches_the_noise_floor(wu):
     arm = robot["arm"]
     flange = np.array([[0, 0, 1, 0.374], [0, 1, 0, 0], [-1, 0, 0, 0.630], [0, 0, 0, 1.0]])  # ABB tool0 at zero
     res = calibrate(robot.replace_arm("arm", arm.replace(home=flange)), [ds], "kinematic", noise=WU_NOISE)
-    assert res.status != "converged" or res.after[0]["position_rms"] < 0.26 * MM
+    assert res.status != "converged" or res.after[0].position_rms < 0.26 * MM
 
 
 # ----------------------------------------------------------------------------- FIGAROH UR10e, camera poses
@@ -156,8 +156,8 @@ def test_ur10_camera_base_and_tool_fit_matches_the_reference(ur10):
     assert res.status == "converged" and res.identifiability.rank == 12
     # SOURCE.md's helper check (nominal URDF, base pose + tool fitted): mean about 3.2 mm, 0.2-1.1 deg.
     # kincal: 3.52 mm RMS, 6.2 mm max, 0.54 deg RMS.
-    assert 2.8 * MM < res.after[0]["position_rms"] < 4.2 * MM
-    assert res.after[0]["orientation_max"] < 1.2 * DEG
+    assert 2.8 * MM < res.after[0].position_rms < 4.2 * MM
+    assert res.after[0].orientation_max < 1.2 * DEG
 
 
 def test_ur10_camera_kinematic_calibration_does_not_help_held_out_positions(ur10):
@@ -167,7 +167,7 @@ def test_ur10_camera_kinematic_calibration_does_not_help_held_out_positions(ur10
     ide = res.identifiability
     assert (len(ide.names), ide.rank) == (42, 30)  # as for any 6R arm with full pose: offsets + camera gauge
     assert 0.5 < res.sigma2 < 2.0  # 1.08 measured
-    assert res.after[0]["position_rms"] < 3.2 * MM  # 2.90 mm measured
+    assert res.after[0].position_rms < 3.2 * MM  # 2.90 mm measured
     full = ho.cross_validate(robot, ds, "kinematic", k=6, noise=UR10_NOISE).summary()
     frames = ho.cross_validate(robot, ds, ["arm.home"], k=6, noise=UR10_NOISE).summary()
     # 23 noisy camera poses: 30 identifiable parameters buy nothing in held-out position (3.96 vs 3.87 mm mean)
@@ -193,8 +193,8 @@ def test_talos_marker_kinematic_calibration(talos):
     assert res.status == "converged"
     # SOURCE.md helper check, nominal URDF with base and marker fitted: RMS 5.2 mm. kincal, the same fit: 5.16 mm
     nominal = calibrate(robot, [ds], [], noise=TALOS_NOISE)  # only the unknown tracker and marker are free
-    assert 4.7 * MM < nominal.after[0]["position_rms"] < 5.7 * MM
-    assert res.after[0]["position_rms"] < 0.6 * MM  # 0.509 mm measured
+    assert 4.7 * MM < nominal.after[0].position_rms < 5.7 * MM
+    assert res.after[0].position_rms < 0.6 * MM  # 0.509 mm measured
     assert 0.5 < res.sigma2 < 2.0
     ide = res.identifiability
     # 9 joints: 9 offsets, the arm moving with the tracker (6) and, with one marker, the whole tool frame (6)
@@ -225,7 +225,7 @@ def mukca():
 def test_mukca_offsets_on_held_out_placements(mukca):
     nominal, authors, _, held_out, res = mukca  # authors: their calibrated URDF
     assert res.status == "converged" and len(held_out) == 6
-    assert max(a["position_rms"] for a in res.after) < 1.8 * MM  # 0.76-1.50 mm per socket measured
+    assert max(a.position_rms for a in res.after) < 1.8 * MM  # 0.76-1.50 mm per socket measured
     # 7 offsets + 6 sockets x 3 less one: turning the arm about joint 1 with every socket is an exact symmetry of
     # the cost (held; see the joint-1 test below); variance factor 5.0 measured at 0.3 mm: seven offsets do not
     # model everything (residual RMS 2.2 times the stated noise)
@@ -317,8 +317,8 @@ def test_motoman_self_touch_against_the_authors(motoman):
                for d in ide.directions)
     (before,), (after,) = evaluate(robot, [test]), evaluate(res.robot, [test])
     # kincal: 1.33 -> 0.99 mm on the 396 training poses, 1.37 -> 0.98 mm on the 170 held-out ones
-    assert res.after[0]["position_rms"] < 0.8 * res.before[0]["position_rms"]
-    assert after["position_rms"] < 1.1 * MOTOMAN_REFERENCE_TEST_RMS and after["position_rms"] < 0.8 * before["position_rms"]
+    assert res.after[0].position_rms < 0.8 * res.before[0].position_rms
+    assert after.position_rms < 1.1 * MOTOMAN_REFERENCE_TEST_RMS and after.position_rms < 0.8 * before.position_rms
 
 
 def test_motoman_self_touch_offsets_do_not_spoil_the_laser_tracker(motoman):
@@ -329,4 +329,4 @@ def test_motoman_self_touch_offsets_do_not_spoil_the_laser_tracker(motoman):
     # SOURCE.md helper check: 0.23 mm mean / 0.51 mm max with the nominal model; kincal 0.248 -> 0.173 mm RMS
     # (offsets from the 70 % split; from all 566 poses 0.237 mm: distance data determine them loosely), so only
     # "not worse" is asserted.
-    assert nominal["position_rms"] < 0.3 * MM and after["position_rms"] < 1.05 * nominal["position_rms"]
+    assert nominal.position_rms < 0.3 * MM and after.position_rms < 1.05 * nominal.position_rms

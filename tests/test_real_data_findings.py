@@ -25,7 +25,7 @@ def _ur10_with_turned_tool(deg):
 def test_pose_with_unknown_tracker_from_a_tool_frame_110_deg_off():
     ur10, ds = _ur10_with_turned_tool(110)
     res = calibrate(ur10, [ds], ["arm.tool"])
-    assert res.status == "converged" and res.after[0]["position_rms"] < 1e-9
+    assert res.status == "converged" and res.after[0].position_rms < 1e-9
 
 
 @pytest.mark.parametrize("deg", [120, 150, 175])
@@ -35,9 +35,9 @@ def test_pose_with_unknown_tracker_from_a_tool_frame_far_off(deg):
     solution of the tool's error is the starting value when it is a large rotation (estimation/start.py)."""
     ur10, ds = _ur10_with_turned_tool(deg)
     res = calibrate(ur10, [ds], ["arm.tool"])
-    assert res.status == "converged" and res.after[0]["position_rms"] < 1e-9
+    assert res.status == "converged" and res.after[0].position_rms < 1e-9
     res = calibrate(ur10, [ds], "kinematic")  # home free instead of the tool
-    assert res.status == "converged" and res.after[0]["position_rms"] < 1e-9
+    assert res.status == "converged" and res.after[0].position_rms < 1e-9
 
 
 def test_misfit_message_does_not_suggest_what_is_already_free():
@@ -67,7 +67,7 @@ def test_socket_kinematic_level_does_not_collapse_the_arm():
     nominal scale and the tool point still moves with the joints."""
     panda, ds = _panda_in_socket()
     res = calibrate(panda, [ds], "kinematic")
-    assert res.status == "converged" and res.after[0]["position_max"] < 1e-9
+    assert res.status == "converged" and res.after[0].position_max < 1e-9
     assert res.identifiability.scale_unidentifiable
     assert any(m.startswith("scale cannot be identified") for m in res.messages)
     q = np.random.default_rng(0).uniform(-1, 1, (20, 7))

@@ -256,4 +256,4 @@ def test_pose_kind_starts_from_the_hand_eye_tool_when_the_tool_is_far_off():
     assert isinstance(exp, PoseExperiment)
     res = calibrate(ur, [ds], ["arm.tool"], noise=Noise(position=1e-5, orientation=1e-5, joint=1e-5),
                     validation=list(val.values()))
-    assert res.status == "converged" and res.validation[0]["position_max_after"] < 1e-9
+    assert res.status == "converged" and res.validation[0].after.position_max < 1e-9

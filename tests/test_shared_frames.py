@@ -129,7 +129,7 @@ def test_dual_data_sets_sharing_one_unknown_clamp():
     fresh, truth, _ = generate_dual(true, n=10, rng=5, known_clamp=True, n_validation=1, explore_options=FAST)
     fresh = replace(fresh, known={"T_toolA_toolB": res.extras["bracket"]}, name="fresh")
     stats = evaluate(res.robot, [fresh])[0]
-    assert stats["position_max"] < EXACT and stats["orientation_max"] < EXACT
+    assert stats.position_max < EXACT and stats.orientation_max < EXACT
 
 
 # ---------------------------------------------------------------------------------------------- (c) errors

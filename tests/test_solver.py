@@ -122,12 +122,12 @@ def test_gauss_newton_and_least_squares_paths_agree(rng, monkeypatch, caplog):
                            home=se3.exp(rng.normal(scale=0.01, size=6)) @ true.home)
     data = [_pose_data(rng, true, W=se3.exp(rng.normal(size=6)))]
     robot = Robot("r", {"arm": nominal})
-    with caplog.at_level(logging.DEBUG, logger="kincal.estimation.solver"):
+    with caplog.at_level(logging.DEBUG, logger="kincal.estimation.iterate"):
         fast = calibrate(robot, data, "kinematic")
     assert "Gauss-Newton" in caplog.text and "least_squares" not in caplog.text
     caplog.clear()
     monkeypatch.setattr(steps, "gauss_newton", lambda lin, V: (np.zeros(V.shape[1]), 0.0))  # never helps
-    with caplog.at_level(logging.DEBUG, logger="kincal.estimation.solver"):
+    with caplog.at_level(logging.DEBUG, logger="kincal.estimation.iterate"):
         slow = calibrate(robot, data, "kinematic")
     assert "least_squares" in caplog.text
     assert fast.status == slow.status == "converged"
@@ -136,3 +136,27 @@ def test_gauss_newton_and_least_squares_paths_agree(rng, monkeypatch, caplog):
         T = se3.inverse(res.extras["tracker"]) @ forward_kinematics(res.robot["arm"], q)
         np.testing.assert_allclose(T, se3.inverse(data[0].known["T_world_tracker"]) @ forward_kinematics(true, q),
                                    atol=1e-9)
+
+
+def test_spine_build_solve_equals_calibrate(rng):
+    """Problem.build + solve(SolverOptions) is what calibrate runs; the problem is frozen, the result keeps it,
+    statistics and twists are typed."""
+    import dataclasses
+
+    from kincal.estimation import Problem, ResidualStats, SolverOptions, TwistEstimate, solve
+
+    true = random_arm(rng, 6, name="arm")
+    ds = _pose_data(rng, true)
+    nominal = Robot("r", {"arm": true.replace(offsets=np.zeros(6))})
+    problem = Problem.build(nominal, [ds], "kinematic")
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        problem.start = problem.nominal
+    res = solve(problem, SolverOptions())
+    ref = calibrate(nominal, [ds], "kinematic")
+    assert res.status == ref.status == "converged" and res.iterations == ref.iterations
+    assert [e.value for e in res.estimates] == [e.value for e in ref.estimates]
+    assert res.problem is problem and res.linearization.state is res.state
+    assert isinstance(res.after[0], ResidualStats) and res.after[0].position_max < 1e-9
+    assert isinstance(res.twists[0], TwistEstimate) and res.twists[0].name == "arm.j1.xi.v_x"
+    with pytest.raises(ModelError, match="gauge must be"):
+        SolverOptions(gauge="smallest")

@@ -11,11 +11,12 @@ import pytest
 
 from kincal import robots
 from kincal.baselines import thesis as th
+from kincal.baselines.identification import identification_jacobian
 from kincal.baselines.thesis_common import damped_step
 from kincal.baselines.thesis_dual import pose_errors
 from kincal.data import Dataset
 from kincal.errors import DegenerateExperimentError, ModelError, ShapeError
-from kincal.kinematics import chain, forward_kinematics, identification_jacobian, space_jacobian
+from kincal.kinematics import chain, forward_kinematics, space_jacobian
 from kincal.lie import se3, so3
 from kincal.simulate import generate_clamp, generate_dual, generate_plate, perturb_robot
 from kincal.testing import numerical_jacobian, random_pose
@@ -115,6 +116,23 @@ def test_known_fixture_recovers_all_offsets_table_4_1(frida, clamp_data):
     assert res.final_error[0] < 1e-10 < 1e-3 < res.initial_error[0]
     assert res.parameter_names == tuple(f"left.j{i}.offset" for i in range(1, 8))
     np.testing.assert_array_equal(res.models["left"].offsets, res.estimate)
+
+
+def test_baseline_result_is_written_with_kincal_schema(frida, clamp_data, tmp_path):
+    """The same writer and schema as kincal's result: status, estimates as a list of entries, the model."""
+    import yaml
+
+    from kincal.io.models import load_robot
+    from kincal.io.results import write_results
+
+    ds, _ = clamp_data
+    res = th.run("single_offsets", ds, frida)
+    paths = write_results(res, tmp_path, robot=res.calibrated(frida))
+    saved = yaml.safe_load(paths["result"].read_text())
+    assert saved["status"] == res.status == "converged" and saved["method"] == "thesis.single_offsets"
+    assert [e["name"] for e in saved["estimates"]] == list(res.parameter_names)
+    np.testing.assert_allclose([e["value"] for e in saved["estimates"]], res.estimate, atol=1e-15)
+    np.testing.assert_allclose(load_robot(paths["model"])["left"].offsets, res.estimate, atol=1e-12)
 
 
 def test_unknown_fixture_gathers_poses_but_misses_joints_1_and_7_table_4_2(frida, clamp_data):

@@ -8,7 +8,7 @@ from kincal.errors import (
     ModelError,
     ShapeError,
 )
-from kincal.kinematics import ArmModel, Robot, forward_kinematics, identification_jacobian
+from kincal.kinematics import ArmModel, Robot, forward_kinematics
 
 # registers every experiment kind (its data schema) before any data set is built or read
 import kincal.experiments  # noqa: E402,F401  isort: skip
@@ -25,5 +25,4 @@ __all__ = [
     "Robot",
     "ShapeError",
     "forward_kinematics",
-    "identification_jacobian",
 ]

@@ -1,4 +1,6 @@
-"""Rank and null space of a whitened identification Jacobian, with each null direction named.
+"""Identifiability in one place: rank and null space of a whitened identification Jacobian, the exact
+symmetries held (``symmetries``), each null direction named (``naming``). ``identify`` is the entry point for
+one linearization of a calibration problem (``linearization.Linearization``); ``analyse`` the matrix-level core.
 
 Rank: singular values of the whitened Jacobian after scaling every column to unit norm (so units and
 the size of a parameter's effect do not matter). A direction is unidentifiable when its singular value is
@@ -16,12 +18,16 @@ together, thesis Sec. 2.11) is tested explicitly and reported as scale.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
 
 import numpy as np
 
 from kincal.analysis.covariance import right_svd
+from kincal.analysis.linearization import Linearization
+from kincal.analysis.naming import context, degenerate, describer
+from kincal.analysis.symmetries import rotation_nulls, scale_null
+from kincal.params import Layout
 
 IDENTIFIABLE_TOL = 1e-6  # a parameter is identifiable when its row of the (scaled) null basis is below this
 
@@ -50,6 +56,7 @@ class Identifiability:
     weak: tuple[str, ...] = ()
     messages: tuple[str, ...] = field(default=())
     weak_vectors: np.ndarray | None = None  # (p, w) the directions of ``weak`` in natural units, unit norm
+    degenerate: bool | None = None  # no arm parameter identifiable, only frames (judged by ``identify`` reports)
 
     @property
     def deficiency(self) -> int:
@@ -62,6 +69,26 @@ class Identifiability:
 
     def unidentifiable_names(self) -> list[str]:
         return [n for n, ok in zip(self.names, self.identifiable) if not ok]
+
+
+def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol: float = 1e-9,
+             priority: Sequence[int] | None = None, report: bool = True) -> Identifiability:
+    """The identifiability of the free coordinates at one linearization: the one entry point of the solver.
+
+    Rank and null space of ``lin``'s whitened Jacobian with the exact symmetries held (the scale without a
+    measured length, ``symmetries.scale_null``, when ``lin`` has the scale test's columns; the rotations about
+    a first joint axis, ``symmetries.rotation_nulls``). ``report``: also name the null directions in words
+    (``naming``) and judge whether the data are degenerate; the solver's intermediate iterations need only the
+    rank and null space. ``priority``: free-coordinate order for the pivots of the named directions.
+    """
+    names = [layout.names[i] for i in lin.free]
+    scale = scale_null(lin, layout) if lin.every else None
+    held = rotation_nulls(lin, layout, experiments)
+    if not report:
+        return analyse(lin.Rf, names, rtol=rtol, priority=priority, scale=scale, held=held)
+    ana = analyse(lin.Rf, names, rtol=rtol, scale=scale, priority=priority,
+                  describe=describer(lin, layout, experiments), context=context(layout, experiments), held=held)
+    return replace(ana, degenerate=degenerate(lin.Rf, ana.rank, rtol, layout, lin.free))
 
 
 def analyse(
@@ -78,6 +105,41 @@ def analyse(
 ) -> Identifiability:
     """Analyse the whitened Jacobian J (m, p) whose columns are the parameters ``names``."""
     names = tuple(names)
+    p = J.shape[1]
+    sv = _spectrum(J, rtol)
+    has_scale = scale is not None and np.linalg.norm(scale) > 0
+    Ns, rank, lifted, held_scale = _hold(sv, ([scale] if has_scale else []) + list(held), has_scale)
+    identifiable = np.linalg.norm(Ns, axis=1) < IDENTIFIABLE_TOL
+    N = _orth(Ns / sv.c[:, None])
+    R = _complement(N, p)
+    weak_idx = _weak_indices(sv, rank, rtol, weak_rtol, lifted)
+    weak = tuple(_top_names(sv.Vt[i], names) for i in weak_idx)
+    weak_vectors = sv.Vt[weak_idx].T / sv.c[:, None]
+    weak_vectors /= np.maximum(np.linalg.norm(weak_vectors, axis=0), 1e-300)
+    messages: list[str] = []
+    Nd, scale_null_found = N, False
+    if scale is not None and N.shape[1] and np.linalg.norm(scale) > 0:
+        Nd, scale_null_found, words = _scale_message(N, scale, names, held_scale)
+        messages += words
+    order = list(range(p)) if priority is None else list(priority)
+    directions = _directions(Nd, order, names, describe, context)
+    messages += [d.words for d in directions]
+    messages += _weak_messages(weak, sv, weak_idx)
+    return Identifiability(names, rank, sv.S, rtol, N, R, identifiable, scale_null_found, tuple(directions),
+                           weak, tuple(messages), weak_vectors)
+
+
+@dataclass(frozen=True)
+class _Spectrum:
+    S: np.ndarray  # (p,) singular values of the column-scaled J, descending, zero-padded
+    Vt: np.ndarray  # (p, p) right singular vectors in scaled coordinates
+    c: np.ndarray  # (p,) column norms (1 where a column is zero)
+    smax: float
+    rank: int
+
+
+def _spectrum(J: np.ndarray, rtol: float) -> _Spectrum:
+    """Singular values and vectors of J with every column scaled to unit norm, and the rank at ``rtol``."""
     m, p = J.shape
     c = np.linalg.norm(J, axis=0)
     c_safe = np.where(c > 0, c, 1.0)
@@ -87,14 +149,17 @@ def analyse(
     S_full[: len(S)] = S
     smax = S_full[0] if p else 0.0
     rank = int(np.sum(S_full > rtol * smax)) if smax > 0 else 0
-    Ns = Vt[rank:].T  # (p, k) scaled coordinates
-    held_scale = False
-    # Exact symmetries of the cost that residuals left make look determined: scale without a measured length
-    # (shrinking every length shrinks them) and the rotations of ``held``. Held like the exact gauges.
-    has_scale = scale is not None and np.linalg.norm(scale) > 0
-    lifted = []
-    for k, h in enumerate(([scale] if has_scale else []) + list(held)):
-        hc = c_safe * h
+    return _Spectrum(S_full, Vt, c_safe, smax, rank)
+
+
+def _hold(sv: _Spectrum, symmetries: list, has_scale: bool):
+    """The scaled null basis with the exact symmetries of the cost added where residuals left lift them out of
+    it (scale without a measured length: shrinking every length shrinks them; the rotations of ``held``):
+    (null basis, rank, lifted directions, whether the scale was lifted)."""
+    Ns, rank = sv.Vt[sv.rank:].T, sv.rank
+    lifted, held_scale = [], False
+    for k, h in enumerate(symmetries):
+        hc = sv.c * h
         hc /= np.linalg.norm(hc)
         outside = hc - Ns @ (Ns.T @ hc)
         if np.linalg.norm(outside) > 1e-6:
@@ -102,36 +167,38 @@ def analyse(
             rank -= 1
             lifted.append(hc)
             held_scale = held_scale or (has_scale and k == 0)
-    identifiable = np.linalg.norm(Ns, axis=1) < IDENTIFIABLE_TOL
-    N = _orth(Ns / c_safe[:, None])
-    R = _complement(N, p)
-    weak_idx = np.flatnonzero((S_full > rtol * smax) & (S_full < _weak_limit(S_full[:rank], weak_rtol) * smax))
-    if lifted:  # directions lifted by the residuals are not weak directions but held
-        weak_idx = np.array([i for i in weak_idx if max(abs(Vt[i] @ h) for h in lifted) < 0.5], dtype=int)
-    weak = tuple(_top_names(Vt[i], names) for i in weak_idx)
-    weak_vectors = Vt[weak_idx].T / c_safe[:, None]
-    weak_vectors /= np.maximum(np.linalg.norm(weak_vectors, axis=0), 1e-300)
+    return Ns, rank, lifted, held_scale
 
-    scale_null = False
-    directions: list[Direction] = []
-    messages: list[str] = []
-    Nd = N
-    if scale is not None and N.shape[1] and np.linalg.norm(scale) > 0:
-        s = scale / np.linalg.norm(scale)
-        if np.linalg.norm(N.T @ s) > 1 - 1e-4:
-            s = N @ (N.T @ s)
-            s /= np.linalg.norm(s)
-            scale_null = True
-            lengths = [names[i] for i in np.argsort(-np.abs(s)) if abs(s[i]) > 1e-3 * np.max(np.abs(s))]
-            messages.append(
-                "scale cannot be identified: no known length closes the loop, so scaling every length together "
-                f"(mostly {_list(lengths, 4)}) leaves every residual unchanged (thesis Sec. 2.11)"
-                + (" up to scaling the residuals themselves, which would let the data shrink the robot towards a "
-                   "point; it is held at its current value" if held_scale else "")
-                + "; fix or measure one length"
-            )
-            Nd = _orth(N - np.outer(s, s @ N), drop=1)
-    order = list(range(p)) if priority is None else list(priority)
+
+def _weak_indices(sv: _Spectrum, rank: int, rtol: float, weak_rtol: float, lifted) -> np.ndarray:
+    S, smax = sv.S, sv.smax
+    weak_idx = np.flatnonzero((S > rtol * smax) & (S < _weak_limit(S[:rank], weak_rtol) * smax))
+    if lifted:  # directions lifted by the residuals are not weak directions but held
+        weak_idx = np.array([i for i in weak_idx if max(abs(sv.Vt[i] @ h) for h in lifted) < 0.5], dtype=int)
+    return weak_idx
+
+
+def _scale_message(N: np.ndarray, scale: np.ndarray, names, held_scale: bool):
+    """(null basis without the scale direction, whether scale is in the null space, its message)."""
+    s = scale / np.linalg.norm(scale)
+    if np.linalg.norm(N.T @ s) <= 1 - 1e-4:
+        return N, False, []
+    s = N @ (N.T @ s)
+    s /= np.linalg.norm(s)
+    lengths = [names[i] for i in np.argsort(-np.abs(s)) if abs(s[i]) > 1e-3 * np.max(np.abs(s))]
+    words = (
+        "scale cannot be identified: no known length closes the loop, so scaling every length together "
+        f"(mostly {_list(lengths, 4)}) leaves every residual unchanged (thesis Sec. 2.11)"
+        + (" up to scaling the residuals themselves, which would let the data shrink the robot towards a "
+           "point; it is held at its current value" if held_scale else "")
+        + "; fix or measure one length"
+    )
+    return _orth(N - np.outer(s, s @ N), drop=1), True, [words]
+
+
+def _directions(Nd: np.ndarray, order, names, describe, context: str) -> list[Direction]:
+    """The null directions in reduced row-echelon form, each named by its pivot in ``order``."""
+    directions = []
     for row in _rref(Nd.T, order):
         piv = int(order[next(i for i, j in enumerate(order) if abs(row[j]) > 0.5)])
         big = np.max(np.abs(row))
@@ -146,17 +213,18 @@ def analyse(
         if extra:
             words += f" ({extra})"
         directions.append(Direction(names[piv], partners, row, words))
-    messages += [d.words for d in directions]
-    for w in weak:
-        messages.append(f"weakly identifiable direction (singular value far below the others; its estimate rests "
-                        f"on little more than the noise): {w}")
+    return directions
+
+
+def _weak_messages(weak, sv: _Spectrum, weak_idx) -> list[str]:
+    out = [f"weakly identifiable direction (singular value far below the others; its estimate rests on little "
+           f"more than the noise): {w}" for w in weak]
     if len(weak_idx):
-        hold = float(f"{1.5 * S_full[weak_idx].max() / smax:.1g}")
-        messages.append(f"to hold the {len(weak_idx)} weakly identifiable direction(s) at their current values instead "
-                        f"of estimating them, calibrate with rank_rtol={hold:g} (they are then reported as "
-                        "unidentifiable), or give priors on the parameters they involve")
-    return Identifiability(names, rank, S_full, rtol, N, R, identifiable, scale_null, tuple(directions),
-                           weak, tuple(messages), weak_vectors)
+        hold = float(f"{1.5 * sv.S[weak_idx].max() / sv.smax:.1g}")
+        out.append(f"to hold the {len(weak_idx)} weakly identifiable direction(s) at their current values instead "
+                   f"of estimating them, calibrate with rank_rtol={hold:g} (they are then reported as "
+                   "unidentifiable), or give priors on the parameters they involve")
+    return out
 
 
 WEAK_GAP = 100.0

@@ -1,7 +1,7 @@
 """Predicted accuracy of a calibrated model at given joint readings, before anyone trusts it there.
 
 From the tool pose's Jacobian ``J`` (N, 6, p_free) w.r.t. the result's free local coordinates (world-frame left
-increment, ``kincal.experiments._kernel.arm_jacobians``), mapped to the change ``E`` of the tool *point* and of
+increment, ``kincal.kinematics.tool_jacobians``), mapped to the change ``E`` of the tool *point* and of
 its orientation (world frame), per configuration:
 
 * standard deviations: ``sqrt(trace)`` of the 3x3 position and orientation blocks of ``E C E^T`` with
@@ -26,8 +26,9 @@ import numpy as np
 
 from kincal._validate import as_array
 from kincal.errors import ModelError, ShapeError
-from kincal.experiments._kernel import arm_jacobians, point_jacobian
-from kincal.kinematics import chain
+from kincal.analysis.columns import scatter_columns
+from kincal.experiments._kernel import point_jacobian
+from kincal.kinematics import chain, tool_jacobians
 from kincal.lie import se3
 from kincal.schema import BETWEEN, TOOL, WORLD, schema_of
 
@@ -90,15 +91,11 @@ def tool_jacobian(result, q, arm: str) -> tuple[np.ndarray, np.ndarray]:
     a = _arm_values(result, arm)
     q = _joints(q, a, arm)
     kin = chain(a.screws, q + a.offsets, a.base, a.home, a.tool)
-    blocks, _ = arm_jacobians(a, kin, np.broadcast_to(np.eye(6), (len(q), 6, 6)), with_jq=False)
+    blocks, _ = tool_jacobians(kin, np.broadcast_to(np.eye(6), (len(q), 6, 6)), a.screws, a.generators,
+                               a.joint_compliance, with_jq=False)
     layout = result.layout
-    col = np.full(layout.size, -1)
-    col[layout.free] = np.arange(np.count_nonzero(layout.free))
-    J = np.zeros((len(q), 6, np.count_nonzero(layout.free)))
-    for part, Jb in blocks.items():
-        b = layout.block(f"{arm}.{part}")
-        c = col[b.start: b.stop]
-        J[:, :, c[c >= 0]] = Jb[:, :, c >= 0]
+    J = scatter_columns({f"{arm}.{part}": Jb for part, Jb in blocks.items()}, layout, np.flatnonzero(layout.free),
+                        (len(q), 6))
     return kin.tool, J
 
 

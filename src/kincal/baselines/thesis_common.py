@@ -15,7 +15,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from kincal.kinematics import ArmModel
+from kincal.kinematics import ArmModel, Robot
 from kincal.lie import se3, so3
 
 log = logging.getLogger(__name__)
@@ -129,6 +129,15 @@ def damped_loop(
 
 
 @dataclass(frozen=True)
+class BaselineEstimate:
+    """One estimated parameter of a baseline: its stable name and value (rad, m; no standard deviation: the
+    thesis' methods have none)."""
+
+    name: str
+    value: float
+
+
+@dataclass(frozen=True)
 class BaselineResult:
     """What a thesis baseline returns. It reports, it never raises on poor convergence.
 
@@ -160,6 +169,11 @@ class BaselineResult:
         Fixture pose used at the end (known, the final mean pose, or BFGS' T_twist).
     T_toolA_toolB : ndarray (4, 4) or None
         Clamp transform used by the dual-arm methods (given or estimated by eq. 3.8).
+    validation : tuple of ``kincal.estimation.ValidationStats``
+        Errors on held-out data sets before and after (``with_validation``); empty unless validated.
+
+    ``status`` and ``estimates`` read as a kincal ``Result``'s, so both are written by
+    ``kincal.io.results.write_results``.
     """
 
     method: str
@@ -176,10 +190,27 @@ class BaselineResult:
     T_world_fixture: np.ndarray | None = None
     T_toolA_toolB: np.ndarray | None = None
     meta: Mapping = field(default_factory=dict)
+    validation: tuple = ()
 
     def __post_init__(self) -> None:
         for key in ("models", "offsets", "cost", "meta"):
             object.__setattr__(self, key, MappingProxyType(dict(getattr(self, key))))
+
+    @property
+    def status(self) -> str:
+        """``converged`` (stopped on the step tolerance, or BFGS' success) or ``not converged``."""
+        return "converged" if self.converged else "not converged"
+
+    @property
+    def estimates(self) -> tuple["BaselineEstimate", ...]:
+        """The estimated parameters as entries, in the order of ``parameter_names``."""
+        return tuple(BaselineEstimate(n, float(v)) for n, v in zip(self.parameter_names, self.estimate))
+
+    def calibrated(self, robot: Robot) -> Robot:
+        """``robot`` with the estimated arm models in place."""
+        for arm, model in self.models.items():
+            robot = robot.replace_arm(arm, model)
+        return robot
 
     @property
     def iterations_label(self) -> str:

@@ -18,13 +18,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from kincal.baselines.identification import identification_jacobian
 from kincal.baselines.thesis_common import BaselineResult, LoopSettings, damped_loop, eval_error, stack
 from kincal.errors import DegenerateExperimentError, ModelError, ShapeError
 from kincal.kinematics import (
     ArmModel,
     conform_twists,
     forward_kinematics,
-    identification_jacobian,
     joint_array,
     kinematics,
     space_jacobian,

@@ -14,7 +14,7 @@ from rich.console import Console
 from rich.table import Table
 
 from kincal.errors import DataFormatError
-from kincal.estimation import evaluate
+from kincal.estimation import evaluate, validation_stats
 from kincal.io.datasets import load_scenario, write_simulation
 from kincal.io.jobs import load_job, write_job
 from kincal.io.models import save_robot
@@ -54,8 +54,8 @@ def print_summary(console: Console, result, title: str) -> None:
     for c in ("experiment", "kind", "samples", "pos RMS before", "pos RMS after", "rot RMS before", "rot RMS after"):
         t.add_column(c, justify="right" if c not in ("experiment", "kind") else "left")
     for b, a in zip(result.before, result.after):
-        t.add_row(b["experiment"], b["kind"], str(b["samples"]), _num(b.get("position_rms"), 1e3),
-                  _num(a.get("position_rms"), 1e3), _num(b.get("orientation_rms"), DEG), _num(a.get("orientation_rms"), DEG))
+        t.add_row(b.experiment, b.kind, str(b.samples), _num(b.position_rms, 1e3),
+                  _num(a.position_rms, 1e3), _num(b.orientation_rms, DEG), _num(a.orientation_rms, DEG))
     console.print(t)
     if result.validation:
         t = Table(title="validation on held-out configurations (position mm, orientation deg)")
@@ -63,10 +63,10 @@ def print_summary(console: Console, result, title: str) -> None:
                   "rot RMS before", "rot RMS after"):
             t.add_column(c, justify="left" if c == "set" else "right")
         for v in result.validation:
-            t.add_row(v["experiment"], str(v["samples"]), _num(v.get("position_rms_before"), 1e3),
-                      _num(v.get("position_rms_after"), 1e3), _num(v.get("position_max_before"), 1e3),
-                      _num(v.get("position_max_after"), 1e3), _num(v.get("orientation_rms_before"), DEG),
-                      _num(v.get("orientation_rms_after"), DEG))
+            t.add_row(v.experiment, str(v.samples), _num(v.before.position_rms, 1e3),
+                      _num(v.after.position_rms, 1e3), _num(v.before.position_max, 1e3),
+                      _num(v.after.position_max, 1e3), _num(v.before.orientation_rms, DEG),
+                      _num(v.after.orientation_rms, DEG))
         console.print(t)
     _print_predictions(console, prediction_rows(result))
     t = Table(title="estimates (offsets and compliances absolute; twist/pose coordinates as change from nominal)")
@@ -133,7 +133,7 @@ def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool)
     paths = write_results(result, out)
     figures = []
     if plots:
-        figures = write_plots(result, j.datasets, out / "plots")
+        figures = write_plots(result, out / "plots")
     if as_json:
         click.echo(json.dumps(result_to_dict(result)))
     elif not quiet:
@@ -146,27 +146,11 @@ def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool)
 
 def _write_thesis(res, job, out: Path, console, quiet, as_json) -> None:
     """Write and print a thesis baseline's result, validated on the job's held-out sets like kincal's."""
-    robot = job.robot
-    for arm, model in res.models.items():
-        robot = robot.replace_arm(arm, model)
-    validation = []
+    robot = res.calibrated(job.robot)
     if job.validation:
-        for b, a in zip(evaluate(job.robot, job.validation), evaluate(robot, job.validation)):
-            row = {"experiment": b["experiment"], "samples": b["samples"]}
-            for k in ("position_rms", "position_max", "orientation_rms", "orientation_max"):
-                if k in b:
-                    row[f"{k}_before"], row[f"{k}_after"] = b[k], a[k]
-            validation.append(row)
-    out.mkdir(parents=True, exist_ok=True)
-    save_robot(robot, out / "model.yaml")
-    report = {"format": "kincal-result", "version": 1, "method": res.method, "converged": bool(res.converged),
-              "iterations": res.iterations_label,
-              "eval_error_before": {"translation_m": float(res.history[0][0]), "rotation_rad": float(res.history[0][1])},
-              "eval_error_after": {"translation_m": float(res.history[-1][0]), "rotation_rad": float(res.history[-1][1])},
-              "estimates": {n: float(v) for n, v in zip(res.parameter_names, res.estimate)},
-              "validation": validation}
-    with open(out / "result.yaml", "x", encoding="utf-8") as fh:
-        yaml.safe_dump(report, fh, sort_keys=False)
+        res = replace(res, validation=validation_stats(job.robot, robot, job.validation))
+    write_results(res, out, robot=robot)
+    report = result_to_dict(res)
     if as_json:
         click.echo(json.dumps(report))
         return
@@ -177,14 +161,14 @@ def _write_thesis(res, job, out: Path, console, quiet, as_json) -> None:
                   f"{res.history[0][0] * 1e3:.4g} mm / {res.history[0][1] * DEG:.4g} deg -> "
                   f"{res.history[-1][0] * 1e3:.4g} mm / {res.history[-1][1] * DEG:.4g} deg")
     console.print("no identifiability analysis or standard deviations: the thesis' method has none")
-    if validation:
+    if res.validation:
         t = Table(title="validation on held-out configurations (position mm, orientation deg)")
         for c in ("set", "samples", "pos RMS before", "pos RMS after", "rot RMS before", "rot RMS after"):
             t.add_column(c, justify="left" if c == "set" else "right")
-        for v in validation:
-            t.add_row(v["experiment"], str(v["samples"]), _num(v.get("position_rms_before"), 1e3),
-                      _num(v.get("position_rms_after"), 1e3), _num(v.get("orientation_rms_before"), DEG),
-                      _num(v.get("orientation_rms_after"), DEG))
+        for v in res.validation:
+            t.add_row(v.experiment, str(v.samples), _num(v.before.position_rms, 1e3),
+                      _num(v.after.position_rms, 1e3), _num(v.before.orientation_rms, DEG),
+                      _num(v.after.orientation_rms, DEG))
         console.print(t)
     t = Table(title="estimates (deg for offsets and angles, mm for lengths)")
     for c in ("parameter", "value"):

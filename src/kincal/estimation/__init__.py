@@ -1,9 +1,16 @@
-"""One solver for any mix of experiments: assemble, whiten, gauge-fix, solve, report."""
+"""One solver for any mix of experiments: ``Problem.build`` -> ``solve(problem, SolverOptions(...))`` -> ``Result``
+(``calibrate`` does all three); ``validate`` and ``evaluate`` for held-out data."""
 
 from kincal.estimation.constraints import FrameDistance
+from kincal.estimation.finalize import finalize
+from kincal.estimation.iterate import Iteration, iterate
+from kincal.estimation.options import SolverOptions
 from kincal.estimation.problem import Problem
+from kincal.estimation.result import Estimate, Result, TwistEstimate
+from kincal.estimation.solver import calibrate, evaluate, solve, validate, validation_stats
+from kincal.estimation.stats import ResidualStats, ValidationStats
 from kincal.noise import Noise
-from kincal.estimation.result import Estimate, Result
-from kincal.estimation.solver import calibrate, evaluate
 
-__all__ = ["Estimate", "FrameDistance", "Noise", "Problem", "Result", "calibrate", "evaluate"]
+__all__ = ["Estimate", "FrameDistance", "Iteration", "Noise", "Problem", "ResidualStats", "Result",
+           "SolverOptions", "TwistEstimate", "ValidationStats", "calibrate", "evaluate", "finalize", "iterate",
+           "solve", "validate", "validation_stats"]

@@ -14,6 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
+from kincal.analysis.columns import scatter_columns
 from kincal.errors import ModelError
 from kincal.experiments._kernel import point_jacobian
 from kincal.params import Layout, State
@@ -54,11 +55,11 @@ def _origin(value):
     return None
 
 
-def constraint_rows(constraints: Sequence[FrameDistance], state: State, layout: Layout, Rl) -> tuple:
-    """Whitened rows (c,) and their Jacobian (c, P) over every layout coordinate; ``Rl`` are the retraction
-    Jacobians of pose blocks stepped away from their linearization point."""
+def constraint_rows(constraints: Sequence[FrameDistance], state: State, layout: Layout, Rl, cols=None) -> tuple:
+    """Whitened rows (c,) and their Jacobian (c, len(cols)) over the layout coordinates ``cols`` (default: every
+    one); ``Rl`` are the retraction Jacobians of pose blocks stepped away from their linearization point."""
     r = np.zeros(len(constraints))
-    J = np.zeros((len(constraints), layout.size))
+    blocks: dict[str, np.ndarray] = {}
     for i, c in enumerate(constraints):
         pa, pb = _origin(state.extras[c.a]), _origin(state.extras[c.b])
         d = pa - pb
@@ -66,10 +67,8 @@ def constraint_rows(constraints: Sequence[FrameDistance], state: State, layout: 
         r[i] = (n - c.distance) / c.sigma
         u = d / max(n, 1e-300) / c.sigma
         for name, sign in ((c.a, 1.0), (c.b, -1.0)):
-            b = layout.block(name)
             value = state.extras[name]
             g = sign * u if np.shape(value) == (3,) else sign * u @ point_jacobian(_origin(value))
-            if name in Rl:
-                g = g @ Rl[name]
-            J[i, b.start: b.stop] += g
-    return r, J
+            blocks.setdefault(name, np.zeros((len(constraints), len(g))))[i] += g
+    cols = np.arange(layout.size) if cols is None else cols
+    return r, scatter_columns(blocks, layout, cols, (len(constraints),), Rl)

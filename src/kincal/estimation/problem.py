@@ -1,4 +1,5 @@
-"""Stack experiment residuals over the free coordinates and whiten them by each experiment's stated noise.
+"""The calibration problem (``Problem.build``): experiments, parameter layout, states and noise; it stacks the
+experiments' residuals over the free coordinates and whitens them by each experiment's stated noise.
 
 Whitening (per configuration, k x k): ``Sigma = diag(sigma_meas^2) + sum_arms sigma_joint^2 J_q J_q^T``,
 ``r_w = L^-1 r`` with ``Sigma = L L^T``. Encoder noise thus enters through the residual's Jacobian w.r.t. the
@@ -9,60 +10,115 @@ closed chain stays positive definite.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Sequence
+from dataclasses import dataclass, field
+from typing import Mapping, Sequence
 
 import numpy as np
 
-from kincal.estimation.constraints import constraint_rows
+from kincal.analysis.columns import scatter_columns
+from kincal.data import Dataset
 from kincal.errors import ModelError
-from kincal.experiments import Experiment
-from kincal.noise import ORIENTATION, PIXEL, POSITION, Noise
-from kincal.params import Layout, State, displacement, pose_retraction_jacobians, retract
+from kincal.estimation.constraints import FrameDistance, constraint_rows
+from kincal.estimation.start import starting_state
+from kincal.estimation.stats import ResidualStats, residual_norms
+from kincal.experiments import Experiment, build as build_experiments, frame_kinds
+from kincal.kinematics import Robot
+from kincal.noise import DEFAULT as DEFAULT_NOISE, Noise
+from kincal.params import Layout, Prior, State, build_layout, displacement, pose_retraction_jacobians, retract
 
 VARIANCE_FLOOR = 1e-18
 
 
+class ResidualCache:
+    """The last state's residuals without parameter Jacobians (with ``jq`` when encoder noise is stated):
+    whitening, statistics and the scale test ask for the same state in turn (states are immutable)."""
+
+    def __init__(self) -> None:
+        self.state: State | None = None
+        self.residuals: list | None = None
+
+    def get(self, state: State):
+        return self.residuals if self.state is state else None
+
+    def put(self, state: State, residuals: list) -> None:
+        self.state, self.residuals = state, residuals
+
+
 @dataclass(frozen=True, eq=False)
 class Problem:
-    experiments: Sequence[Experiment]
-    layout: Layout
-    nominal: State  # the reference: priors, reported changes, the gauge's "minimum change"
-    noise: Sequence[Noise]
-    start: State | None = None  # where the solve starts (default: nominal)
-    constraints: Sequence = ()  # FrameDistance rows (estimation.constraints)
+    """A calibration problem: what ``solve`` needs, built once by ``Problem.build``.
 
-    def __post_init__(self):
-        if self.start is None:
-            object.__setattr__(self, "start", self.nominal)
-        free = np.flatnonzero(self.layout.free)
-        object.__setattr__(self, "free_idx", free)
-        prior = np.isfinite(self.layout.prior_sigma) & self.layout.free
-        object.__setattr__(self, "prior_idx", np.flatnonzero(prior))
-        want = {b.name for b in self.layout.blocks if self.layout.free[b.start: b.stop].any()}
-        object.__setattr__(self, "want", want)
-        object.__setattr__(self, "_plain", (None, None))  # (state, residuals without Jacobians) of the last call
+    ``robot``: the nominal robot (the calibrated one is this with the estimated values); ``experiments``: one
+    per data set (``kincal.experiments``); ``layout``: every parameter coordinate with its name, unit, whether
+    it is free and its prior; ``nominal``: the reference state (priors, reported changes,
+    the gauge's "minimum change"); ``start``: where the solve starts (the nominal, or with corrected tool
+    frames, ``estimation.start``); ``noise``: the stated noise per experiment; ``constraints``: known distances
+    between frames; ``unknown``: the frames no data set gives (always estimated). Derived: ``free_idx`` and
+    ``prior_idx`` (layout indices of the free coordinates and of those with a prior) and ``want`` (the blocks
+    with a free coordinate, whose Jacobians the experiments compute).
+    """
+
+    robot: Robot
+    experiments: tuple[Experiment, ...]
+    layout: Layout
+    nominal: State
+    start: State
+    noise: tuple[Noise, ...]
+    constraints: tuple[FrameDistance, ...]
+    unknown: tuple[str, ...]
+    free_idx: np.ndarray
+    prior_idx: np.ndarray
+    want: frozenset[str]
+    cache: ResidualCache = field(default_factory=ResidualCache, repr=False, compare=False)
+
+    @classmethod
+    def build(cls, robot: Robot, datasets: Sequence[Dataset], free: str | Sequence[str] = "offsets",
+              fixed: Sequence[str] = (), priors: Mapping[str, Prior] | None = None,
+              noise: Noise | Mapping[str, Noise] | None = None,
+              constraints: Sequence[FrameDistance] = ()) -> "Problem":
+        """The problem of calibrating ``robot`` from ``datasets`` (arguments as ``calibrate``'s): experiments,
+        frames shared between data sets, the layout of the free and fixed parameters, stated noise per data
+        set and the starting state."""
+        nominal_arms = State.from_robot(robot)
+        exps, extras, unknown = build_experiments(datasets, nominal_arms)
+        arms = [a for a in robot.arms if any(a in e.arms for e in exps)]
+        nominal = State({a: nominal_arms.arms[a] for a in arms}, extras, frame_kinds(exps))
+        layout = build_layout(nominal, free, fixed=fixed, priors=priors, free_extras=unknown, arms=arms)
+        for name in unknown:
+            b = layout.block(name)
+            if not layout.free[b.start: b.stop].all():
+                raise ModelError(f"'{name}' is unknown (not given in its data set) and cannot be fixed; give its value")
+        noises = _noise_per_experiment(noise, exps)
+        for c in constraints:
+            c.check(nominal)
+        start, nominal = starting_state(nominal, exps, layout, unknown)
+        return cls.assemble(robot, exps, layout, nominal, noises, start, constraints, unknown)
+
+    @classmethod
+    def assemble(cls, robot: Robot, experiments, layout: Layout, nominal: State, noise, start: State | None = None,
+                 constraints=(), unknown=()) -> "Problem":
+        """A problem from its parts, with the derived fields computed."""
+        prior = np.isfinite(layout.prior_sigma) & layout.free
+        want = frozenset(b.name for b in layout.blocks if layout.free[b.start: b.stop].any())
+        return cls(robot, tuple(experiments), layout, nominal, nominal if start is None else start, tuple(noise),
+                   tuple(constraints), tuple(unknown), np.flatnonzero(layout.free), np.flatnonzero(prior), want)
 
     @property
     def joint_noise(self) -> bool:
         """Whether any experiment states encoder noise (whitening then depends on the state through J_q)."""
         return any(nz.joint_sigma() > 0 for nz in self.noise)
 
-    def _residuals(self, state: State):
-        """Residuals (with ``jq`` when encoder noise is stated, no parameter Jacobians) at ``state``; whitening and
-        statistics ask for the same state in turn, so the last one is kept (states are immutable)."""
-        cached_state, res = self._plain
-        if cached_state is not state:
+    def residuals(self, state: State) -> list:
+        """Residuals at ``state`` without parameter Jacobians (with ``jq`` when encoder noise is stated)."""
+        res = self.cache.get(state)
+        if res is None:
             res = [exp.residual(state, want=set(), jq=self.joint_noise) for exp in self.experiments]
-            object.__setattr__(self, "_plain", (state, res))
+            self.cache.put(state, res)
         return res
 
     @property
     def free_names(self) -> list[str]:
         return [self.layout.names[i] for i in self.free_idx]
-
-    def equations(self) -> list[int]:
-        return [e.size * len(e.components()) for e in self.experiments]
 
     def full_delta(self, delta_free: np.ndarray) -> np.ndarray:
         d = np.zeros(self.layout.size)
@@ -71,7 +127,7 @@ class Problem:
 
     def whiteners(self, state: State) -> list[np.ndarray]:
         """Per experiment (N, k, k) inverse Cholesky factors of the residual covariance at ``state``."""
-        return self._whiteners_of(self._residuals(state))
+        return self._whiteners_of(self.residuals(state))
 
     def _whiteners_of(self, residuals) -> list[np.ndarray]:
         out = []
@@ -92,7 +148,7 @@ class Problem:
 
         ``cols``: layout indices of the Jacobian's columns (default: the free coordinates; the scale test adds
         fixed ones). ``whiteners=None``: whiten at ``state`` from the same evaluation's ``J_q``.
-        Returns ``(r, J, whiteners)``.
+        Returns ``(r, J, whiteners, residuals)``, the last the experiments' residuals before whitening.
         """
         cols = self.free_idx if cols is None else np.asarray(cols)
         want = {b.name for b in self.layout.blocks if np.any((cols >= b.start) & (cols < b.stop))}
@@ -100,20 +156,21 @@ class Problem:
         res = [exp.residual(state, want=want, jq=fresh and self.joint_noise) for exp in self.experiments]
         W = self._whiteners_of(res) if fresh else whiteners
         if fresh or not self.joint_noise:  # statistics at this state need no second evaluation
-            object.__setattr__(self, "_plain", (state, res))
+            self.cache.put(state, res)
         r, J = self._stack(state, res, W, cols, {})
-        return r, J, W
+        return r, J, W, [x.r for x in res]
 
-    def length_part(self, state: State, whiteners) -> np.ndarray:
-        """The whitened stacked residual with only its length components kept (prior rows zero).
+    def length_part(self, residuals, whiteners) -> np.ndarray:
+        """The whitened stacked residual (from the experiments' ``residuals`` before whitening) with only its
+        length components kept (prior and constraint rows zero).
 
         Where no measured length enters a loop (clamp, dual, socket, plane, distance with lengths all free),
         scaling every length by ``1 + e`` changes the residual by exactly ``e`` times this, to first order:
         the scale test compares it with the Jacobian's scale column."""
         out = []
-        for exp, W, res in zip(self.experiments, whiteners, self._residuals(state)):
+        for exp, W, r in zip(self.experiments, whiteners, residuals):
             keep = np.array([c.length for c in exp.components()], float)
-            out.append((W @ (res.r * keep)[:, :, None]).ravel())
+            out.append((W @ (r * keep)[:, :, None]).ravel())
         if len(self.prior_idx):
             out.append(np.zeros(len(self.prior_idx)))
         out.append(np.zeros(len(self.constraints)))  # a known distance does not scale with the robot
@@ -133,25 +190,13 @@ class Problem:
     def _stack(self, state, residuals, whiteners, cols, Rl):
         """Whiten and stack residuals and (``cols`` not None) the Jacobian columns ``cols`` of the layout;
         ``Rl``: retraction Jacobians of pose blocks stepped away from their linearization point."""
-        col = np.full(self.layout.size, -1)
-        if cols is not None:
-            col[cols] = np.arange(len(cols))
         rs, Js = [], []
         for res, W in zip(residuals, whiteners):
             rs.append((W @ res.r[:, :, None]).ravel())
             if cols is None:
                 continue
             N, k = res.r.shape
-            J = np.zeros((N, k, len(cols)))
-            for b in self.layout.blocks:
-                Jb = res.jac.get(b.name)
-                if Jb is None:
-                    continue
-                if b.name in Rl:
-                    Jb = Jb @ Rl[b.name]
-                c = col[b.start: b.stop]
-                sel = c >= 0
-                J[:, :, c[sel]] = Jb[:, :, sel]
+            J = scatter_columns(res.jac, self.layout, cols, (N, k), Rl)
             Js.append((W @ J).reshape(N * k, -1))
         if len(self.prior_idx):
             disp, D = displacement(state, self.nominal, self.layout)
@@ -164,26 +209,33 @@ class Problem:
                     Dfull[:, b.start: b.stop] = Dfull[:, b.start: b.stop] @ Jl
                 Js.append(Dfull[:, cols] / sig[:, None])
         if len(self.constraints):
-            rc, Jc = constraint_rows(self.constraints, state, self.layout, Rl)
+            rc, Jc = constraint_rows(self.constraints, state, self.layout, Rl, cols)
             rs.append(rc)
             if cols is not None:
-                Js.append(Jc[:, cols])
+                Js.append(Jc)
         r = np.concatenate(rs)
         return (r, np.concatenate(Js, axis=0)) if cols is not None else (r, None)
 
-    def statistics(self, state: State, whiteners=None) -> list[dict]:
+    def statistics(self, state: State, whiteners=None) -> list[ResidualStats]:
         """Per experiment: samples, position / orientation RMS and max (norm per sample), whitened chi^2."""
         W = self.whiteners(state) if whiteners is None else whiteners
         out = []
-        for exp, Wi, res in zip(self.experiments, W, self._residuals(state)):
+        for exp, Wi, res in zip(self.experiments, W, self.residuals(state)):
             r = res.r
-            comp = exp.components()
-            st = {"experiment": exp.name, "kind": exp.kind, "samples": exp.size}
-            st.update(residual_norms(r, comp))
-            st["chi2"] = float(np.sum(np.einsum("nij,nj->ni", Wi, r) ** 2))
-            st["dof"] = int(r.size)
-            out.append(st)
+            out.append(ResidualStats(experiment=exp.name, kind=exp.kind, samples=exp.size,
+                                     **residual_norms(r, exp.components()),
+                                     chi2=float(np.sum(np.einsum("nij,nj->ni", Wi, r) ** 2)), dof=int(r.size)))
         return out
+
+
+def _noise_per_experiment(noise, exps) -> list[Noise]:
+    """One ``Noise`` for every experiment, or a mapping data set name -> Noise (the default for the others)."""
+    if isinstance(noise, Mapping):
+        bad = set(noise) - {e.name for e in exps}
+        if bad:
+            raise ModelError(f"noise given for unknown data set(s) {sorted(bad)}; data sets: {[e.name for e in exps]}")
+        return [noise.get(e.name, DEFAULT_NOISE) for e in exps]
+    return [noise or DEFAULT_NOISE] * len(exps)
 
 
 def stated_sigmas(exp: Experiment, noise: Noise) -> np.ndarray:
@@ -197,20 +249,3 @@ def stated_sigmas(exp: Experiment, noise: Noise) -> np.ndarray:
                 f"{q.name} standard deviation; state it (Noise({q.name}=...) or noise: {{{q.name}_<unit>: ...}})")
         out.append(sigma)
     return np.array(out, dtype=float)
-
-
-def residual_norms(r: np.ndarray, components) -> dict:
-    """RMS and max over samples of the position-part, orientation-part and pixel-part norms (m, rad, px)."""
-    st = {}
-    for key, q in (("position", POSITION), ("orientation", ORIENTATION), ("pixel", PIXEL)):
-        mask = np.array([c == q for c in components], bool)
-        if mask.any():
-            if mask.sum() % 3 == 0 and key == "position" and mask.sum() > 1:
-                e = np.linalg.norm(r[:, mask].reshape(len(r), -1, 3), axis=-1).ravel()
-            elif key in ("orientation", "pixel"):
-                e = np.linalg.norm(r[:, mask], axis=-1)
-            else:
-                e = np.abs(r[:, mask]).ravel()
-            st[f"{key}_rms"] = float(np.sqrt(np.mean(e**2)))
-            st[f"{key}_max"] = float(np.max(e))
-    return st

@@ -7,14 +7,19 @@ from typing import Mapping
 
 import numpy as np
 
-from kincal.analysis import Identifiability
+from kincal.analysis import Identifiability, Linearization
 from kincal.analysis.prediction import Prediction, predicted_accuracy
+from kincal.estimation.problem import Problem
+from kincal.estimation.stats import ResidualStats, ValidationStats
 from kincal.kinematics import Robot
 from kincal.params import Layout, State
 
 
 @dataclass(frozen=True)
 class Estimate:
+    """One free coordinate's estimate: value and nominal in SI units (``unit``), standard deviation scaled by the
+    residual variance (nan when ``identifiable`` is false)."""
+
     name: str
     value: float  # displacement from nominal in local coordinates for twists/poses; absolute for offsets/points
     nominal: float
@@ -23,9 +28,21 @@ class Estimate:
     identifiable: bool
 
 
+@dataclass(frozen=True)
+class TwistEstimate:
+    """One derived coordinate of a joint twist (``arm.joint.xi.v_x`` .. ``w_z``): value and standard deviation,
+    propagated from the estimated tangent coordinates (nan where they are not determined)."""
+
+    name: str
+    value: float
+    std: float
+
+
 @dataclass(frozen=True, eq=False)
 class Result:
-    """Reports, never raises, on non-convergence or rank deficiency (see ``status`` and ``messages``)."""
+    """What ``solve`` returns. Reports, never raises, on non-convergence or rank deficiency (see ``status`` and
+    ``messages``). ``problem`` and ``linearization`` (at the final state) are what it was computed from:
+    reports and plots read residuals and Jacobians there."""
 
     robot: Robot  # calibrated
     nominal_robot: Robot
@@ -36,16 +53,18 @@ class Result:
     correlated: tuple[tuple[str, str, float], ...]
     identifiability: Identifiability  # after solving
     identifiability_before: Identifiability
-    before: tuple[dict, ...]  # residual statistics per experiment at the nominal values
-    after: tuple[dict, ...]
+    before: tuple[ResidualStats, ...]  # per experiment at the start (the nominal values)
+    after: tuple[ResidualStats, ...]
     sigma2: float  # residual variance factor (chi^2 / (m - rank)) that scales the covariance
     status: str  # converged | not converged | degenerate
     iterations: int  # outer iterations: linearizations, the one that confirmed convergence included
     evaluations: int  # residual evaluations spent on steps (Gauss-Newton trials, least_squares)
     messages: tuple[str, ...]
     extras: Mapping[str, object] = field(default_factory=dict)  # final experiment frames
-    twists: tuple = ()  # derived (names, values (6n,), std (6n,)) of every arm with free twists
-    validation: tuple[dict, ...] = ()
+    problem: Problem | None = None
+    linearization: Linearization | None = None  # at ``state``
+    twists: tuple[TwistEstimate, ...] = ()  # derived twist coordinates of every arm with free twists
+    validation: tuple[ValidationStats, ...] = ()
     predictions: tuple[tuple[str, Prediction], ...] = ()  # (validation set, prediction) per arm
 
     @property

@@ -1,63 +1,20 @@
 """One linearization of the calibration problem and the steps taken from it.
 
 A linearization evaluates every experiment once and reduces the tall whitened Jacobian to the triangular
-factor of ``[J_free | J_fixed | r_len | r]`` (``Linearization``); the Gauss-Newton step, its predicted cost and the convergence test read
-that factor only. ``inner_solve`` is the fallback: ``scipy.optimize.least_squares`` on the identifiable
+factor of ``[J_free | J_fixed | r_len | r]`` (``kincal.analysis.Linearization``); the Gauss-Newton step, its
+predicted cost and the convergence test read that factor only. ``inner_solve`` is the fallback: ``scipy.optimize.least_squares`` on the identifiable
 subspace with the analytic Jacobian.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 from scipy.optimize import least_squares
 
+from kincal.analysis import Linearization
 from kincal.errors import DegenerateExperimentError
 from kincal.estimation.problem import Problem
 from kincal.params import State, scale_direction
-
-
-@dataclass(frozen=True)
-class Linearization:
-    """One evaluation at a state, reduced to the small triangular factor of ``[J_free | J_fixed | r_len | r]``.
-
-    Everything the solver asks of a linearization (rank, null space, gauge, covariance, the Gauss-Newton
-    convergence test, the scale test) depends on the tall whitened Jacobian only through its Gram matrix, so
-    one QR per linearization serves them all: ``R[:p, :p]`` stands in for ``J_free``, the next columns for
-    the fixed coordinates and the residual's length part (``every``: used only by the scale test), the last
-    for the residual.
-    """
-
-    r: np.ndarray  # (m,) whitened residual
-    J: np.ndarray  # (m, p) whitened Jacobian of the free coordinates
-    R: np.ndarray  # (q, P + 2) or (q, p + 1) triangular factor, columns ordered as above
-    W: list
-    p: int
-    every: bool = False
-    fixed: np.ndarray | None = None  # layout indices of the fixed columns kept (``every``)
-
-    @property
-    def Rall(self) -> np.ndarray:
-        """Columns of the free coordinates, then of the fixed ones in ``fixed`` (``every`` only)."""
-        return self.R[:, :-2]
-
-    @property
-    def Rlen(self) -> np.ndarray:
-        """The residual's length part (``every`` only)."""
-        return self.R[:, -2]
-
-    @property
-    def Rf(self) -> np.ndarray:
-        return self.R[: self.p, : self.p]
-
-    @property
-    def qtr(self) -> np.ndarray:
-        return self.R[: self.p, -1]
-
-    @property
-    def cost2(self) -> float:
-        return float(self.r @ self.r)
 
 
 def linearize(problem: Problem, state: State, W, every: bool) -> Linearization:
@@ -70,16 +27,16 @@ def linearize(problem: Problem, state: State, W, every: bool) -> Linearization:
         layout = problem.layout
         moves = (np.array(layout.units) == "m") | (scale_direction(state, layout) != 0)
         fixed = np.flatnonzero(~layout.free & moves)
-    r, J, W = problem.linearize(state, W, np.concatenate([problem.free_idx, fixed]))
+    r, J, W, raw = problem.linearize(state, W, np.concatenate([problem.free_idx, fixed]))
     if not np.all(np.isfinite(r)) or not np.all(np.isfinite(J)):
         raise DegenerateExperimentError("residuals or Jacobian are not finite at the starting values")
     if every:
-        A = np.column_stack([J, problem.length_part(state, W), r])
+        A = np.column_stack([J, problem.length_part(raw, W), r])
         J = J[:, :p]
     else:
         A = np.column_stack([J, r])
     R = np.linalg.qr(A, mode="r")
-    return Linearization(r, J, R, W, p, every, fixed)
+    return Linearization(state, r, J, R, tuple(W), tuple(raw), problem.free_idx, fixed if every else None)
 
 
 # A constant residual with a zero Jacobian row, added to the inner LM problem: MINPACK's relative ftol then

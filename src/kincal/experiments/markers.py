@@ -6,7 +6,7 @@ Residual (N, 3m), metres, in the tracker frame (where the noise is stated and is
 whole arm together with the tracker leaves the residual exactly unchanged, so that gauge shows up as an
 exact null direction rather than a residual-sized "weak" one.
 Optional ``wrench_tool`` loads (N, 6) deflect the arm's compliant joints (``Experiment._kin``, the compliance
-block and its Jacobian terms in ``experiments._elastic``).
+block and its Jacobian terms in ``kincal.kinematics.jacobians``).
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""Write a calibration ``Result``: the calibrated model (model file format) and a report (YAML), never
-replacing existing files. Reports use mm and deg for readability, with suffixed keys."""
+"""Write a calibration ``Result`` or a thesis baseline's result: the calibrated model (model file format) and a
+report (YAML, one schema for both), never replacing existing files. Reports use mm and deg for readability, with suffixed keys."""
 
 from __future__ import annotations
 
@@ -9,8 +9,10 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from kincal.baselines.thesis_common import BaselineResult
 from kincal.errors import DataFormatError
-from kincal.estimation import Result
+from kincal.estimation import ResidualStats, Result, ValidationStats
+from kincal.kinematics import Robot
 from kincal.io.models import save_robot
 
 DEG = 180.0 / math.pi
@@ -21,21 +23,41 @@ def _f(x) -> float | None:
     return x if math.isfinite(x) else None
 
 
-def _stats(st: dict) -> dict:
-    out = {k: v for k, v in st.items() if not (k.startswith("position") or k.startswith("orientation"))}
-    for k, v in st.items():
-        if k.startswith("position"):
-            out[k.replace("position", "position_mm", 1)] = _f(v * 1e3)
-        elif k.startswith("orientation"):
-            out[k.replace("orientation", "orientation_deg", 1)] = _f(v * DEG)
+_PARTS = (("position_rms", "position_mm_rms", 1e3), ("position_max", "position_mm_max", 1e3),
+          ("orientation_rms", "orientation_deg_rms", DEG), ("orientation_max", "orientation_deg_max", DEG))
+
+
+def _stats(st: ResidualStats) -> dict:
+    """One data set's residual statistics in mm and deg; absent parts left out."""
+    out = {"experiment": st.experiment, "kind": st.kind, "samples": st.samples, "chi2": st.chi2, "dof": st.dof}
+    for field, key, scale in _PARTS:
+        if getattr(st, field) is not None:
+            out[key] = _f(getattr(st, field) * scale)
     return out
 
 
-def result_to_dict(result: Result) -> dict:
+def _validation(v: ValidationStats) -> dict:
+    """A held-out data set's errors before and after calibration, in mm and deg."""
+    out = {"experiment": v.experiment, "kind": v.kind, "samples": v.samples}
+    for field, key, scale in _PARTS:
+        if getattr(v.before, field) is not None:
+            out[f"{key}_before"] = _f(getattr(v.before, field) * scale)
+            out[f"{key}_after"] = _f(getattr(v.after, field) * scale)
+    return out
+
+
+def result_to_dict(result: Result | BaselineResult) -> dict:
+    """The report of a kincal ``Result`` or of a thesis baseline's ``BaselineResult``, one schema: ``format``,
+    ``version``, ``method``, ``status``, ``iterations``, ``messages``, ``estimates`` (a list of entries with
+    ``name`` and ``value``), ``validation``; kincal adds its identifiability, uncertainty and statistics, the
+    baseline the thesis' Eval_error before and after."""
+    if isinstance(result, BaselineResult):
+        return _baseline_to_dict(result)
     ana = result.identifiability
     return {
         "format": "kincal-result",
         "version": 1,
+        "method": "kincal",
         "status": result.status,
         "iterations": result.iterations,
         "evaluations": result.evaluations,
@@ -53,18 +75,30 @@ def result_to_dict(result: Result) -> dict:
              "identifiable": e.identifiable}
             for e in result.estimates
         ],
-        "twists": [
-            {"name": n, "value": _f(v), "std": _f(s) if result.twists[2] is not None else None}
-            for n, v, s in zip(result.twists[0], result.twists[1],
-                               result.twists[2] if result.twists[2] is not None else [math.nan] * len(result.twists[0]))
-        ] if result.twists and len(result.twists[0]) else [],
+        "twists": [{"name": t.name, "value": _f(t.value), "std": _f(t.std)} for t in result.twists],
         "correlated": [{"a": a, "b": b, "rho": r} for a, b, r in result.correlated],
         "residuals_before": [_stats(s) for s in result.before],
         "residuals_after": [_stats(s) for s in result.after],
-        "validation": [_stats(s) for s in result.validation],
+        "validation": [_validation(v) for v in result.validation],
         "predict": prediction_rows(result),
         "frames": {k: np.asarray(v.as_array() if hasattr(v, "as_array") else v).tolist()
                    for k, v in result.extras.items()},
+    }
+
+
+def _baseline_to_dict(res: BaselineResult) -> dict:
+    before, after = res.initial_error, res.final_error
+    return {
+        "format": "kincal-result",
+        "version": 1,
+        "method": res.method,
+        "status": res.status,
+        "iterations": res.iterations_label,  # the thesis' notation: run(accepted)
+        "messages": ["no identifiability analysis or standard deviations: the thesis' method has none"],
+        "estimates": [{"name": e.name, "value": _f(e.value)} for e in res.estimates],
+        "eval_error_before": {"translation_m": before[0], "rotation_rad": before[1]},
+        "eval_error_after": {"translation_m": after[0], "rotation_rad": after[1]},
+        "validation": [_validation(v) for v in res.validation],
     }
 
 
@@ -72,21 +106,19 @@ def prediction_rows(result: Result) -> list[dict]:
     """Per validation set and calibrated arm: the predicted accuracy next to the actual validation errors of the
     set (mm, deg). Effects of undetermined directions are tool motion per unit norm of a direction in natural
     units: mm per mm-or-mrad and mrad per mm-or-mrad."""
-    actual = {v["experiment"]: v for v in result.validation}
+    actual = {v.experiment: v.after for v in result.validation}
     rows = []
     for name, p in result.predictions:
-        st, v = p.stats(), actual.get(name, {})
+        st, after = p.stats(), actual.get(name)
         row = {"set": name, "arm": p.arm, "samples": p.samples, "registered": p.registered,
                "tool_registered": p.tool_registered, "trusted": p.trusted,
                "position_mm_std_rms": _f(st["position_std_rms"] * 1e3),
                "position_mm_std_max": _f(st["position_std_max"] * 1e3),
                "orientation_deg_std_rms": _f(st["orientation_std_rms"] * DEG),
                "orientation_deg_std_max": _f(st["orientation_std_max"] * DEG)}
-        for k, scale, unit in (("position_rms", 1e3, "mm"), ("position_max", 1e3, "mm"),
-                               ("orientation_rms", DEG, "deg"), ("orientation_max", DEG, "deg")):
-            if f"{k}_after" in v:
-                quantity, stat = k.split("_")
-                row[f"{quantity}_{unit}_{stat}_actual"] = _f(v[f"{k}_after"] * scale)
+        for field, key, scale in _PARTS:
+            if after is not None and getattr(after, field) is not None:
+                row[f"{key}_actual"] = _f(getattr(after, field) * scale)
         for key, moving, pos, rot in (("unidentifiable", p.null_moving, "null_position_max", "null_orientation_max"),
                                       ("weak", p.weak_moving, "weak_position_max", "weak_orientation_max")):
             row[f"{key}_moving"] = moving
@@ -99,8 +131,9 @@ def prediction_rows(result: Result) -> list[dict]:
     return rows
 
 
-def write_results(result: Result, directory) -> dict[str, Path]:
-    """``model.yaml`` (calibrated robot) and ``result.yaml`` in ``directory`` (created if needed).
+def write_results(result: Result | BaselineResult, directory, robot: Robot | None = None) -> dict[str, Path]:
+    """``model.yaml`` (calibrated robot) and ``result.yaml`` (``result_to_dict``) in ``directory`` (created if
+    needed). ``robot``: the calibrated robot of a baseline (``BaselineResult.calibrated``); a ``Result`` has its own.
 
     Refuses to run if either file exists, before writing anything.
     """
@@ -113,7 +146,7 @@ def write_results(result: Result, directory) -> dict[str, Path]:
         d.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise DataFormatError(f"{d}: cannot create output directory: {exc.strerror or exc}") from None
-    save_robot(result.robot, paths["model"])
+    save_robot(result.robot if robot is None else robot, paths["model"])
     try:
         with open(paths["result"], "x", encoding="utf-8") as fh:
             yaml.safe_dump(result_to_dict(result), fh, sort_keys=False)

@@ -1,4 +1,4 @@
-"""POE arm models, forward kinematics, geometric and identification Jacobians."""
+"""POE arm models, forward kinematics, geometric Jacobians and the tool pose's parameter Jacobians."""
 
 from kincal.kinematics.fk import (
     Kinematics,
@@ -17,13 +17,12 @@ from kincal.kinematics.elastic import (
     loaded_forward_kinematics,
     loaded_kinematics,
 )
-from kincal.kinematics.identification import IdentificationJacobian, identification_jacobian
+from kincal.kinematics.jacobians import TOOL_PARTS, tool_jacobians
 from kincal.kinematics.model import PRISMATIC, REVOLUTE, ArmModel, Robot
-from kincal.kinematics.twists import conform_twists, tangent_basis, tangent_generators
+from kincal.kinematics.twists import TWIST_COORDS, conform_twists, tangent_basis, tangent_generators
 
 __all__ = [
     "ArmModel",
-    "IdentificationJacobian",
     "Kinematics",
     "LoadedKinematics",
     "PRISMATIC",
@@ -33,7 +32,6 @@ __all__ = [
     "chain",
     "conform_twists",
     "forward_kinematics",
-    "identification_jacobian",
     "joint_array",
     "joint_axes",
     "load_torques",
@@ -42,6 +40,9 @@ __all__ = [
     "loaded_kinematics",
     "kinematics",
     "space_jacobian",
+    "TOOL_PARTS",
+    "TWIST_COORDS",
+    "tool_jacobians",
     "tangent_basis",
     "tangent_generators",
 ]

@@ -7,6 +7,8 @@ import numpy as np
 from kincal.kinematics.model import PRISMATIC, REVOLUTE
 from kincal.lie import se3, so3
 
+TWIST_COORDS = ("v_x", "v_y", "v_z", "w_x", "w_y", "w_z")  # names of a twist's coordinates, (v, w)
+
 
 def conform_twists(screws: np.ndarray, joint_types, mode: str = "line") -> np.ndarray:
     """Project joint twists (n, 6) onto valid joint screws.

@@ -16,11 +16,11 @@ from dataclasses import replace
 import numpy as np
 
 from kincal.errors import ModelError
-from kincal.kinematics import PRISMATIC, REVOLUTE, conform_twists
+from kincal.kinematics import PRISMATIC, REVOLUTE, TWIST_COORDS, conform_twists
 from kincal.lie import se3, so3
 from kincal.params.values import Plane, bases, generators, retract_twists
 
-POSE_COORDS = ("v_x", "v_y", "v_z", "w_x", "w_y", "w_z")
+POSE_COORDS = TWIST_COORDS  # a pose increment is a twist
 POSE_UNITS = ("m", "m", "m", "rad", "rad", "rad")
 COMPLIANCE_UNITS = {REVOLUTE: "rad/Nm", PRISMATIC: "m/N"}
 

@@ -7,8 +7,6 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Sequence
-
 import numpy as np
 
 from kincal.errors import DataFormatError, KincalError
@@ -27,9 +25,8 @@ def _pyplot():
     return plt
 
 
-def write_plots(result, datasets: Sequence, out_dir) -> list[Path]:
-    """Write the plots of ``result`` (calibrated from ``datasets``) into ``out_dir``; returns the files.
-    Existing files are never replaced."""
+def write_plots(result, out_dir) -> list[Path]:
+    """Write the plots of ``result`` into ``out_dir``; returns the files. Existing files are never replaced."""
     plt = _pyplot()
     out = Path(out_dir)
     names = ["residuals.png", "identifiability.png", "uncertainty.png"]
@@ -39,7 +36,7 @@ def write_plots(result, datasets: Sequence, out_dir) -> list[Path]:
     if existing:
         raise DataFormatError(f"{', '.join(existing)}: file exists; not overwritten (choose another output directory)")
     out.mkdir(parents=True, exist_ok=True)
-    figures = [_residuals(plt, result, datasets), _spectrum(plt, result), _uncertainty(plt, result)]
+    figures = [_residuals(plt, result), _spectrum(plt, result), _uncertainty(plt, result)]
     if result.predictions:
         figures.append(_prediction(plt, result))
     paths = []
@@ -50,13 +47,11 @@ def write_plots(result, datasets: Sequence, out_dir) -> list[Path]:
     return paths
 
 
-def per_sample_errors(result, datasets) -> list[tuple[str, np.ndarray, np.ndarray]]:
+def per_sample_errors(result) -> list[tuple[str, np.ndarray, np.ndarray]]:
     """(data set, position error per sample before, after) in m: the norm of each sample's position part
     (per point where a sample has several), at the nominal model (frames at their first guesses) and at the
-    result."""
-    from kincal.estimation.solver import _problem
-
-    problem, _ = _problem(result.nominal_robot, list(datasets), [], (), None, None)
+    result, for every data set of the calibration (``result.problem``)."""
+    problem = result.problem
     out = []
     for exp in problem.experiments:
         pos = np.array([c.length for c in exp.components()])
@@ -71,8 +66,8 @@ def per_sample_errors(result, datasets) -> list[tuple[str, np.ndarray, np.ndarra
     return out
 
 
-def _residuals(plt, result, datasets):
-    rows = per_sample_errors(result, datasets)
+def _residuals(plt, result):
+    rows = per_sample_errors(result)
     fig, axes = plt.subplots(1, max(len(rows), 1), figsize=(4.5 * max(len(rows), 1), 3.6), squeeze=False)
     for ax, (name, before, after) in zip(axes[0], rows):
         for e, label in ((before, "nominal"), (after, "calibrated")):
@@ -132,7 +127,7 @@ def _uncertainty(plt, result, limit: int = 40):
 
 
 def _prediction(plt, result):
-    actual = {v["experiment"]: v.get("position_rms_after") for v in result.validation}
+    actual = {v.experiment: v.after.position_rms for v in result.validation}
     labels, predicted, measured, trusted = [], [], [], []
     for name, p in result.predictions:
         labels.append(f"{name}\n{p.arm}")

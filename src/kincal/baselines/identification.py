@@ -1,4 +1,7 @@
-"""Identification Jacobian of the pose error twist (thesis eq. 2.40-2.53, He et al. 2010).
+"""The thesis' identification Jacobian of the pose error twist (thesis eq. 2.40-2.53, He et al. 2010).
+
+Used by the thesis baselines (``thesis_dual``) only: kincal's solver differentiates w.r.t. tangent coordinates
+of the joint screws with ``kincal.kinematics.tool_jacobians``.
 
 Error twist (space, left): ``y = log(T(p + dp) T(p)^-1)^vee = J dp + O(dp^2)`` with T = T_world_tool.
 Parametrization (additive in every coordinate):
@@ -27,11 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from kincal.kinematics.fk import Kinematics, kinematics
-from kincal.kinematics.model import ArmModel
+from kincal.kinematics import TWIST_COORDS, ArmModel, Kinematics, kinematics
 from kincal.lie import se3
 
-TWIST_COORDS = ("v_x", "v_y", "v_z", "w_x", "w_y", "w_z")
 BLOCKS = ("base", "twists", "offsets", "home", "tool")
 
 

@@ -1,0 +1,61 @@
+"""What identifiability (and the solver's steps) read of one linearization of a calibration problem."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from kincal.params import State
+
+
+@dataclass(frozen=True, eq=False)
+class Linearization:
+    """One evaluation at ``state``, reduced to the small triangular factor ``R`` of ``[J_free | J_fixed | r_len | r]``.
+
+    Everything asked of a linearization (rank, null space, gauge, covariance, the Gauss-Newton convergence
+    test, the scale test) depends on the tall whitened Jacobian only through its Gram matrix, so one QR serves
+    them all: ``R[:p, :p]`` stands in for ``J_free``, the next columns for the fixed coordinates that scale with
+    the robot and the residual's length part (only when ``fixed`` is given: the scale test), the last for the
+    residual. The tall ``J`` is kept for the rotation test and the inner solve's first evaluation.
+    """
+
+    state: State
+    r: np.ndarray  # (m,) whitened stacked residual: experiments, then prior rows, then constraint rows
+    J: np.ndarray  # (m, p) whitened Jacobian of the free coordinates
+    R: np.ndarray  # (q, p + len(fixed) + 2) or (q, p + 1) triangular factor, columns ordered as above
+    W: tuple  # per experiment (N, k, k) whiteners (inverse Cholesky factors of the residual covariance)
+    residuals: tuple  # per experiment (N, k) residual before whitening
+    free: np.ndarray  # (p,) layout indices of the free coordinates: the columns of J
+    fixed: np.ndarray | None = None  # layout indices of the fixed columns in R (with the length part), or None
+
+    @property
+    def p(self) -> int:
+        return len(self.free)
+
+    @property
+    def every(self) -> bool:
+        """Whether ``R`` has the fixed columns and the length part the scale test needs."""
+        return self.fixed is not None
+
+    @property
+    def Rall(self) -> np.ndarray:
+        """Columns of the free coordinates, then of the fixed ones in ``fixed`` (``every`` only)."""
+        return self.R[:, :-2]
+
+    @property
+    def Rlen(self) -> np.ndarray:
+        """The residual's length part (``every`` only)."""
+        return self.R[:, -2]
+
+    @property
+    def Rf(self) -> np.ndarray:
+        return self.R[: self.p, : self.p]
+
+    @property
+    def qtr(self) -> np.ndarray:
+        return self.R[: self.p, -1]
+
+    @property
+    def cost2(self) -> float:
+        return float(self.r @ self.r)

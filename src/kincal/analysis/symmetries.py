@@ -1,0 +1,108 @@
+"""Exact symmetries of the calibration cost that residuals left can make look determined: the scale of the
+robot when no measured length enters, and rotations about an arm's first joint axis that carry its world-side
+frames along. Both are confirmed on the linearization before they are held."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from kincal.analysis.linearization import Linearization
+from kincal.kinematics import REVOLUTE
+from kincal.lie import se3
+from kincal.params import Layout, scale_direction
+from kincal.schema import WORLD
+
+
+
+def scale_null(lin: Linearization, layout: Layout) -> np.ndarray | None:
+    """The free direction equivalent to scaling every length, if the data cannot see scale; else None.
+
+    Scale is unidentifiable when (1) no measured length enters the residuals: scaling every length, fixed ones
+    included, by ``1 + e`` scales the residual's length part by ``1 + e`` (``J_all s_all = r_len``; zero on
+    noise-free data at the truth, but with residuals left the data would prefer to shrink the robot, which
+    is no information about its size), and (2) the fixed length coordinates add no rank to the free ones
+    (e.g. a fixed base is absorbed by free twists and home). The direction is then ``s_free + u`` with
+    ``J u = J_fixed s_fixed`` (free parameters standing in for the fixed lengths). Everything is read off the
+    linearization's triangular factor.
+    """
+    p = lin.p
+    if not any(layout.units[i] == "m" for i in lin.free):
+        return None  # no free length, nothing to scale
+    if not lin.every:
+        raise AssertionError("the scale test needs a linearization with every column")
+    fixed = lin.fixed  # the fixed coordinates that scale with the robot
+    Ra = lin.Rall  # (q, p + len(fixed)): free first
+    s_all = scale_direction(lin.state, layout)
+    s = np.concatenate([s_all[lin.free], s_all[fixed]])
+    colnorm = np.linalg.norm(Ra, axis=0)
+    if np.linalg.norm(Ra @ s - lin.Rlen) > 1e-6 * (np.sum(colnorm * np.abs(s)) + np.linalg.norm(lin.Rlen)):
+        return None
+    units = np.array(layout.units)[fixed]
+    lengths = np.flatnonzero((units == "m") & (colnorm[p:] > 0))
+    if len(lengths):
+        # the part of a fixed length's column outside the free columns' range sits below row p of R
+        outside = np.linalg.norm(Ra[p:, p + lengths], axis=0) / colnorm[p + lengths]
+        if np.max(outside) > 1e-6:
+            return None
+    u = np.linalg.lstsq(lin.Rf, Ra[:p, p:] @ s[p:], rcond=None)[0]
+    d = s[:p] + u
+    return d if np.linalg.norm(d) > 0 else None
+
+
+def rotation_nulls(lin: Linearization, layout: Layout, experiments: Sequence) -> list[np.ndarray]:
+    """Rotations about an arm's first joint axis that carry every world-side frame of its experiments along
+    (``j1.offset + 1`` with the frames turned by the axis screw): exact symmetries of the cost wherever those
+    frames are free. Residuals written in a frame that turns along are unchanged (clamp, plate, tracker); a
+    socket's world-frame vector ``r`` turns, ``J g = w x r``, which residuals left would mistake for
+    information. Returned (natural units, free coordinates) where the linearization confirms the symmetry:
+    ``J g`` equals the turned residuals."""
+    col = {int(i): k for k, i in enumerate(lin.free)}
+    out = []
+    for arm, a in lin.state.arms.items():
+        exps = [e for e in experiments if arm in e.arms]
+        if not exps or any(len(e.arms) > 1 for e in exps):
+            continue  # another arm in the loop does not turn along
+        i1 = layout.index(f"{arm}.{a.joint_names[0]}.offset")
+        if i1 not in col or a.joint_types[0] != REVOLUTE:
+            continue
+        xi = se3.adjoint(a.base) @ a.screws[0]  # joint 1's screw in world coordinates
+        g = _turned_frames(lin, layout, exps, xi, i1)
+        if g is None or any(g[i] != 0 and i not in col for i in np.flatnonzero(g)):
+            continue
+        gf = g[lin.free]
+        t = _turned_residuals(lin, experiments, arm, se3.split(xi)[1])
+        Jg = lin.J @ gf
+        if np.linalg.norm(Jg - t) <= 1e-6 * (np.sum(np.linalg.norm(lin.J, axis=0) * np.abs(gf)) + np.linalg.norm(t)):
+            out.append(gf)
+    return out
+
+
+def _turned_frames(lin: Linearization, layout: Layout, exps, xi: np.ndarray, i1: int) -> np.ndarray | None:
+    """The layout direction (offset of joint 1 by 1, world-side frames turned by ``xi``), or None when a known
+    frame anchors the rotation."""
+    g = np.zeros(layout.size)
+    g[i1] = 1.0
+    ok = True
+    for e in exps:
+        for role, name in e.frames.items():
+            if e.SCHEMA.role(role).side != WORLD:
+                continue  # frames on the tool side or between arms do not turn with the world
+            b = layout.block(name)
+            g[b.slice] = b.kind.world_motion(lin.state.extras[name], xi)
+            if not layout.free[b.start: b.stop].all():
+                ok = False  # a known frame anchors the rotation
+    return g if ok else None
+
+
+def _turned_residuals(lin: Linearization, experiments, arm: str, w: np.ndarray) -> np.ndarray:
+    """The whitened change of the stacked residual under the rotation: world-frame vectors turn, the rest not."""
+    target = []
+    for e, W, r in zip(experiments, lin.W, lin.residuals):
+        t = np.zeros_like(r)
+        if e.WORLD_VECTOR and arm in e.arms:
+            t = np.cross(w, r)
+        target.append((W @ t[:, :, None]).ravel())
+    target.append(np.zeros(len(lin.r) - sum(len(x) for x in target)))
+    return np.concatenate(target)

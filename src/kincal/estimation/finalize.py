@@ -1,0 +1,137 @@
+"""The end of ``solve``: identifiability, covariance, estimates and messages at the state the loop stopped at."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from kincal.analysis import Identifiability, Linearization, correlated_pairs, covariance, identify
+from kincal.analysis.naming import block_of
+from kincal.estimation import steps
+from kincal.estimation.gauge import gauge_basis
+from kincal.estimation.iterate import Iteration, scale_test_needed
+from kincal.estimation.options import SolverOptions
+from kincal.estimation.problem import Problem
+from kincal.estimation.result import Estimate, Result, TwistEstimate
+from kincal.params import HOME, TWISTS, displacement, twist_coordinates
+
+# Residual variance factor above which the fit is reported as not explaining the data (RMS 10x the noise).
+MISFIT_VARIANCE_FACTOR = 100.0
+# A model whose residuals depend this much less on the joint readings than the nominal's has collapsed.
+COLLAPSE_RATIO = 1e-3
+
+
+def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result:
+    """The ``Result`` of the loop's outcome ``run``: linearize the final state if the loop moved it, analyse it,
+    the covariance in the solve's gauge scaled by the residual variance, estimates, twists and messages."""
+    lin = run.linearization
+    if lin is None:  # the loop stopped after a step: linearize the final state
+        lin = steps.linearize(problem, run.state, None if problem.joint_noise else run.whiteners,
+                              scale_test_needed(problem))
+    ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=list(run.order))
+    status, messages = _status(problem, run, options)
+    dof = len(lin.r) - ana.rank
+    sigma2 = lin.cost2 / dof if dof > 0 else float("nan")
+    cov, std, ok = _uncertainty(lin, ana, options, run.order, sigma2, status)
+    messages += list(ana.messages)
+    if dof <= 0:
+        messages.append("as many equations as identifiable parameters: no residual variance, standard deviations "
+                        "are not scaled")
+    elif sigma2 > MISFIT_VARIANCE_FACTOR:
+        messages.insert(0, (
+            f"the model does not explain the data: residuals are {np.sqrt(sigma2):.3g} times the stated noise "
+            f"(residual variance factor {sigma2:.3g}); the estimates absorb what the free parameters cannot model "
+            f"and their standard deviations assume a model that fits. {_misfit_advice(problem)}"))
+    names = [problem.layout.names[i] for i in problem.free_idx]
+    return Result(
+        robot=run.state.to_robot(problem.robot), nominal_robot=problem.robot, state=run.state,
+        layout=problem.layout, estimates=tuple(_estimates(problem, run.state, std, ok)), covariance=cov,
+        correlated=tuple(correlated_pairs(cov, names, options.correlation_threshold, ok)),
+        identifiability=ana, identifiability_before=run.first, before=run.before,
+        after=tuple(problem.statistics(run.state, lin.W)), sigma2=sigma2, status=status,
+        iterations=run.iterations, evaluations=run.evaluations, messages=tuple(messages),
+        extras=dict(run.state.extras), problem=problem, linearization=lin,
+        twists=_twists(problem, run.state, cov),
+    )
+
+
+def _status(problem: Problem, run: Iteration, options: SolverOptions) -> tuple[str, list[str]]:
+    """The final status (a collapsed model makes a converged solve degenerate) and what it says."""
+    status, messages = run.status, []
+    if status == "degenerate":
+        messages.append("degenerate experiment: no arm parameter can be identified from these data; "
+                        "nothing was estimated")
+    elif status == "not converged":
+        messages.append(f"did not converge in {options.max_outer} outer iterations")
+    if status != "degenerate":
+        for name, before_q, after_q in _lost_joint_sensitivity(problem, run.state):
+            status = "degenerate"
+            messages.append(
+                f"degenerate solution for '{name}': its residuals no longer depend on the joint readings "
+                f"(sensitivity {before_q:.3g} at the nominal model, {after_q:.3g} at the solution): the solver found "
+                "a model whose tool does not move with the joints, which fits any such data exactly (with "
+                "position-only loops and no known length, every joint axis through one point). Free fewer "
+                "parameters (e.g. 'offsets'), or measure a length")
+    return status, messages
+
+
+def _uncertainty(lin: Linearization, ana: Identifiability, options: SolverOptions, order, sigma2: float,
+                 status: str):
+    """Covariance (p, p) in the solve's gauge, standard deviations (nan where not identifiable) and the mask
+    of identifiable coordinates."""
+    p = lin.p
+    V = gauge_basis(lin.Rf, ana, options.gauge, list(order))
+    cov = covariance(lin.Rf, V, sigma2 if np.isfinite(sigma2) else 1.0) if V.shape[1] else np.zeros((p, p))
+    std = np.sqrt(np.clip(np.diag(cov), 0, None))
+    ok = ana.identifiable & (status != "degenerate")
+    return cov, np.where(ok, std, np.nan), ok
+
+
+def _misfit_advice(problem: Problem) -> str:
+    """What to try when the model does not fit, from what is free already."""
+    layout = problem.layout
+    geometric = [b for b in layout.blocks if b.kind in (TWISTS, HOME)]
+    tips = []
+    if not all(layout.free[b.start: b.stop].all() for b in geometric):
+        tips.append("free more parameters (e.g. 'kinematic')")
+    tips.append("check the stated noise")
+    tips.append("look for outliers (a robust loss)")
+    tips.append("check the starting values: the nominal model, and the nominal tool and base frames in particular, "
+                "may be so far from the truth that the solve stopped in a local minimum")
+    return "Possible causes: " + "; ".join(tips) + "."
+
+
+def _lost_joint_sensitivity(problem: Problem, state) -> list[tuple[str, float, float]]:
+    """Experiments whose residuals hardly depend on the joint readings any more: (name, RMS |dr/dq| at the
+    nominal state, at ``state``). The data are then explained without the arm moving: a degenerate model."""
+    out = []
+    for exp in problem.experiments:
+        if exp.size > 200:  # a collapse is global: an evenly spread subset shows it as well
+            exp = type(exp)(exp.dataset.subset(np.linspace(0, exp.size - 1, 200).astype(int)), exp.frames)
+        rms = []
+        for st in (problem.nominal, state):
+            jq = exp.residual(st, want=set(), jq=True).jq
+            rms.append(float(np.sqrt(np.mean([np.mean(j**2) for j in jq.values()]))) if jq else 0.0)
+        if rms[0] > 0 and rms[1] < COLLAPSE_RATIO * rms[0]:
+            out.append((exp.name, rms[0], rms[1]))
+    return out
+
+
+def _twists(problem: Problem, state, cov: np.ndarray) -> tuple[TwistEstimate, ...]:
+    """Derived twist coordinates of every arm with free twists, with standard deviations from ``cov``."""
+    full = np.zeros((problem.layout.size, problem.layout.size))
+    full[np.ix_(problem.free_idx, problem.free_idx)] = cov
+    names, values, tw_cov = twist_coordinates(state, problem.layout, full)
+    std = np.sqrt(np.clip(np.diag(tw_cov), 0, None))
+    return tuple(TwistEstimate(n, float(v), float(s)) for n, v, s in zip(names, values, std))
+
+
+def _estimates(problem: Problem, state, std, ok) -> list[Estimate]:
+    layout = problem.layout
+    disp, _ = displacement(state, problem.nominal, layout)
+    out = []
+    for k, i in enumerate(problem.free_idx):
+        b = block_of(layout, i)
+        nominal = float(b.kind.values(b.value(problem.nominal))[i - b.start]) if b.kind.absolute else 0.0
+        out.append(Estimate(layout.names[i], nominal + float(disp[i]), nominal, float(std[k]), layout.units[i],
+                            bool(ok[k])))
+    return out

@@ -1,0 +1,134 @@
+"""The outer loop of ``solve``: re-linearize around the current state, analyse the rank, restrict the step to the
+identifiable subspace (the gauge), take a Gauss-Newton step or solve the inner problem with
+``scipy.optimize.least_squares``, re-centre (conform twists, re-linearize tangent bases)."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from kincal.analysis import Identifiability, Linearization, identify
+from kincal.errors import DegenerateExperimentError
+from kincal.estimation import steps
+from kincal.estimation.gauge import gauge_basis, priority
+from kincal.estimation.options import SolverOptions
+from kincal.estimation.problem import Problem
+from kincal.estimation.stats import ResidualStats
+from kincal.params import State, recentre, retract
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, eq=False)
+class Iteration:
+    """Where the outer loop stopped. ``status``: converged | not converged | degenerate; ``iterations``: outer
+    iterations (linearizations, the one that confirmed convergence included); ``evaluations``: residual
+    evaluations spent on steps; ``linearization``: at ``state`` when the loop stopped without moving (else None);
+    ``whiteners``: the ones held at the end; ``first``: the identifiability report at the start, with
+    ``before`` the residual statistics there."""
+
+    state: State
+    status: str
+    iterations: int
+    evaluations: int
+    linearization: Linearization | None
+    whiteners: tuple | None
+    first: Identifiability | None
+    before: tuple[ResidualStats, ...]
+    order: tuple[int, ...]  # the free coordinates' pivot order (``gauge.priority``)
+
+
+def scale_test_needed(problem: Problem) -> bool:
+    """The scale test (every length column in the linearization) applies when some length is free."""
+    return any(problem.layout.units[i] == "m" for i in problem.free_idx)
+
+
+def iterate(problem: Problem, options: SolverOptions) -> Iteration:
+    """Run the outer loop from ``problem.start`` (module docstring)."""
+    order = priority(problem, options.gauge)
+    every = scale_test_needed(problem)
+    state, W, lin = problem.start, None, None
+    first, before = None, ()
+    evaluations, status, it, fast = 0, "not converged", 0, True  # Gauss-Newton first while it converges fast
+    for it in range(1, options.max_outer + 1):
+        # Whiten at the start and once more at the first estimate, then hold: when the model cannot explain
+        # the data, re-whitening at every estimate moves the optimum each time and the loop never settles.
+        # Without encoder noise the whitening does not depend on the state at all.
+        if it <= 2 and problem.joint_noise:
+            W = None
+        lin = steps.linearize(problem, state, W, every)
+        W = lin.W
+        ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=order,
+                       report=first is None)
+        if first is None:
+            first, before = ana, tuple(problem.statistics(state, W))
+            if ana.degenerate:
+                status = "degenerate"
+                break
+            _require_redundancy(problem, len(lin.r), ana.rank)
+        V = gauge_basis(lin.Rf, ana, options.gauge, order)
+        z, r1sq = steps.gauss_newton(lin, V)
+        if it > 1 and steps.negligible(lin, V, z, r1sq):
+            status = "converged"  # the re-linearized problem asks for no step
+            break
+        state, done, fast, spent = _step(problem, options, lin, V, z, r1sq, fast, it)
+        evaluations += spent
+        lin = None  # the state moved
+        if done:
+            status = "converged"
+            break
+    return Iteration(state, status, it, evaluations, lin, W, first, before, tuple(order))
+
+
+def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.ndarray, z: np.ndarray,
+          r1sq: float, fast: bool, it: int) -> tuple[State, bool, bool, int]:
+    """One step from ``lin`` in the subspace V: (new state, whether it was negligible, whether Gauss-Newton is
+    still fast, residual evaluations spent).
+
+    The Gauss-Newton step ``z`` first (it costs one residual evaluation); least_squares (LM, or TRF with a
+    robust loss) solves the inner problem when the full step does not reduce the cost as the linear model
+    predicts (far from the optimum, strongly nonlinear), when Gauss-Newton has stopped converging fast, or when
+    a robust loss is asked for."""
+    accepted, evaluations = False, 0
+    if options.loss == "linear" and fast:
+        r_new = problem.evaluate(lin.state, V @ z, lin.W, jac=False)[0]
+        evaluations += 1
+        cost2_new = float(r_new @ r_new)
+        accepted = lin.cost2 - cost2_new >= 0.25 * (lin.cost2 - r1sq)
+        # Gauss-Newton is fast near a small-residual optimum (the cost falls by orders of magnitude); on
+        # a large-residual problem (a model that cannot fit) it crawls: least_squares from then on.
+        # At the noise floor (chi^2 about its degrees of freedom) the remaining steps are small either way.
+        fast = accepted and (cost2_new <= 0.1 * lin.cost2 or cost2_new <= 2.0 * (len(lin.r) - V.shape[1]))
+    if accepted:
+        x, cost = z, 0.5 * cost2_new
+    else:
+        x, cost, nfev = steps.inner_solve(problem, lin.state, lin, V, options.loss, options.f_scale)
+        evaluations += nfev
+    delta = V @ x
+    step = float(np.linalg.norm(lin.Rf @ delta))
+    state = recentre(retract(lin.state, problem.layout, problem.full_delta(delta)))
+    if options.progress:
+        options.progress(it, 2 * cost)
+    log.debug("outer %d (%s): cost %.6g, whitened step %.3g, max |delta| %.3g", it,
+              "Gauss-Newton" if accepted else "least_squares", 2 * cost, step, np.max(np.abs(delta), initial=0))
+    # stop when the step is negligible against the residual (or, with noise, well below one sigma)
+    done = (steps.converged(step, np.sqrt(lin.cost2), cost, len(lin.r) - V.shape[1])
+            or np.max(np.abs(delta), initial=0) < 1e-13)
+    return state, done, fast, evaluations
+
+
+def _require_redundancy(problem: Problem, m: int, rank: int) -> None:
+    """At least as many residual degrees of freedom as identifiable parameters.
+
+    The standard deviations are scaled by the residual variance; with fewer redundant equations than
+    parameters that scale (and any check of the model against the data) rests on too little.
+    """
+    if m - rank < rank:
+        per = ", ".join(f"'{e.name}' ({e.kind_name}): {e.size} configurations" for e in problem.experiments)
+        need = ", ".join(f"'{e.name}'" for e in problem.experiments)
+        raise DegenerateExperimentError(
+            f"{m} equations for {rank} identifiable parameters: too few configurations to calibrate and check "
+            f"the result (at least {2 * rank} equations needed; {per}); measure more configurations in {need}"
+        )

@@ -1,0 +1,58 @@
+"""Typed residual statistics of a calibration: per data set at a model, and before/after on validation sets."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from kincal.noise import ORIENTATION, PIXEL, POSITION
+
+
+@dataclass(frozen=True)
+class ResidualStats:
+    """Residuals of one data set at one model. Position and orientation errors are norms per sample (per point
+    where a sample has several), in m and rad; None when the data set has no such component. ``chi2``: the
+    whitened sum of squares, over ``dof`` residual components."""
+
+    experiment: str
+    kind: str
+    samples: int
+    position_rms: float | None
+    position_max: float | None
+    orientation_rms: float | None
+    orientation_max: float | None
+    chi2: float
+    dof: int
+    pixel_rms: float | None = None  # image residuals (px), when the data set has them
+    pixel_max: float | None = None
+
+
+@dataclass(frozen=True)
+class ValidationStats:
+    """One held-out data set at the nominal model (``before``) and at the calibrated one (``after``); unknown
+    frames of the set are fitted with every arm parameter fixed."""
+
+    experiment: str
+    kind: str
+    samples: int
+    before: ResidualStats
+    after: ResidualStats
+
+
+def residual_norms(r: np.ndarray, components) -> dict:
+    """RMS and max over samples of the position-part and orientation-part norms (m, rad):
+    ``{position_rms, position_max, orientation_rms, orientation_max}``, None for a part the residual lacks."""
+    st = dict.fromkeys(("position_rms", "position_max", "orientation_rms", "orientation_max", "pixel_rms", "pixel_max"))
+    for key, q in (("position", POSITION), ("orientation", ORIENTATION), ("pixel", PIXEL)):
+        mask = np.array([c == q for c in components], bool)
+        if mask.any():
+            if mask.sum() % 3 == 0 and key == "position" and mask.sum() > 1:
+                e = np.linalg.norm(r[:, mask].reshape(len(r), -1, 3), axis=-1).ravel()
+            elif key in ("orientation", "pixel"):
+                e = np.linalg.norm(r[:, mask], axis=-1)
+            else:
+                e = np.abs(r[:, mask]).ravel()
+            st[f"{key}_rms"] = float(np.sqrt(np.mean(e**2)))
+            st[f"{key}_max"] = float(np.max(e))
+    return st

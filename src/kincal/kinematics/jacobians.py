@@ -1,0 +1,158 @@
+"""The tool pose's Jacobians w.r.t. every arm parameter, projected through the residual's derivative.
+
+``tool_jacobians`` is the one Jacobian of ``T_world_tool`` that calibration uses (experiments' residuals,
+predicted accuracy). Poses are differentiated w.r.t. *left (space) increments*: ``T -> exp(d) T`` with d in
+world coordinates. Parameters, per part:
+
+* ``offsets``: additive, ``theta = q + o``;
+* ``twists``: tangent coordinates of each joint screw, moving the axis rigidly by ``exp(G_j d)`` with ``G_j``
+  the axis' rigid-motion generators (``kincal.kinematics.tangent_generators``);
+* ``home``, ``base``, ``tool``: left increments ``exp(d) T``;
+* ``compliance``: joint compliances, with the load torques' own dependence on the geometry (below).
+
+The thesis' closed form (He et al. 2010, additive twist coordinates) is a baseline and lives in
+``kincal.baselines.identification``.
+
+Compliance (``kin`` a ``LoadedKinematics``): with ``theta = theta0 + c * tau(p, theta0)`` and ``Jq = G dT/dtheta``
+at the deflected theta, the compliance block is ``Jq[..., i] tau_i`` and every other part p (and the joint
+readings) gets ``Jq (dtheta0/dp + c * dtau/dp)``. A parameter acts as a world twist ``zeta`` inserted at some
+position k of the chain (after the prefix ``P_k``); it moves the axes after it and the tool, so
+``dtau_i = [i <= k] h_i . zeta`` with ``h_i = F_s^T ad(xi_s_i)``: only the axes the parameter does not carry see
+the load turn. Offset j inserts ``xi_s_j`` at k = j (0-based: rows i < j), a twist tangent ``+Ad(P_j) G_j``
+before joint j and ``-Ad(P_{j+1}) G_j`` after it, home ``Ad(P_n)`` and tool ``Ad(T_world_flange)`` after every
+joint; the base moves everything (no change).
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from kincal.kinematics.elastic import LoadedKinematics
+from kincal.kinematics.fk import Kinematics
+from kincal.lie import se3
+
+TOOL_PARTS = ("offsets", "twists", "home", "base", "tool", "compliance")
+_CORRECTED = ("offsets", "twists", "home", "tool")  # the parts whose load torques depend on them
+
+
+def tool_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, generators: Sequence[np.ndarray],
+                   compliance: np.ndarray | None = None, parts: Sequence[str] = TOOL_PARTS,
+                   with_jq: bool = True) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
+    """``G @ d T_world_tool / d param`` per part (N, k, d), and ``G @ J_q`` (N, k, n) if ``with_jq``.
+
+    ``kin``: the chain at the data's joint values (``chain`` or ``loaded_chain``); ``G`` (N, k, 6): the residual's
+    derivative w.r.t. the left increment of ``T_world_tool`` (identity (N, 6, 6) for the pose itself);
+    ``screws`` (n, 6) and ``generators`` (per joint (6, k_j)): the joint twists and their rigid-motion generators;
+    ``compliance`` (n,): joint compliances (None: zero). Projecting first is what makes this fast:
+    ``M_j = G Ad(P_j)`` (N, k, 6) for the prefixes ``P_j = base E_1 .. E_j``, then
+
+    * offset / joint reading j: ``M_{j-1} xi_j``;
+    * twist coordinates of joint j: ``(M_{j-1} - M_j) G_j``, since ``theta J_l(theta xi) ad(xi) = Ad(exp(theta xi))
+      - I``: moving a joint axis rigidly inserts the motion before the joint and its inverse after it (no
+      per-sample weights; it holds for raw, unconformed twists too);
+    * home: ``M_n``; base: ``G``; tool: ``G Ad(T_world_flange)``;
+    * compliance: see the module docstring; without loads the compliance block is zero.
+    """
+    N, k = G.shape[:2]
+    n = screws.shape[0]
+    loaded = isinstance(kin, LoadedKinematics) and (with_jq or any(p != "base" for p in parts))
+    joints = with_jq or "offsets" in parts or loaded
+    twists = "twists" in parts
+    idx = [*range(n + 1)] if twists else ([*range(n)] if joints else []) + ([n] if "home" in parts else [])
+    out: dict[str, np.ndarray] = {}
+    jq = None
+    if idx:
+        M = _project_prefixes(G, kin.prefixes[:, idx])  # (len(idx), N*k, 6)
+    if joints or twists:
+        jq = np.moveaxis((M[:n] @ screws[:, :, None])[..., 0].reshape(n, N, k), 0, -1)
+        if "offsets" in parts:
+            out["offsets"] = jq
+    if twists:
+        Gen, keep = _padded_bases(generators)  # (n, 6, t)
+        tw = (M[:n] - M[1: n + 1]) @ Gen  # (n, N*k, t): one product per joint
+        out["twists"] = np.moveaxis(tw.reshape(n, N, k, -1), 0, 2).reshape(N, k, -1)[..., keep]
+    if "home" in parts:
+        out["home"] = M[-1].reshape(N, k, 6)
+    if "base" in parts:
+        out["base"] = G
+    if "tool" in parts:
+        out["tool"] = G @ se3.adjoint(kin.flange)
+    c = np.zeros(n) if compliance is None else np.asarray(compliance, float)
+    if loaded:
+        jq = _add_compliance(kin, generators, c, jq, out, parts)
+    elif "compliance" in parts:
+        out["compliance"] = np.zeros((N, k, n))
+    return out, (jq if with_jq else None)
+
+
+def torque_derivatives(kin: LoadedKinematics, generators: Sequence[np.ndarray], parts) -> dict[str, np.ndarray]:
+    """``dtau/dp`` (N, n, d) for the parts in ``parts`` among offsets, twists, home, tool (unloaded chain)."""
+    k0 = kin.unloaded
+    n = len(generators)
+    H = np.einsum("Ni,Nkij->Nkj", kin.wrench_space, se3.ad(kin.axes))  # (N, n, 6): h_i
+    out = {}
+    rows = np.arange(n)
+    if "offsets" in parts:
+        out["offsets"] = np.einsum("Nik,Njk->Nij", H, kin.axes) * (rows[:, None] < rows[None, :])
+    Ad = se3.adjoint(k0.prefixes) if ("twists" in parts or "home" in parts) else None
+    if "twists" in parts:
+        cols = []
+        for j, Gj in enumerate(generators):  # loop over joints, batched over samples
+            before = H * (rows < j)[None, :, None]
+            upto = H * (rows <= j)[None, :, None]
+            cols.append(before @ (Ad[:, j] @ Gj) - upto @ (Ad[:, j + 1] @ Gj))
+        out["twists"] = np.concatenate(cols, axis=-1)
+    if "home" in parts:
+        out["home"] = H @ Ad[:, n]
+    if "tool" in parts:
+        out["tool"] = H @ se3.adjoint(k0.flange)
+    return out
+
+
+def _add_compliance(kin: LoadedKinematics, generators, c: np.ndarray, jq: np.ndarray, out: dict,
+                    parts) -> np.ndarray:
+    """Add the compliance block and the ``c * dtau/dp`` terms to ``out`` (in place); returns the corrected
+    derivative w.r.t. the joint readings. ``jq`` (N, k, n): ``G dT/dtheta`` at the deflected theta."""
+    if "compliance" in parts:
+        out["compliance"] = jq * kin.tau[:, None, :]
+    want = [p for p in _CORRECTED if p in parts] + ([] if "offsets" in parts else ["offsets"])
+    if not np.any(c):
+        return jq
+    cjq = jq * c
+    D = torque_derivatives(kin, generators, want)
+    for p in _CORRECTED:
+        if p in parts:
+            out[p] = out[p] + cjq @ D[p]
+    return jq + cjq @ D["offsets"]
+
+
+def _project_prefixes(G: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """``G Ad(P_j)`` for G (N, k, 6) and poses P (N, m, 4, 4): (m, N*k, 6), with
+    ``G Ad(T) = [G_v R, (G_v hat(p) + G_w) R]`` and row-wise ``g^T hat(p) = (g x p)^T``."""
+    N, k = G.shape[:2]
+    R = np.moveaxis(P[..., :3, :3], 1, 0)  # (m, N, 3, 3)
+    p = np.moveaxis(P[..., None, :3, 3], 1, 0)  # (m, N, 1, 3)
+    gv, gw = G[..., :3], G[..., 3:]
+    x, y, z = gv[..., 0], gv[..., 1], gv[..., 2]
+    px, py, pz = p[..., 0], p[..., 1], p[..., 2]
+    H = np.empty((P.shape[1], N, k, 3))
+    H[..., 0] = y * pz - z * py + gw[..., 0]
+    H[..., 1] = z * px - x * pz + gw[..., 1]
+    H[..., 2] = x * py - y * px + gw[..., 2]
+    M = np.empty((P.shape[1], N, k, 6))
+    M[..., :3] = gv @ R
+    M[..., 3:] = H @ R
+    return M.reshape(P.shape[1], N * k, 6)
+
+
+def _padded_bases(bases) -> tuple[np.ndarray, np.ndarray]:
+    """Per-joint matrices (6, k_j) zero-padded to (n, 6, k_max), and the flat indices of real columns."""
+    k_max = max(b.shape[1] for b in bases)
+    B = np.zeros((len(bases), 6, k_max))
+    keep = []
+    for j, b in enumerate(bases):
+        B[j, :, : b.shape[1]] = b
+        keep += [j * k_max + c for c in range(b.shape[1])]
+    return B, np.array(keep)
