@@ -106,6 +106,7 @@ def test_frame_kinds_retract_displace_and_turn_with_the_world(kind, rng):
     displacement of the frame turned with the world by exp(e xi) (finite differences)."""
     from kincal.lie import se3
     from kincal.params import FRAME_KINDS, Plane
+    from kincal.testing import numerical_jacobian
 
     k = FRAME_KINDS[kind]
     raw = {"pose": random_pose(rng), "point": rng.normal(size=3), "points": rng.normal(size=(3, 3)),
@@ -126,6 +127,11 @@ def test_frame_kinds_retract_displace_and_turn_with_the_world(kind, rng):
     else:
         turned = se3.transform_points(T, value)
     np.testing.assert_allclose(k.displacement(turned, value)[0] / eps, k.world_motion(value, xi), atol=1e-5)
+    if k.origin(value) is not None:  # a frame's origin and its derivative (distance constraints)
+        num = numerical_jacobian(lambda x: k.origin(k.retract(value, x)), np.zeros(len(names)))
+        np.testing.assert_allclose(k.origin_jacobian(value), num, atol=1e-7)
+    else:
+        assert kind in ("points", "plane")
 
 
 def test_kinds_are_compared_by_identity_never_by_string():

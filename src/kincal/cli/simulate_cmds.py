@@ -57,20 +57,20 @@ def simulate(scenario: str, output: Path, seed: int | None, overwrite: bool, qui
     stats = {k: v for k, v in truth.meta.items() if k != "generator"}
     if stats:
         out.print(f"  generator: {stats}")
-    if ds.kind not in ("pose", "markers"):
-        for arm, sp in dataset_spread(ds, sc.robot, truth).items():
-            t = Table(title=f"joint spread, arm {arm}")
-            for col in ("joint", "min (rad)", "max (rad)", "range (rad)", "of limits"):
-                t.add_column(col, justify="right")
-            for i, name in enumerate(sp.names):
-                frac = "" if sp.fraction[i] != sp.fraction[i] else f"{100 * sp.fraction[i]:.0f}%"
-                t.add_row(name + (" (weak)" if name in sp.weak else ""), f"{sp.low[i]:.3f}", f"{sp.high[i]:.3f}",
-                          f"{sp.range[i]:.3f}", frac)
-            out.print(t)
-            if sp.n_branches is not None:
-                out.print(f"  self-motion branches visited: {sp.n_branches}")
-            if sp.weak:
-                out.print(f"  [yellow]hardly excited: {', '.join(sp.weak)}[/]")
+    # how much of each joint's range the data cover, whatever the kind: identifiability rests on it
+    for arm, sp in dataset_spread(ds, sc.robot, truth).items():
+        t = Table(title=f"joint spread, arm {arm}")
+        for col in ("joint", "min (rad)", "max (rad)", "range (rad)", "of limits"):
+            t.add_column(col, justify="right")
+        for i, name in enumerate(sp.names):
+            frac = "" if sp.fraction[i] != sp.fraction[i] else f"{100 * sp.fraction[i]:.0f}%"
+            t.add_row(name + (" (weak)" if name in sp.weak else ""), f"{sp.low[i]:.3f}", f"{sp.high[i]:.3f}",
+                      f"{sp.range[i]:.3f}", frac)
+        out.print(t)
+        if sp.n_branches is not None:
+            out.print(f"  self-motion branches visited: {sp.n_branches}")
+        if sp.weak:
+            out.print(f"  [yellow]hardly excited: {', '.join(sp.weak)}[/]")
 
 
 @click.command("convert-log")

@@ -16,7 +16,6 @@ import numpy as np
 
 from kincal.analysis.columns import scatter_columns
 from kincal.errors import ModelError
-from kincal.experiments._kernel import point_jacobian
 from kincal.params import Layout, State
 
 
@@ -31,9 +30,9 @@ class FrameDistance:
     sigma: float
 
     def check(self, state: State) -> None:
-        frames = [k for k, v in state.extras.items() if _origin(v) is not None]
+        frames = [k for k, v in state.extras.items() if state.kinds[k].origin(v) is not None]
         for name in (self.a, self.b):
-            if name not in state.extras or _origin(state.extras[name]) is None:
+            if name not in frames:
                 raise ModelError(f"distance constraint {self.a!r}-{self.b!r}: {name!r} is no frame with an origin of "
                                  f"this calibration; frames: {', '.join(frames) or 'none'}")
         if self.a == self.b:
@@ -44,31 +43,22 @@ class FrameDistance:
             raise ModelError(f"distance constraint {self.a!r}-{self.b!r}: sigma must be > 0, found {self.sigma}")
 
 
-def _origin(value):
-    v = np.asarray(value) if not hasattr(value, "normal") else None
-    if v is None:
-        return None
-    if v.shape == (3,):
-        return v
-    if v.shape == (4, 4):
-        return v[:3, 3]
-    return None
-
-
 def constraint_rows(constraints: Sequence[FrameDistance], state: State, layout: Layout, Rl, cols=None) -> tuple:
     """Whitened rows (c,) and their Jacobian (c, len(cols)) over the layout coordinates ``cols`` (default: every
     one); ``Rl`` are the retraction Jacobians of pose blocks stepped away from their linearization point."""
     r = np.zeros(len(constraints))
     blocks: dict[str, np.ndarray] = {}
     for i, c in enumerate(constraints):
-        pa, pb = _origin(state.extras[c.a]), _origin(state.extras[c.b])
-        d = pa - pb
+        d = _origin(state, c.a) - _origin(state, c.b)
         n = np.linalg.norm(d)
         r[i] = (n - c.distance) / c.sigma
         u = d / max(n, 1e-300) / c.sigma
         for name, sign in ((c.a, 1.0), (c.b, -1.0)):
-            value = state.extras[name]
-            g = sign * u if np.shape(value) == (3,) else sign * u @ point_jacobian(_origin(value))
+            g = sign * u @ state.kinds[name].origin_jacobian(state.extras[name])
             blocks.setdefault(name, np.zeros((len(constraints), len(g))))[i] += g
     cols = np.arange(layout.size) if cols is None else cols
     return r, scatter_columns(blocks, layout, cols, (len(constraints),), Rl)
+
+
+def _origin(state: State, name: str) -> np.ndarray:
+    return state.kinds[name].origin(state.extras[name])

@@ -65,6 +65,14 @@ class ParamKind:
         the left Jacobian ``J_l(d)``); None otherwise (additive kinds; twists carry theirs in their bases)."""
         return None
 
+    def origin(self, value) -> np.ndarray | None:
+        """The frame's origin (3,) in world coordinates, if it has one (poses, single points)."""
+        return None
+
+    def origin_jacobian(self, value) -> np.ndarray:
+        """d origin / d local coordinates (3, k)."""
+        raise ModelError(f"parameter kind '{self.name}' has no origin")
+
     def from_raw(self, raw):
         """A frame value from a known or initial array."""
         return np.array(raw, dtype=float)
@@ -203,6 +211,12 @@ class _Pose(ParamKind):
     def world_motion(self, T, xi):
         return np.array(xi, dtype=float)
 
+    def origin(self, T):
+        return T[:3, 3]
+
+    def origin_jacobian(self, T):  # a left increment moves the origin p by v + w x p
+        return np.concatenate([np.eye(3), -so3.hat(T[:3, 3])], axis=1)
+
     def retraction_jacobian(self, d):
         return se3.left_jacobian(d)
 
@@ -238,6 +252,14 @@ class _Points(ParamKind):
     def world_motion(self, p, xi):
         v, w = se3.split(xi)
         return (v + so3.cross(w, np.asarray(p))).ravel()
+
+    def origin(self, p):
+        return np.asarray(p) if self.single else None
+
+    def origin_jacobian(self, p):
+        if not self.single:
+            return super().origin_jacobian(p)
+        return np.eye(3)
 
 
 class _Plane(ParamKind):
