@@ -155,7 +155,10 @@ def test_manifest_errors(written):
     m.write_text(good.replace("arms: [left, right]", "arms: [left, middle]"))
     with pytest.raises(DataFormatError, match="arms: model 'frida' has no arm 'middle'"):
         load_dataset(m)
-    m.write_text(good + "noise: {joint_sigma_furlong: 1}\n")
+    # the written manifest states its noise already: replace it (a repeated key is itself an error)
+    m.write_text("\n".join(ln for ln in good.splitlines() if not ln.startswith(("noise:", "  joint_", "  position_",
+                                                                                   "  orientation_", "  backlash_")))
+                 + "\nnoise: {joint_sigma_furlong: 1}\n")
     with pytest.raises(DataFormatError, match="noise.joint_sigma_furlong"):
         load_dataset(m)
 

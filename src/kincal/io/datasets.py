@@ -35,7 +35,7 @@ from kincal.data import Dataset, frames_problem
 from kincal.errors import DataFormatError, KincalError
 from kincal.io import units
 from kincal.io.models import _Ctx, _mapping, _matrix, _number, _pose, _vector, load_robot, save_robot
-from kincal.io.yamlfile import read_yaml
+from kincal.io.yamlfile import read_text, read_yaml
 from kincal.kinematics import PRISMATIC, Robot
 from kincal.lie import se3
 from kincal.lie.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix
@@ -169,10 +169,7 @@ class _Table:
 
 
 def _read_csv(path: Path) -> _Table:
-    try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except OSError as exc:
-        raise DataFormatError(f"{path}: cannot read data file: {exc.strerror or exc}") from None
+    lines = read_text(path, "data file").splitlines()
     header, header_line, rows = None, 0, []
     for number, fields in ((i + 1, f) for i, f in enumerate(csv.reader(lines))):
         if not fields or not "".join(fields).strip() or fields[0].lstrip().startswith("#"):

@@ -20,7 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from kincal.errors import DataFormatError, ShapeError
+from kincal.io.yamlfile import read_text
 from kincal.kinematics import ArmModel, Robot
+
 
 EXTCTRL_PERIOD_S = 0.004032
 
@@ -76,10 +78,7 @@ def read_motor_log(path, robot: Robot, arms: tuple[str, ...], *, header: bool = 
                    period_s: float = EXTCTRL_PERIOD_S) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Read a motor-radian log: (t (N,), {arm: motor (N, n) in controller channel order})."""
     path = Path(path)
-    try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except OSError as exc:
-        raise DataFormatError(f"{path}: cannot read log: {exc.strerror or exc}") from None
+    lines = read_text(path, "log").splitlines()
     sizes = [robot[a].dof for a in arms]
     rows, head, head_line = [], None, 0
     delim = "," if any("," in ln for ln in lines[:5]) else None
@@ -140,10 +139,14 @@ def convert_log(path, robot: Robot, arms: tuple[str, ...], *, every: int = 1, st
     ``still_rad_s`` keeps only samples where every joint of every arm moves slower than that over
     ``window`` samples; ``per_stop`` then reduces each stop to its mean. ``every`` downsamples what is left.
     """
+    _check_options(path, still_rad_s, window, every, period_s)
     t, motor = read_motor_log(path, robot, arms, header=header, period_s=period_s)
     q = {a: motor_to_joint(m, robot[a]) for a, m in motor.items()}
     if still_rad_s is not None:
         mask = standstill(t, np.concatenate([q[a] for a in arms], axis=1), still_rad_s, window)
+        if not mask.any():
+            raise DataFormatError(f"{path}: no sample is still (every joint slower than {still_rad_s:g} rad/s over "
+                                  f"{window} samples); expected at least one stop: raise --still-rad-s")
         if per_stop:
             runs = stops(mask)
             t = np.array([t[s].mean() for s in runs])
@@ -152,6 +155,19 @@ def convert_log(path, robot: Robot, arms: tuple[str, ...], *, every: int = 1, st
             t, q = t[mask], {a: v[mask] for a, v in q.items()}
     keep = downsample(len(t), every)
     return t[keep], {a: v[keep] for a, v in q.items()}
+
+
+def _check_options(path, still_rad_s, window, every, period_s) -> None:
+    """The conversion options are numbers that make sense (one-line errors naming the option)."""
+    def positive(x) -> bool:
+        return isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x) and x > 0
+
+    for name, value in (("--still-rad-s", still_rad_s), ("--period-s", period_s)):
+        if value is not None and not positive(value):
+            raise DataFormatError(f"{path}: option {name}: expected a finite number > 0, found {value!r}")
+    for name, value in (("--window", window), ("--every", every)):
+        if not (isinstance(value, int) and not isinstance(value, bool) and value >= 1):
+            raise DataFormatError(f"{path}: option {name}: expected an integer >= 1, found {value!r}")
 
 
 def write_joint_csv(path, t: np.ndarray, q: dict[str, np.ndarray], robot: Robot, *, overwrite: bool = False) -> Path:

@@ -1,34 +1,135 @@
-"""Reading YAML files safely, with errors that name the file, line and column."""
+"""Reading text and YAML files safely, with errors that name the file, line and column.
+
+Text: only regular files, at most ``MAX_TEXT_BYTES``; UTF-8, with or without a byte-order mark, or UTF-16 with
+its mark (a spreadsheet's "Unicode text" export). Anything else is refused with the byte offset of the first
+byte that is not UTF-8.
+
+YAML: ``yaml.safe_load`` semantics, stricter where a silent surprise would hurt: a key repeated in one mapping
+is an error (the last one would win); an alias (``*name``) may not refer to a value that contains it (a
+recursive value), and a document may not expand to more than ``MAX_YAML_NODES`` values with its aliases
+written out (an "alias bomb"); exponent floats without a dot (``1e-3``) are numbers, not strings (YAML 1.1
+reads them as strings).
+"""
 
 from __future__ import annotations
 
+import codecs
+import re
+import stat
 from pathlib import Path
 
 import yaml
 
 from kincal.errors import DataFormatError
 
+MAX_TEXT_BYTES = 512 * 2**20  # a text file larger than this is refused before it is read
+MAX_YAML_NODES = 1_000_000  # values in one YAML document with every alias written out
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader without recursive aliases, alias bombs and duplicate keys, with YAML 1.2 exponent floats."""
+
+    def compose_node(self, parent, index):
+        open_anchors = self.__dict__.setdefault("_open_anchors", [])
+        event = self.peek_event()
+        if isinstance(event, yaml.AliasEvent) and event.anchor in open_anchors:
+            raise yaml.composer.ComposerError(
+                None, None, f"alias *{event.anchor} refers to a value that contains it (a recursive value)",
+                event.start_mark)
+        anchor = getattr(event, "anchor", None) if not isinstance(event, yaml.AliasEvent) else None
+        open_anchors.append(anchor)
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            open_anchors.pop()
+
+    def get_single_node(self):
+        node = super().get_single_node()
+        if node is not None and _expanded_size(node, {}) > MAX_YAML_NODES:
+            raise yaml.composer.ComposerError(
+                None, None, f"the document expands to more than {MAX_YAML_NODES} values through its aliases",
+                node.start_mark)
+        return node
+
+    def construct_mapping(self, node, deep=False):
+        seen = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            try:
+                first = seen.setdefault(key, key_node.start_mark)
+            except TypeError:  # an unhashable key: safe_load refuses it below
+                continue
+            if first is not key_node.start_mark:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"key {key!r} appears twice in one mapping (first on line {first.line + 1})",
+                    key_node.start_mark)
+        return super().construct_mapping(node, deep)
+
+
+def _expanded_size(node, memo: dict) -> int:
+    """Number of values under ``node`` with aliases written out (a shared node counts at every use)."""
+    key = id(node)
+    if key not in memo:
+        memo[key] = 0  # a cycle (refused while composing) would count once
+        if isinstance(node, yaml.SequenceNode):
+            memo[key] = 1 + sum(_expanded_size(n, memo) for n in node.value)
+        elif isinstance(node, yaml.MappingNode):
+            memo[key] = 1 + sum(_expanded_size(k, memo) + _expanded_size(v, memo) for k, v in node.value)
+        else:
+            memo[key] = 1
+        memo[key] = min(memo[key], MAX_YAML_NODES + 1)  # stop growing once past the limit
+    return memo[key]
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)?(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
+
 
 def parse_yaml(text: str, file: str):
-    """``yaml.safe_load`` of ``text``; a syntax error becomes a DataFormatError naming file, line, column."""
+    """Parse ``text`` (see the module docstring); a problem becomes a DataFormatError naming file, line, column."""
     try:
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=_Loader)  # noqa: S506 - _Loader is a SafeLoader
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc)
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise DataFormatError(f"{file}: not valid YAML{where}: {problem}") from None
+
+
+def decode(raw: bytes, file: str) -> str:
+    """Text of a file's bytes: UTF-8 (a byte-order mark is dropped) or UTF-16 with its byte-order mark."""
+    if raw.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
+        try:
+            return raw.decode("utf-16")
+        except UnicodeDecodeError as exc:
+            raise DataFormatError(f"{file}: not valid UTF-16 text at byte {exc.start}") from None
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise DataFormatError(
+            f"{file}: not UTF-8 text: byte 0x{raw[exc.start]:02x} at offset {exc.start}; save the file as UTF-8"
+        ) from None
 
 
 def read_text(path, what: str) -> str:
     """The text of ``path``; ``what`` says which kind of file it should be (for the error)."""
     path = Path(path)
     try:
-        return path.read_text(encoding="utf-8")
+        info = path.stat()
+        if not stat.S_ISREG(info.st_mode):
+            raise DataFormatError(f"{path}: cannot read {what}: not a regular file")
+        if info.st_size > MAX_TEXT_BYTES:
+            raise DataFormatError(f"{path}: cannot read {what}: {info.st_size} bytes, more than the limit of "
+                                  f"{MAX_TEXT_BYTES} bytes")
+        raw = path.read_bytes()
     except OSError as exc:
         raise DataFormatError(f"{path}: cannot read {what}: {exc.strerror or exc}") from None
+    return decode(raw, str(path))
 
 
 def read_yaml(path, what: str):
-    """Read and safely parse a YAML file."""
+    """Read and parse a YAML file."""
     return parse_yaml(read_text(path, what), str(path))

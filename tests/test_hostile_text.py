@@ -1,0 +1,103 @@
+"""Hostile text input (issue #10): encodings, repeated keys, recursive aliases and alias bombs, exponent floats,
+files that are not regular files, and convert-log options. Every failure is kincal's own one-line error."""
+
+import codecs
+import os
+
+import numpy as np
+import pytest
+
+from kincal import robots
+from kincal.errors import DataFormatError
+from kincal.io.logs import convert_log
+from kincal.io.models import dump_robot, load_robot, parse_robot
+from kincal.io.yamlfile import parse_yaml, read_text, read_yaml
+
+
+def _one_line(exc_info):
+    assert "\n" not in str(exc_info.value)
+
+
+@pytest.mark.parametrize("prefix, encoding", [(b"", "utf-8"), (codecs.BOM_UTF8, "utf-8"),
+                                              (codecs.BOM_UTF16_LE, "utf-16-le"), (codecs.BOM_UTF16_BE, "utf-16-be")])
+def test_utf8_and_utf16_with_their_marks_are_read(tmp_path, prefix, encoding):
+    p = tmp_path / "f.yaml"
+    p.write_bytes(prefix + "name: café\nx: 1\n".encode(encoding))
+    assert read_yaml(p, "test file") == {"name": "café", "x": 1}
+
+
+def test_text_that_is_not_utf8_names_the_byte_offset(tmp_path):
+    p = tmp_path / "latin1.yaml"
+    p.write_bytes("# caf\xe9\nx: 1\n".encode("latin-1"))
+    with pytest.raises(DataFormatError, match=r"latin1\.yaml: not UTF-8 text: byte 0xe9 at offset 5") as e:
+        read_text(p, "test file")
+    _one_line(e)
+
+
+def test_only_regular_files_are_read(tmp_path):
+    with pytest.raises(DataFormatError, match="not a regular file"):
+        read_text(tmp_path, "model file")
+    if os.path.exists("/dev/zero"):
+        with pytest.raises(DataFormatError, match="not a regular file"):
+            read_text("/dev/zero", "model file")
+
+
+def test_a_repeated_key_is_an_error_not_the_last_one_winning():
+    with pytest.raises(DataFormatError, match=r"job\.yaml: not valid YAML \(line 2, column 1\): key 'free' appears "
+                                              r"twice in one mapping \(first on line 1\)") as e:
+        parse_yaml("free: offsets\nfree: kinematic\n", "job.yaml")
+    _one_line(e)
+
+
+def test_a_recursive_alias_is_refused_at_load():
+    text = dump_robot(robots.load("ur10"))
+    assert "\nmeta:" in text
+    text = text.replace("\nmeta:", "\nmeta: &m\n  self: *m\n  was:", 1)
+    with pytest.raises(DataFormatError, match="recursive value") as e:
+        parse_robot(text, "m.yaml")
+    _one_line(e)
+
+
+def test_an_alias_bomb_is_refused_quickly():
+    levels = ["a0: &a0 [x, x, x, x, x, x, x, x, x, x]"]
+    levels += [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 10)}]" for i in range(1, 9)]
+    with pytest.raises(DataFormatError, match="expands to more than"):
+        parse_yaml("\n".join(levels) + "\n", "bomb.yaml")
+
+
+def test_shared_values_through_aliases_still_load():
+    frida = load_robot("frida")  # the built-in file shares one joint list between its arms with an alias
+    assert frida["left"].dof == frida["right"].dof == 7
+    assert parse_yaml("a: &j [1, 2]\nb: *j\n", "f.yaml") == {"a": [1, 2], "b": [1, 2]}
+
+
+def test_exponent_floats_are_numbers():
+    assert parse_yaml("rank_rtol: 1e-7\nbig: 2E+3\nneg: -.5e1\nword: e5\n", "f.yaml") == {
+        "rank_rtol": 1e-7, "big": 2e3, "neg": -5.0, "word": "e5"}
+
+
+@pytest.mark.parametrize("option, value, match", [
+    ("still_rad_s", float("nan"), "--still-rad-s: expected a finite number > 0"),
+    ("still_rad_s", -1.0, "--still-rad-s: expected a finite number > 0"),
+    ("period_s", 0.0, "--period-s: expected a finite number > 0"),
+    ("period_s", -0.004, "--period-s: expected a finite number > 0"),
+    ("every", 0, "--every: expected an integer >= 1"),
+])
+def test_convert_log_options_are_checked(tmp_path, option, value, match):
+    log = tmp_path / "log.csv"
+    log.write_text("t," + ",".join(f"arm.c{i + 1}" for i in range(6)) + "\n" + "0.0," + ",".join(["0"] * 6) + "\n")
+    with pytest.raises(DataFormatError, match=match):
+        convert_log(log, robots.load("ur10"), ("arm",), **{option: value})
+
+
+def test_per_stop_on_a_log_without_a_stop_says_so(tmp_path):
+    ur = robots.load("ur10")
+    n = ur["arm"].dof
+    t = np.arange(200) * 0.004
+    motor = np.outer(t, np.arange(1, n + 1)) * 50.0  # always moving fast
+    log = tmp_path / "moving.csv"
+    log.write_text("t," + ",".join(f"arm.c{i + 1}" for i in range(n)) + "\n"
+                   + "\n".join(",".join(repr(float(x)) for x in [ti, *row]) for ti, row in zip(t, motor)) + "\n")
+    with pytest.raises(DataFormatError, match="no sample is still") as e:
+        convert_log(log, ur, ("arm",), still_rad_s=1e-3, per_stop=True)
+    _one_line(e)
