@@ -101,3 +101,29 @@ def test_per_stop_on_a_log_without_a_stop_says_so(tmp_path):
     with pytest.raises(DataFormatError, match="no sample is still") as e:
         convert_log(log, ur, ("arm",), still_rad_s=1e-3, per_stop=True)
     _one_line(e)
+
+
+@pytest.mark.parametrize("text, ok", [("1.5", True), ("-2e-3", True), (".5", True), ("7.", True), ("+3E+2", True),
+                                      ("3_0_4", False), ("\u0663", False), ("nan", False), ("inf", False),
+                                      ("1e999", False), ("0x10", False), ("", False), ("1,5", False)])
+def test_numbers_are_plain_decimal_or_scientific(text, ok):
+    from kincal.io.units import plain_number
+
+    assert (plain_number(text) is not None) == ok
+
+
+def test_a_csv_cell_with_underscores_is_refused(tmp_path):
+    from kincal.io.datasets import load_dataset, write_dataset
+    from kincal.simulate import generate_pose
+
+    ur = robots.load("ur10")
+    ds, _, _ = generate_pose(ur, None, n=5, rng=0)
+    manifest = write_dataset(ds, tmp_path / "d.yaml", ur, model="ur10")
+    csv_path = manifest.with_suffix(".csv")
+    lines = csv_path.read_text().splitlines()
+    cells = lines[2].split(",")
+    cells[0] = "3_0_4"
+    lines[2] = ",".join(cells)
+    csv_path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DataFormatError, match=r"line 3, column '.*': expected a number, found '3_0_4'"):
+        load_dataset(manifest)

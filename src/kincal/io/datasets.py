@@ -23,7 +23,6 @@ column or manifest field. Writers never replace an existing file unless ``overwr
 from __future__ import annotations
 
 import csv
-import math
 import os
 from pathlib import Path
 from typing import Any, Mapping
@@ -153,16 +152,11 @@ class _Table:
         for r, (line, values) in enumerate(self.rows):
             for k, c in enumerate(columns):
                 text = values[self.col[c]].strip()
-                try:
-                    x = int(text) if integer else float(text)
-                except ValueError:
-                    what = "an integer" if integer else "a number"
+                x = units.plain_number(text, integer)
+                if x is None:
+                    what = "an integer" if integer else ("a finite number" if units.overflows(text) else "a number")
                     raise DataFormatError(
-                        f"{self.path}: line {line}, column '{c}': expected {what}, found {text!r}"
-                    ) from None
-                if not math.isfinite(x):
-                    raise DataFormatError(
-                        f"{self.path}: line {line}, column '{c}': expected a finite number, found {text!r}"
+                        f"{self.path}: line {line}, column '{c}': expected {what}, found {text[:40]!r}"
                     )
                 out[r, k] = x
         return out

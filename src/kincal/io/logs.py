@@ -14,12 +14,12 @@ Log file (CSV, one header line; ``#`` lines are comments): optional ``t`` column
 from __future__ import annotations
 
 import csv
-import math
 from pathlib import Path
 
 import numpy as np
 
 from kincal.errors import DataFormatError, ShapeError
+from kincal.io import units
 from kincal.io.yamlfile import read_text
 from kincal.kinematics import ArmModel, Robot
 
@@ -110,13 +110,10 @@ def read_motor_log(path, robot: Robot, arms: tuple[str, ...], *, header: bool = 
         if len(fields) != width:
             raise DataFormatError(f"{path}: line {number}: expected {width} values, found {len(fields)}")
         for k, i in enumerate(index):
-            try:
-                x = float(fields[i])
-            except ValueError:
-                x = math.nan
-            if not math.isfinite(x):
+            x = units.plain_number(fields[i])
+            if x is None:
                 raise DataFormatError(f"{path}: line {number}, column '{cols[k]}': expected a finite number, "
-                                      f"found {fields[i]!r}")
+                                      f"found {fields[i][:40]!r}")
             data[r, k] = x
     if not len(rows):
         raise DataFormatError(f"{path}: no samples")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 from kincal.errors import DataFormatError
 from kincal.noise import Noise
@@ -58,3 +59,25 @@ def _noise_factor(quantity: str, unit: str, where: str) -> float:
             raise DataFormatError(f"{where}: unknown pixel unit {unit!r}; expected 'px'")
         return 1.0
     return factor(kind, unit, where)
+
+
+# Plain decimal or scientific notation, ASCII digits only: Python's float() also takes "3_0_4", "٣" and "nan".
+_DECIMAL = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?", re.ASCII)
+_INTEGER = re.compile(r"[+-]?[0-9]+", re.ASCII)
+
+
+def overflows(text: str) -> bool:
+    """Whether ``text`` reads as a number that is not finite (nan, inf, 1e999)."""
+    try:
+        return not math.isfinite(float(text))
+    except ValueError:
+        return False
+
+
+def plain_number(text: str, integer: bool = False) -> float | int | None:
+    """The number written in ``text`` (plain decimal or scientific notation; an integer if asked), or None."""
+    text = text.strip()
+    if not (_INTEGER if integer else _DECIMAL).fullmatch(text):
+        return None
+    x = int(text) if integer else float(text)
+    return x if math.isfinite(x) else None
