@@ -73,7 +73,7 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
     if top["version"] != VERSION or isinstance(top["version"], bool):
         raise ctx.fail("version", f"expected {VERSION}, found {top['version']!r}")
     kind = top["kind"]
-    if kind not in SCHEMAS:
+    if not isinstance(kind, str) or kind not in SCHEMAS:
         raise ctx.fail("kind", f"expected one of {', '.join(SCHEMAS)}, found {kind!r}")
     schema = SCHEMAS[kind]
     arms = top["arms"]
@@ -556,7 +556,7 @@ def _truth(ctx, data: Any, robot: Robot) -> dict:
 
 def _experiment(ctx, exp: Any, robot: Robot) -> tuple[str, dict]:
     """(kind, generator keyword arguments) of ``experiment:``, each key read as its declared option."""
-    if not isinstance(exp, dict) or exp.get("kind") not in GENERATOR_OPTIONS:
+    if not isinstance(exp, dict) or not isinstance(exp.get("kind"), str) or exp["kind"] not in GENERATOR_OPTIONS:
         raise ctx.fail("experiment.kind", f"expected one of {', '.join(GENERATOR_OPTIONS)}, found "
                        f"{exp.get('kind') if isinstance(exp, dict) else exp!r}")
     kind = exp["kind"]

@@ -21,6 +21,7 @@ from kincal.estimation import FrameDistance
 from kincal.noise import DEFAULT as DEFAULT_NOISE, Noise
 from kincal.io import units
 from kincal.io.datasets import load_dataset
+from kincal.io.jobschema import check_job_types
 from kincal.io.models import load_robot
 from kincal.io.yamlfile import read_yaml
 from kincal.kinematics import Robot
@@ -57,6 +58,7 @@ def load_job(path) -> Job:
     f = str(path)
     if not isinstance(top, dict):
         raise DataFormatError(f"{f}: expected a mapping at the top level, found {type(top).__name__}")
+    check_job_types(top, f)
     unknown = set(top) - _TOP
     if unknown:
         raise DataFormatError(f"{f}: unknown field(s) {sorted(unknown)}; expected some of {sorted(_TOP)}")

@@ -54,7 +54,7 @@ def standstill(t: np.ndarray, q: np.ndarray, threshold: float, window: int) -> n
         return np.ones(len(q), dtype=bool)
     speed = np.max(np.abs(np.gradient(q, t, axis=0)), axis=1)
     fast = (speed >= threshold).astype(float)
-    w = max(int(window), 1)
+    w = min(max(int(window), 1), len(fast))  # a window longer than the log is the whole log
     # any fast sample within the window -> not still
     near_fast = np.convolve(fast, np.ones(w), mode="same") > 0
     return ~near_fast
