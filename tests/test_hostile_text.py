@@ -127,3 +127,10 @@ def test_a_csv_cell_with_underscores_is_refused(tmp_path):
     csv_path.write_text("\n".join(lines) + "\n")
     with pytest.raises(DataFormatError, match=r"line 3, column '.*': expected a number, found '3_0_4'"):
         load_dataset(manifest)
+
+
+def test_escapes_beyond_unicode_and_nul_in_file_names_are_kincal_errors(tmp_path):
+    with pytest.raises(DataFormatError, match="not valid YAML"):
+        parse_yaml('a: "\\U100010000"\n', "f.yaml")
+    with pytest.raises(DataFormatError, match="contains a NUL character"):
+        read_text(tmp_path / "a\0b.yaml", "data set manifest")

@@ -97,6 +97,8 @@ def parse_yaml(text: str, file: str):
         where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise DataFormatError(f"{file}: not valid YAML{where}: {problem}") from None
+    except ValueError as exc:  # PyYAML's scanner lets a few escapes through, e.g. "\U" beyond U+10FFFF
+        raise DataFormatError(f"{file}: not valid YAML: {str(exc).splitlines()[0][:100]}") from None
 
 
 def decode(raw: bytes, file: str) -> str:
@@ -117,6 +119,8 @@ def decode(raw: bytes, file: str) -> str:
 def read_text(path, what: str) -> str:
     """The text of ``path``; ``what`` says which kind of file it should be (for the error)."""
     path = Path(path)
+    if "\0" in str(path):
+        raise DataFormatError(f"{str(path)!r}: cannot read {what}: the file name contains a NUL character")
     try:
         info = path.stat()
         if not stat.S_ISREG(info.st_mode):
