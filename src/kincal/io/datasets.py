@@ -545,7 +545,7 @@ def _truth(ctx, data: Any, robot: Robot) -> dict:
             raise ctx.fail(f"truth.{COMPLIANCE_KEY}", f"expected a compliance >= 0, found {c!r}")
         over["compliance"] = c
     level = truth.get("level", "thesis")
-    if level not in PERTURBATION_LEVELS:
+    if not isinstance(level, str) or level not in PERTURBATION_LEVELS:
         raise ctx.fail("truth.level", f"expected one of {', '.join(PERTURBATION_LEVELS)}, found {level!r}")
     arms = truth.get("arms")
     if arms is not None and (not isinstance(arms, list) or any(a not in robot.arms for a in arms)):

@@ -305,7 +305,9 @@ def _mapping(ctx: _Ctx, data: Any, path: str, allowed: set, required: tuple = ()
 
 
 def _join(path: str, key: Any) -> str:
-    return str(key) if path == "(top level)" else f"{path}.{key}"
+    # a key that is not plain text (spaces, line breaks, a number) is shown quoted, so the message stays one line
+    shown = key if isinstance(key, str) and key.isprintable() and key.strip() == key and key else repr(key)
+    return shown if path == "(top level)" else f"{path}.{shown}"
 
 
 def _string(ctx: _Ctx, x: Any, path: str) -> str:
