@@ -127,8 +127,10 @@ def consistent_nulls(lin: Linearization, layout: Layout, experiments: Sequence, 
     moved onto the model (``consistent_readings``: every residual zero where the readings can explain it),
     with the same whitening and the same prior and constraint rows: its null space (relative singular value
     below ``rtol`` after scaling columns to unit norm) is the noise-free problem's, whatever the noise.
-    Residuals far below ``rtol`` of the largest column lift nothing visibly: the test is skipped there."""
-    if np.linalg.norm(lin.r) <= 1e-2 * rtol * np.max(np.linalg.norm(lin.Rf, axis=0), initial=0.0):
+    Residuals below a tenth of ``rtol`` of the largest column lift nothing visibly: the test is skipped there,
+    and the readings are moved only until their residual is that small."""
+    enough = 0.1 * rtol * np.max(np.linalg.norm(lin.Rf, axis=0), initial=0.0)
+    if np.linalg.norm(lin.r) <= enough:
         return None
     want = {b.name for b in layout.blocks if np.any((lin.free >= b.start) & (lin.free < b.stop))}
     rows, m = [], 0
@@ -137,7 +139,7 @@ def consistent_nulls(lin: Linearization, layout: Layout, experiments: Sequence, 
         idx = np.unique(np.linspace(0, e.size - 1, min(e.size, CONSISTENT_SAMPLES)).astype(int))
         sub = type(e)(e.dataset.subset(idx), e.frames) if len(idx) < e.size else e
         Wi = W[idx]
-        sub = consistent_readings(sub, lin.state, Wi)
+        sub = consistent_readings(sub, lin.state, Wi, enough)
         res = sub.residual(lin.state, want=want, jq=False)
         J = scatter_columns(res.jac, layout, lin.free, res.r.shape)
         rows.append((Wi @ J).reshape(-1, len(lin.free)))
@@ -152,16 +154,17 @@ def consistent_nulls(lin: Linearization, layout: Layout, experiments: Sequence, 
     return null.T / c[:, None]
 
 
-def consistent_readings(e, state, W):
+def consistent_readings(e, state, W, enough: float = 0.0):
     """``e`` with its joint readings moved onto the model at ``state``: Gauss-Newton steps of minimum length
     (whitened by ``W``) that zero the residual where the readings can (a clamp's 6 residuals with 7 joints), else
-    leave only what no reading explains. Stops when a step no longer shrinks the residual tenfold."""
+    leave only what no reading explains. Stops when the whitened residual is below ``enough`` or a step no
+    longer shrinks it tenfold."""
     before = np.inf
     for _ in range(_PROJECTIONS):
         res = e.residual(state, want=set(), jq=True)
         wr = W @ res.r[:, :, None]
         size = float(np.linalg.norm(wr))
-        if size == 0 or size > 0.1 * before or not res.jq:
+        if size <= enough or size > 0.1 * before or not res.jq:
             break
         before = size
         A = np.concatenate([W @ res.jq[a] for a in e.arms], axis=-1)
