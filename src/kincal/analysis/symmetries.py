@@ -119,7 +119,8 @@ _PROJECTIONS = 4  # Gauss-Newton steps of the joint readings onto the model (qua
 
 
 def consistent_nulls(lin: Linearization, layout: Layout, experiments: Sequence, rtol: float) -> np.ndarray | None:
-    """A basis (p, k) of the exact null directions (natural units, free coordinates) of the noise-free problem at ``lin.state``.
+    """A basis (p, k) of the exact null directions (natural units, free coordinates) of the noise-free problem
+    at ``lin.state``, or None when the residuals are too small to lift any.
 
     Residuals left (noise, misfit) lift an exact symmetry of the noise-free cost off the null space by their
     own size: turning a last joint and a clamp's fixture together about the joint's axis conjugates the
@@ -159,14 +160,16 @@ def consistent_readings(e, state, W, enough: float = 0.0):
     (whitened by ``W``) that zero the residual where the readings can (a clamp's 6 residuals with 7 joints), else
     leave only what no reading explains. Stops when the whitened residual is below ``enough`` or a step no
     longer shrinks it tenfold."""
-    before = np.inf
+    before, last = np.inf, e
     for _ in range(_PROJECTIONS):
         res = e.residual(state, want=set(), jq=True)
         wr = W @ res.r[:, :, None]
         size = float(np.linalg.norm(wr))
+        if size > before:
+            return last  # the step did not help (nothing left that the readings explain)
         if size <= enough or size > 0.1 * before or not res.jq:
             break
-        before = size
+        before, last = size, e
         A = np.concatenate([W @ res.jq[a] for a in e.arms], axis=-1)
         dq = -_min_norm_solve(A, wr)[:, :, 0]
         if not np.all(np.isfinite(dq)):
