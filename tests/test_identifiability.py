@@ -25,6 +25,19 @@ def test_rank_and_reduced_directions(rng):
     assert select_columns(J, [3, 0, 1, 2, 4], ana.rank) == [0, 2, 3]
 
 
+def test_a_column_zero_up_to_round_off_is_zero(rng):
+    """Issue 9, finding 2: a column at round-off (a tool point on its last joint's axis) used to be rescaled to
+    unit length and looked identifiable; below 1e-10 of the largest column norm it is zero."""
+    A = rng.normal(size=(30, 3))
+    J = np.column_stack([A, 1e-17 * rng.normal(size=30)])
+    ana = analyse(J, ["a", "b", "c", "d"])
+    assert ana.rank == 3 and list(ana.identifiable) == [True, True, True, False]
+    assert "does not affect any residual" in ana.directions[0].words
+    assert select_columns(J, [3, 0, 1, 2], ana.rank) == [0, 1, 2]
+    J[:, 3] = 1e-9 * rng.normal(size=30)  # small but real: identifiable
+    assert analyse(J, ["a", "b", "c", "d"]).rank == 4
+
+
 def test_covariance_is_inverse_normal_matrix_on_the_range(rng):
     J = rng.normal(size=(40, 4))
     cov = covariance(J, np.eye(4), 2.0)

@@ -167,29 +167,30 @@ def test_unidentifiable_directions_that_matter_are_named(frida, truths):
 
 
 def test_plate_with_four_fixtures_is_flagged(plate):
-    """The example of docs/calibration.md: the fit is perfect, the model predicts badly elsewhere."""
+    """The example of docs/calibration.md: the fit is perfect, the model predicts badly elsewhere. The 3
+    directions that used to be weak (singular values 2e-5 to 8e-5) are exact gauges of the noise-free problem
+    lifted by the encoder noise (issue 9, finding 1): held now, rank 31 as on noise-free data, and validation
+    better than nominal (40 mm against 71 mm; 213 mm when they were estimated from the noise)."""
     true, res, val = plate
-    assert res.status == "converged" and res.identifiability.rank == 34 and 0.7 < res.sigma2 < 1.3
+    assert res.status == "converged" and res.identifiability.rank == 31 and 0.7 < res.sigma2 < 1.3
+    assert res.validation[0].after.position_rms < res.validation[0].before.position_rms
     q = val.q["right"]
     p = res.predict(q, "right")
-    # the 13 unidentifiable directions are exact gauges of the registered predictions ...
-    assert p.null_moving == 0 and np.max(p.null_position) < GAUGE
-    # ... but the 3 weak ones move the tool by about 1 mm per mm-or-mrad, and the model is not trusted
-    assert p.weak_moving == 3 and p.stats()["weak_position_max"] > 0.3 and not p.trusted
-    assert {d.kind for d in p.directions} == {"weak"}
+    # 13 of the 16 unidentifiable directions are exact gauges of the registered predictions ...
+    assert p.weak_moving == 0 and p.null_moving == 3
+    # ... but the 3 held ones move the tool by about 1 mm per mm-or-mrad, and the model is not trusted
+    assert p.stats()["null_position_max"] > 0.3 and not p.trusted
     words = " ".join(p.messages)
-    assert "weakly identifiable" in words and "should not be trusted" in words and "measure configurations" in words
-    # the predicted standard deviation is large: millimetres, against 0.04 mm residuals in the data
+    assert "cannot determine" in words and "should not be trusted" in words and "measure configurations" in words
+    # the predicted standard deviation (of what the data determine) is small; the actual error is not: the
+    # held directions sit at nominal, and the prediction is off by however far the robot is from it along them
     st = p.stats()
-    assert st["position_std_rms"] > 1e-3 and st["position_std_rms"] > 50 * res.after[0].position_rms
-    # and the actual error is larger still: the estimate wanders along the weak directions far beyond the
-    # linearized standard deviation (about 30x here), which is what the weak-direction message warns of
     actual, _ = _errors(forward_kinematics(res.robot["right"], q), forward_kinematics(true["right"], q),
                         _point_map(forward_kinematics(true["right"], q)[:, :3, 3]))
-    assert _rms([actual]) > 0.1 and res.validation[0].after.position_rms > 0.1
+    assert _rms([actual]) > 0.01 and res.validation[0].after.position_rms > 0.01
     assert _rms([actual]) > 5 * st["position_std_rms"]
     # without registration the whole-arm-with-plate motions count too
-    assert res.predict(q, "right", register=False).null_moving == 6
+    assert res.predict(q, "right", register=False).null_moving == 9
 
 
 def test_std_matches_actual_error_dual_known_clamp(frida):
@@ -275,7 +276,8 @@ def test_cli_and_result_report_predicted_against_actual(tmp_path, capsys, frida,
     text = capsys.readouterr().out
     assert "predicted vs actual on held-out configurations" in text and "should not be trusted" in text
     (row,) = yaml.safe_load((tmp_path / "out" / "result.yaml").read_text())["predict"]
-    assert row["set"] == "frida-plate4-validation-right" and not row["trusted"] and row["weak_moving"] == 3
-    assert row["position_mm_std_rms"] > 1 and row["position_mm_rms_actual"] > 100
-    assert row["unidentifiable_position_mm_per_unit_max"] < GAUGE and row["weak_position_mm_per_unit_max"] > 0.3
-    assert row["directions"][0]["kind"] == "weak" and len(row["messages"]) >= 3
+    # the 3 directions once weak are exact gauges of the noise-free problem, held (issue 9, finding 1)
+    assert row["set"] == "frida-plate4-validation-right" and not row["trusted"] and row["unidentifiable_moving"] == 3
+    assert row["weak_moving"] == 0 and row["position_mm_rms_actual"] > 10
+    assert row["unidentifiable_position_mm_per_unit_max"] > 0.3
+    assert row["directions"][0]["kind"] == "unidentifiable" and len(row["messages"]) >= 3

@@ -85,17 +85,23 @@ def test_socket_joint1_offset_is_a_gauge_with_an_unknown_socket():
     assert not res.estimate("arm.j1.offset").identifiable
     # the gauge takes the minimum change in natural units: no more a 96 deg turn estimated from the noise
     assert abs(res.estimate("arm.j1.offset").value - panda["arm"].offsets[0]) < 0.05
-    assert all(res.estimate(f"arm.j{k}.offset").identifiable for k in range(2, 8))
+    assert all(res.estimate(f"arm.j{k}.offset").identifiable for k in range(2, 7))
+    # the ball sits on j7's axis: its column is zero up to round-off, so j7 is not identifiable (issue 9, finding 2)
+    assert not res.estimate("arm.j7.offset").identifiable
 
 
-def test_socket_with_noise_at_level_kinematic_is_reported_degenerate():
-    """With encoder noise, socket data at level 'kinematic' are fitted exactly by a collapsed arm (every joint
-    axis through the ball): the least-squares optimum itself is degenerate, holding the scale direction cannot
-    prevent it. It must not be reported as 'converged' with numbers: the residuals of the solution no longer
-    depend on the joint readings, which kincal reports as a degenerate solution, with standard deviations nan."""
+def test_socket_with_noise_at_level_kinematic_holds_the_gauges():
+    """With encoder noise, socket data at level 'kinematic' used to be fitted exactly by a collapsed arm (every
+    joint axis through the ball), reported as a degenerate solution: the noise lifted the directions towards the
+    collapse off the null space, and only scale was held. They are exact gauges of the noise-free problem
+    (issue 9, finding 1: ``symmetries.consistent_nulls``), now held at every linearization: the solve converges
+    at the noise floor with the noise-free rank, and the arm still moves with its joints."""
     panda, ds = _panda_in_socket(noise=Added(joint=1e-4))
     res = calibrate(panda, [ds], "kinematic", noise=Stated(1e-5, 1e-5, 1e-4))
-    assert res.status == "degenerate"
-    assert any(m.startswith("degenerate solution for 'socket'") for m in res.messages)
+    assert res.status == "converged" and res.sigma2 < 3
+    assert res.identifiability.rank == calibrate(panda, [_panda_in_socket()[1]], "kinematic").identifiability.rank
+    assert res.identifiability.scale_unidentifiable
+    q = np.random.default_rng(0).uniform(-1, 1, (20, 7))
+    assert np.ptp(forward_kinematics(res.robot["arm"], q)[:, :3, 3], axis=0).max() > 0.1
     assert any("it is held at its current value" in m for m in res.identifiability_before.messages)
     assert all(np.isnan(e.std) for e in res.estimates)

@@ -24,9 +24,9 @@ from typing import Callable, Sequence
 import numpy as np
 
 from kincal.analysis.covariance import right_svd
-from kincal.analysis.linearization import Linearization
+from kincal.analysis.linearization import Linearization, unit_columns
 from kincal.analysis.naming import context, degenerate, describer
-from kincal.analysis.symmetries import rotation_nulls, scale_null
+from kincal.analysis.symmetries import consistent_nulls, rotation_nulls, scale_null
 from kincal.params import Layout
 
 IDENTIFIABLE_TOL = 1e-6  # a parameter is identifiable when its row of the (scaled) null basis is below this
@@ -84,10 +84,11 @@ def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol:
     names = [layout.names[i] for i in lin.free]
     scale = scale_null(lin, layout) if lin.every else None
     held = rotation_nulls(lin, layout, experiments)
+    gauges = consistent_nulls(lin, layout, experiments, rtol)
     if not report:
-        return analyse(lin.Rf, names, rtol=rtol, priority=priority, scale=scale, held=held)
-    ana = analyse(lin.Rf, names, rtol=rtol, scale=scale, priority=priority,
-                  describe=describer(lin, layout, experiments), context=context(layout, experiments), held=held)
+        return analyse(lin.Rf, names, rtol=rtol, priority=priority, scale=scale, held=held, gauges=gauges)
+    ana = analyse(lin.Rf, names, rtol=rtol, scale=scale, priority=priority, held=held, gauges=gauges,
+                  describe=describer(lin, layout, experiments), context=context(layout, experiments))
     return replace(ana, degenerate=degenerate(lin.Rf, ana.rank, rtol, layout, lin.free))
 
 
@@ -99,6 +100,7 @@ def analyse(
     weak_rtol: float = 1e-5,
     scale: np.ndarray | None = None,  # the scale direction (p,) when no measured length enters: always held
     held: Sequence[np.ndarray] = (),  # other exact symmetries of the cost (p,), held even where residuals lift them
+    gauges: np.ndarray | None = None,  # (p, k) basis of the noise-free problem's exact null space, held likewise
     priority: Sequence[int] | None = None,
     describe: Callable[[np.ndarray], str] | None = None,
     context: str = "",
@@ -108,7 +110,7 @@ def analyse(
     p = J.shape[1]
     sv = _spectrum(J, rtol)
     has_scale = scale is not None and np.linalg.norm(scale) > 0
-    Ns, rank, lifted, held_scale = _hold(sv, ([scale] if has_scale else []) + list(held), has_scale)
+    Ns, rank, lifted, held_scale = _hold(sv, ([scale] if has_scale else []) + list(held), has_scale, gauges)
     identifiable = np.linalg.norm(Ns, axis=1) < IDENTIFIABLE_TOL
     N = _orth(Ns / sv.c[:, None])
     R = _complement(N, p)
@@ -141,9 +143,7 @@ class _Spectrum:
 def _spectrum(J: np.ndarray, rtol: float) -> _Spectrum:
     """Singular values and vectors of J with every column scaled to unit norm, and the rank at ``rtol``."""
     m, p = J.shape
-    c = np.linalg.norm(J, axis=0)
-    c_safe = np.where(c > 0, c, 1.0)
-    Js = J / c_safe
+    Js, c_safe = unit_columns(J)
     S, Vt = right_svd(Js) if m >= p else np.linalg.svd(Js, full_matrices=True)[1:]  # all p rows of Vt
     S_full = np.zeros(p)
     S_full[: len(S)] = S
@@ -152,12 +152,21 @@ def _spectrum(J: np.ndarray, rtol: float) -> _Spectrum:
     return _Spectrum(S_full, Vt, c_safe, smax, rank)
 
 
-def _hold(sv: _Spectrum, symmetries: list, has_scale: bool):
-    """The scaled null basis with the exact symmetries of the cost added where residuals left lift them out of
-    it (scale without a measured length: shrinking every length shrinks them; the rotations of ``held``):
-    (null basis, rank, lifted directions, whether the scale was lifted)."""
+def _hold(sv: _Spectrum, symmetries: list, has_scale: bool, gauges: np.ndarray | None = None):
+    """The scaled null basis with the exact gauges of the noise-free problem added (``gauges``, a basis), then
+    the exact symmetries of the cost where residuals left lift them out of it (scale without a measured length:
+    shrinking every length shrinks them; the rotations of ``held``): (null basis, rank, lifted directions,
+    whether the scale was lifted)."""
     Ns, rank = sv.Vt[sv.rank:].T, sv.rank
     lifted, held_scale = [], False
+    if gauges is not None and gauges.shape[1]:
+        # the null space is the gauges' (noise lifts exact gauges out of Ns, and a direction of Ns at the rank
+        # threshold may only tilt towards them); both bases come from round-off-level singular values, so a
+        # dimension one lacks has singular value ~1 outside it, a tilt far less
+        G = _orth(sv.c[:, None] * gauges)
+        lifted += list(_outside(G, Ns).T)
+        Ns = np.column_stack([G, _outside(Ns, G)])
+        rank = len(sv.c) - Ns.shape[1]
     for k, h in enumerate(symmetries):
         hc = sv.c * h
         hc /= np.linalg.norm(hc)
@@ -168,6 +177,14 @@ def _hold(sv: _Spectrum, symmetries: list, has_scale: bool):
             lifted.append(hc)
             held_scale = held_scale or (has_scale and k == 0)
     return Ns, rank, lifted, held_scale
+
+
+def _outside(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Orthonormal directions of span(A) (orthonormal columns) that are new dimensions outside span(B)."""
+    if A.shape[1] == 0:
+        return A
+    U, S, _ = np.linalg.svd(A - B @ (B.T @ A), full_matrices=False)
+    return U[:, S > 0.5]
 
 
 def _weak_indices(sv: _Spectrum, rank: int, rtol: float, weak_rtol: float, lifted) -> np.ndarray:
@@ -243,8 +260,7 @@ def _weak_limit(s: np.ndarray, weak_rtol: float) -> float:
 def select_columns(J: np.ndarray, order: Sequence[int], rank: int, tol: float = 1e-6) -> list[int]:
     """Greedy column-pivoted QR in a user priority order: the first ``rank`` columns (of unit-scaled J) that
     add a new direction. The others are to be held fixed (the user's gauge)."""
-    c = np.linalg.norm(J, axis=0)
-    Js = J / np.where(c > 0, c, 1.0)
+    Js, _ = unit_columns(J)
     Q = np.zeros((J.shape[0], 0))
     chosen: list[int] = []
     for j in order:
@@ -252,7 +268,7 @@ def select_columns(J: np.ndarray, order: Sequence[int], rank: int, tol: float = 
             break
         r = Js[:, j] - Q @ (Q.T @ Js[:, j])
         nr = np.linalg.norm(r)
-        if c[j] > 0 and nr > tol:
+        if nr > tol:
             Q = np.column_stack([Q, r / nr])
             chosen.append(int(j))
     return sorted(chosen)

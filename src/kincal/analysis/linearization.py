@@ -59,3 +59,19 @@ class Linearization:
     @property
     def cost2(self) -> float:
         return float(self.r @ self.r)
+
+
+# A column whose norm is below this fraction of the largest (whitened units) is zero up to round-off: the
+# parameter does not affect the residuals (a last joint turning a tool point on its own axis).
+ZERO_COLUMN_RTOL = 1e-10
+
+
+def unit_columns(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(Js, c)``: J with every column scaled to unit norm, columns zero up to round-off (``ZERO_COLUMN_RTOL``)
+    set exactly to zero, and the scale ``c`` (1 for those), so that ``J ~ Js * c``."""
+    c = np.linalg.norm(J, axis=0)
+    zero = c <= ZERO_COLUMN_RTOL * (c.max() if c.size else 0.0)
+    c = np.where(zero, 1.0, c)
+    Js = J / c
+    Js[:, zero] = 0.0
+    return Js, c

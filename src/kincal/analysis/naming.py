@@ -9,7 +9,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from kincal.analysis.covariance import right_svd
-from kincal.analysis.linearization import Linearization
+from kincal.analysis.linearization import Linearization, unit_columns
 from kincal.kinematics import chain
 from kincal.lie import se3
 from kincal.params import POSE, Block, Layout
@@ -32,8 +32,7 @@ def degenerate(Rf: np.ndarray, rank: int, rtol: float, layout: Layout, free: np.
     arm = np.array([block_of(layout, i).arm is not None for i in free])
     if not arm.any() or arm.all():
         return False
-    c = np.linalg.norm(Rf, axis=0)
-    Js = Rf / np.where(c > 0, c, 1.0)
+    Js = unit_columns(Rf)[0]
     s_all = right_svd(Js)[0]
     s_frames = right_svd(Js[:, ~arm])[0]
     tol = rtol * s_all[0]
@@ -98,5 +97,5 @@ def _frame_motion(name: str, tw: np.ndarray, axes: dict) -> str:
     if np.linalg.norm(w) < 1e-9 * max(np.linalg.norm(v), 1e-300):
         return f"a translation of the {name}"
     t = tw / np.linalg.norm(w)
-    match = [jn for jn, ax in axes.items() if min(np.linalg.norm(t - ax), np.linalg.norm(t + ax)) < 1e-6]
+    match = [jn for jn, ax in axes.items() if min(np.linalg.norm(t - ax), np.linalg.norm(t + ax)) < 1e-4]
     return f"a rotation of the {name} about the axis of {match[0]}" if match else f"a screw motion of the {name}"

@@ -1,14 +1,18 @@
 """Exact symmetries of the calibration cost that residuals left can make look determined: the scale of the
-robot when no measured length enters, and rotations about an arm's first joint axis that carry its world-side
-frames along. Both are confirmed on the linearization before they are held."""
+robot when no measured length enters, rotations about an arm's first joint axis that carry its world-side
+frames along, and every exact gauge of the noise-free problem at the current estimate (``consistent_nulls``:
+e.g. turning a last joint together with a clamp's fixture). Each is confirmed structurally before it is held."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Sequence
 
 import numpy as np
 
-from kincal.analysis.linearization import Linearization
+from kincal.analysis.columns import scatter_columns
+from kincal.analysis.covariance import right_svd
+from kincal.analysis.linearization import Linearization, unit_columns
 from kincal.kinematics import REVOLUTE
 from kincal.lie import se3
 from kincal.params import Layout, scale_direction
@@ -106,3 +110,82 @@ def _turned_residuals(lin: Linearization, experiments, arm: str, w: np.ndarray) 
         target.append((W @ t[:, :, None]).ravel())
     target.append(np.zeros(len(lin.r) - sum(len(x) for x in target)))
     return np.concatenate(target)
+
+
+# Configurations per experiment in the consistent linearization: exact gauges are structural, an evenly spread
+# subset of a large data set has the same ones (and keeps the test cheap).
+CONSISTENT_SAMPLES = 120
+_PROJECTIONS = 4  # Gauss-Newton steps of the joint readings onto the model (quadratic: misfit 1e-2 -> 1e-16)
+
+
+def consistent_nulls(lin: Linearization, layout: Layout, experiments: Sequence, rtol: float) -> np.ndarray | None:
+    """A basis (p, k) of the exact null directions (natural units, free coordinates) of the noise-free problem
+    at ``lin.state``, or None when the residuals are too small to lift any.
+
+    Residuals left (noise, misfit) lift an exact symmetry of the noise-free cost off the null space by their
+    own size: turning a last joint and a clamp's fixture together about the joint's axis conjugates the
+    fixture-frame gap, which changes it unless it is zero. So the Jacobian is taken again at joint readings
+    moved onto the model (``consistent_readings``: every residual zero where the readings can explain it),
+    with the same whitening and the same prior and constraint rows: its null space (relative singular value
+    below ``rtol`` after scaling columns to unit norm) is the noise-free problem's, whatever the noise.
+    Residuals below a tenth of ``rtol`` of the largest column lift nothing visibly: the test is skipped there,
+    and the readings are moved only until their residual is that small."""
+    enough = 0.1 * rtol * np.max(np.linalg.norm(lin.Rf, axis=0), initial=0.0)
+    if np.linalg.norm(lin.r) <= enough:
+        return None
+    want = {b.name for b in layout.blocks if np.any((lin.free >= b.start) & (lin.free < b.stop))}
+    rows, m = [], 0
+    for e, W, r in zip(experiments, lin.W, lin.residuals):
+        m += r.size
+        idx = np.unique(np.linspace(0, e.size - 1, min(e.size, CONSISTENT_SAMPLES)).astype(int))
+        sub = type(e)(e.dataset.subset(idx), e.frames) if len(idx) < e.size else e
+        Wi = W[idx]
+        sub = consistent_readings(sub, lin.state, Wi, enough)
+        res = sub.residual(lin.state, want=want, jq=False)
+        J = scatter_columns(res.jac, layout, lin.free, res.r.shape)
+        rows.append((Wi @ J).reshape(-1, len(lin.free)))
+    rows.append(lin.J[m:])  # priors and known distances do not depend on the readings
+    J = np.concatenate(rows, axis=0)
+    if not np.all(np.isfinite(J)) or J.shape[1] == 0:
+        return None
+    Js, c = unit_columns(J)
+    S, Vt = right_svd(Js) if Js.shape[0] >= Js.shape[1] else np.linalg.svd(Js)[1:]
+    S = np.concatenate([S, np.zeros(Js.shape[1] - len(S))])
+    null = Vt[S <= rtol * S[0]] if S[0] > 0 else Vt
+    return null.T / c[:, None]
+
+
+def consistent_readings(e, state, W, enough: float = 0.0):
+    """``e`` with its joint readings moved onto the model at ``state``: Gauss-Newton steps of minimum length
+    (whitened by ``W``) that zero the residual where the readings can (a clamp's 6 residuals with 7 joints), else
+    leave only what no reading explains. Stops when the whitened residual is below ``enough`` or a step no
+    longer shrinks it tenfold."""
+    before, last = np.inf, e
+    for _ in range(_PROJECTIONS):
+        res = e.residual(state, want=set(), jq=True)
+        wr = W @ res.r[:, :, None]
+        size = float(np.linalg.norm(wr))
+        if size > before:
+            return last  # the step did not help (nothing left that the readings explain)
+        if size <= enough or size > 0.1 * before or not res.jq:
+            break
+        before, last = size, e
+        A = np.concatenate([W @ res.jq[a] for a in e.arms], axis=-1)
+        dq = -_min_norm_solve(A, wr)[:, :, 0]
+        if not np.all(np.isfinite(dq)):
+            break
+        cuts = np.cumsum([0] + [res.jq[a].shape[-1] for a in e.arms])
+        q = {a: e.dataset.q[a] + dq[:, cuts[k]: cuts[k + 1]] for k, a in enumerate(e.arms)}
+        e = type(e)(replace(e.dataset, q=q), e.frames)
+    return e
+
+
+def _min_norm_solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per sample, the minimum-norm least-squares ``x`` of ``A x = b`` (A (N, k, n), b (N, k, 1)) by the normal
+    equations of the smaller side, damped at round-off so a singular configuration stays finite."""
+    At = np.swapaxes(A, -1, -2)
+    small = A @ At if A.shape[1] <= A.shape[2] else At @ A
+    damp = 1e-12 * np.trace(small, axis1=-2, axis2=-1)[:, None, None] * np.eye(small.shape[-1]) + 1e-300
+    if A.shape[1] <= A.shape[2]:
+        return At @ np.linalg.solve(small + damp, b)
+    return np.linalg.solve(small + damp, At @ b)
