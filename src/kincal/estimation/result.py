@@ -56,7 +56,7 @@ class Result:
     before: tuple[ResidualStats, ...]  # per experiment at the start (the nominal values)
     after: tuple[ResidualStats, ...]
     sigma2: float  # residual variance factor (chi^2 / (m - rank)) that scales the covariance
-    status: str  # converged | not converged | degenerate
+    status: str  # converged | misfit | not converged | degenerate (docs/calibration.md "Statuses and exit codes")
     iterations: int  # outer iterations: linearizations, the one that confirmed convergence included
     evaluations: int  # residual evaluations spent on steps (Gauss-Newton trials, least_squares)
     messages: tuple[str, ...]
@@ -66,6 +66,7 @@ class Result:
     twists: tuple[TwistEstimate, ...] = ()  # derived twist coordinates of every arm with free twists
     validation: tuple[ValidationStats, ...] = ()
     predictions: tuple[tuple[str, Prediction], ...] = ()  # (validation set, prediction) per arm
+    weights: np.ndarray | None = None  # robust loss: per whitened residual row, the weight the loss gave it
 
     @property
     def success(self) -> bool:
