@@ -133,18 +133,31 @@ def _misfit_advice(problem: Problem) -> str:
 
 
 def _lost_joint_sensitivity(problem: Problem, state) -> list[tuple[str, float, float]]:
-    """Experiments whose residuals hardly depend on the joint readings any more: (name, RMS |dr/dq| at the
-    nominal state, at ``state``). The data are then explained without the arm moving: a degenerate model."""
+    """Experiments whose residuals (of one quantity: position, orientation, ...) depend on the joint readings
+    ``COLLAPSE_RATIO`` less or 1 / ``COLLAPSE_RATIO`` more than at the nominal state: (name, RMS |dr/dq| at
+    the nominal state, at ``state``). The data are then explained by an arm out of scale with the robot (a
+    collapsed arm that hardly moves, a unit mix-up): a degenerate model."""
     out = []
     for exp in problem.experiments:
         if exp.size > 200:  # a collapse is global: an evenly spread subset shows it as well
             exp = type(exp)(exp.dataset.subset(np.linspace(0, exp.size - 1, 200).astype(int)), exp.frames)
-        rms = []
-        for st in (problem.nominal, state):
-            jq = exp.residual(st, want=set(), jq=True).jq
-            rms.append(float(np.sqrt(np.mean([np.mean(j**2) for j in jq.values()]))) if jq else 0.0)
-        if rms[0] > 0 and not COLLAPSE_RATIO * rms[0] <= rms[1] <= rms[0] / COLLAPSE_RATIO:
-            out.append((exp.name, rms[0], rms[1]))
+        comps = exp.components()
+        sens = [_joint_sensitivity(exp, st, comps) for st in (problem.nominal, state)]
+        for q in dict.fromkeys(comps):
+            before, after = sens[0][q], sens[1][q]
+            if before > 0 and not COLLAPSE_RATIO * before <= after <= before / COLLAPSE_RATIO:
+                out.append((exp.name, before, after))
+                break
+    return out
+
+
+def _joint_sensitivity(exp, state, comps) -> dict:
+    """RMS of |dr/dq| over samples, arms and joints, per residual quantity of ``exp`` at ``state``."""
+    jq = exp.residual(state, want=set(), jq=True).jq
+    out = {}
+    for q in dict.fromkeys(comps):
+        rows = np.array([c == q for c in comps], bool)
+        out[q] = float(np.sqrt(np.mean([np.mean(j[:, rows] ** 2) for j in jq.values()]))) if jq else 0.0
     return out
 
 
