@@ -13,6 +13,10 @@ import numpy as np
 
 from kincal.noise import ORIENTATION, POSITION, Noise
 
+# A variance factor this many of its standard errors (sqrt(2 / dof)) above 1 shows a model error; below, the
+# excess is the noise's own scatter.
+SIGNIFICANT = 3.0
+
 
 def measurement_noise(Eq: np.ndarray, noise: Noise | None) -> tuple[np.ndarray, np.ndarray]:
     """Per configuration, the RMS length (m, rad) of the position and orientation error that the stated
@@ -31,12 +35,15 @@ def unexplained_error(result) -> tuple[float, float]:
     from its calibration residuals: per residual component, the mean square beyond what the stated noise
     explains (``Sigma``'s diagonal, from the whiteners), with the fit's degrees of freedom restored
     (``m / (m - rank)``, as in the variance factor) and the robust loss' weights; times 3 for a 3-vector.
-    0 when the residuals are within the noise; nan for a quantity the calibration data do not measure."""
+    0 when the variance factor is within ``SIGNIFICANT`` standard errors of 1 (the residuals are within the
+    noise); nan for a quantity the calibration data do not measure."""
     lin = result.linearization
     if lin is None or result.problem is None:
         return float("nan"), float("nan")
     dof = len(lin.r) - result.identifiability.rank
-    inflate = len(lin.r) / dof if dof > 0 else 1.0
+    if dof <= 0 or not result.sigma2 > 1 + SIGNIFICANT * np.sqrt(2 / dof):
+        return 0.0, 0.0  # the residuals are within the noise: no model error to speak of
+    inflate = len(lin.r) / dof
     sums = {POSITION: np.zeros(3), ORIENTATION: np.zeros(3)}  # (sum w r^2, sum w sigma^2, sum w)
     start = 0
     for exp, W, r in zip(result.problem.experiments, lin.W, lin.residuals):

@@ -31,9 +31,9 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
         lin = steps.linearize(problem, run.state, None if problem.joint_noise else run.whiteners,
                               scale_test_needed(problem))
     ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=list(run.order))
-    weights = robust_weights(lin.r, options.loss, options.f_scale)
+    weights, slopes = robust_weights(lin.r, options.loss, options.f_scale)
     dof = len(lin.r) - ana.rank
-    sigma2 = float(np.sum(weights * lin.r**2)) / dof if dof > 0 else float("nan")
+    sigma2 = variance_factor(lin.r, weights, slopes, ana.rank)
     status, messages = _status(problem, run, options, sigma2)
     cov, std, ok = _uncertainty(lin, ana, options, run.order, sigma2, status, weights)
     messages += list(ana.messages)
@@ -58,20 +58,29 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
     )
 
 
-def robust_weights(r: np.ndarray, loss: str, f_scale: float) -> np.ndarray:
-    """Per whitened residual row, the weight ``rho'((r / f_scale)^2)`` of scipy's robust ``loss`` (1 for
-    ``linear``): at the optimum the robust fit is the least-squares fit with these weights, so the variance
-    factor and the covariance are those of the weighted problem."""
+def robust_weights(r: np.ndarray, loss: str, f_scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per whitened residual row, scipy's robust ``loss`` as weights: ``w = rho'(z)`` with ``z = (r / f_scale)^2``
+    (at the optimum the robust fit is the least-squares fit weighted by ``w``) and the slope of the influence
+    ``psi = w r``, ``psi' = rho'(z) + 2 z rho''(z)`` (clipped at 0): how much each row still informs the fit.
+    Both 1 for ``linear``."""
     z = (r / f_scale) ** 2
     if loss == "huber":
-        return np.where(z <= 1, 1.0, 1.0 / np.sqrt(np.maximum(z, 1.0)))
+        w = np.where(z <= 1, 1.0, 1.0 / np.sqrt(np.maximum(z, 1.0)))
+        return w, np.where(z <= 1, 1.0, 0.0)
     if loss == "soft_l1":
-        return 1.0 / np.sqrt(1.0 + z)
+        return 1.0 / np.sqrt(1.0 + z), (1.0 + z) ** -1.5
     if loss == "cauchy":
-        return 1.0 / (1.0 + z)
+        return 1.0 / (1.0 + z), np.clip((1.0 - z) / (1.0 + z) ** 2, 0.0, None)
     if loss == "arctan":
-        return 1.0 / (1.0 + z**2)
-    return np.ones_like(r)
+        return 1.0 / (1.0 + z**2), np.clip((1.0 - 3.0 * z**2) / (1.0 + z**2) ** 2, 0.0, None)
+    return np.ones_like(r), np.ones_like(r)
+
+
+def variance_factor(r: np.ndarray, weights: np.ndarray, slopes: np.ndarray, rank: int) -> float:
+    """``sum psi^2 / (sum psi' - rank)`` (Huber's scale of an M-estimate; ``chi^2 / (m - rank)`` for the linear
+    loss): rows a robust loss discounts neither inflate it nor count as degrees of freedom. nan without any."""
+    dof = float(np.sum(slopes)) - rank
+    return float(np.sum((weights * r) ** 2)) / dof if dof > 0 else float("nan")
 
 
 def _status(problem: Problem, run: Iteration, options: SolverOptions, sigma2: float) -> tuple[str, list[str]]:
