@@ -12,6 +12,7 @@ from kincal.analysis.prediction import Prediction, predicted_accuracy
 from kincal.estimation.problem import Problem
 from kincal.estimation.stats import ResidualStats, ValidationStats
 from kincal.kinematics import Robot
+from kincal.noise import Noise
 from kincal.params import Layout, State
 
 
@@ -81,10 +82,13 @@ class Result:
     def values(self) -> dict[str, float]:
         return {e.name: e.value for e in self.estimates}
 
-    def predict(self, q, arm: str, *, register: bool = True, register_tool: bool = False) -> Prediction:
+    def predict(self, q, arm: str, *, register: bool = True, register_tool: bool = False,
+                noise: Noise | None = None) -> Prediction:
         """Predicted accuracy of the calibrated tool pose of ``arm`` at joint readings q (N, n): standard
-        deviations and dependence on what the data cannot determine (``kincal.analysis.prediction``)."""
-        return predicted_accuracy(self, q, arm, register=register, register_tool=register_tool)
+        deviations, dependence on what the data cannot determine, and the RMS error to expect
+        (``position_rms_predicted``, ``orientation_rms_predicted``) with the model error the calibration could
+        not explain and, given ``noise``, the stated noise of measurements there (``kincal.analysis.prediction``)."""
+        return predicted_accuracy(self, q, arm, register=register, register_tool=register_tool, noise=noise)
 
     def summary(self) -> str:
         lines = [f"status: {self.status} after {self.iterations} outer iterations ({self.evaluations} evaluations)"]

@@ -55,7 +55,9 @@ def calibrate(
     ``free``: ``"offsets"`` (thesis level 1), ``"kinematic"`` (full POE: offsets, twists, home; level 2) or a
     list of names/globs (level words allowed inside the list). Frames absent from a data set's ``known``
     (fixture pose, clamp, tracker, markers, ...) are always estimated; known ones only when freed by name.
-    ``noise``: one ``Noise`` for all data sets or a mapping data set name -> Noise.
+    ``noise``: one ``Noise`` for all data sets or a mapping data set name -> Noise; per quantity it goes over
+    each data set's stated noise (``Dataset.meta["noise"]``), over ``kincal.noise.DEFAULT`` (the one noise rule,
+    ``kincal.noise.effective``).
     ``constraints``: known relations between frames (``FrameDistance``: e.g. two sockets 50 mm apart).
     The other keywords are ``SolverOptions``.
     """
