@@ -18,11 +18,12 @@ import numpy as np
 from kincal.analysis import Prediction, validation_predictions
 from kincal.analysis.prediction import with_doubts
 from kincal.data import Dataset
-from kincal.errors import DegenerateExperimentError
+from kincal.errors import DataFormatError, DegenerateExperimentError
 from kincal.estimation.constraints import FrameDistance
 from kincal.estimation.finalize import finalize
 from kincal.estimation.iterate import iterate
 from kincal.estimation.options import SolverOptions
+from kincal.estimation.plausibility import implausible_units
 from kincal.estimation.problem import Problem
 from kincal.estimation.result import Result
 from kincal.estimation.stats import ResidualStats, ValidationStats
@@ -77,6 +78,7 @@ def solve(problem: Problem, options: SolverOptions = SolverOptions()) -> Result:
     """Solve ``problem``: the outer loop (``iterate``) and its report (``finalize``). Raises when nothing is
     free or there are fewer equations than free coordinates; reports (``Result.status``) everything else."""
     _require_equations(problem)
+    _require_plausible_units(problem)
     return finalize(problem, options, iterate(problem, options))
 
 
@@ -130,6 +132,16 @@ def validation_stats(nominal: Robot, calibrated: Robot, datasets: Sequence[Datas
     before = evaluate(nominal, datasets, noise)
     after = evaluate(calibrated, datasets, noise)
     return tuple(ValidationStats(b.experiment, b.kind, b.samples, b, a) for b, a in zip(before, after))
+
+
+def _require_plausible_units(problem: Problem) -> None:
+    """Refuse data whose joint readings or measured lengths do not fit the robot's size (a unit mix-up): the
+    solve would grind towards an arm 1000 times too small or large (``estimation.plausibility``)."""
+    for exp in problem.experiments:
+        bad = implausible_units(problem.robot, exp.dataset)
+        if bad is not None:
+            raise DataFormatError(f"data set '{exp.name}' ({exp.kind}): {bad.describe(problem.robot)}; check the "
+                                  "units of its joint readings (rad) and lengths (m)")
 
 
 def _require_equations(problem: Problem) -> None:

@@ -33,10 +33,11 @@ import yaml
 
 from kincal.data import Dataset, frames_problem
 from kincal.errors import DataFormatError, KincalError
+from kincal.estimation.plausibility import implausible_units
 from kincal.io import units
 from kincal.io.models import _Ctx, _mapping, _matrix, _number, _pose, _vector, load_robot, save_robot
 from kincal.io.yamlfile import read_yaml
-from kincal.kinematics import PRISMATIC, Robot, forward_kinematics
+from kincal.kinematics import PRISMATIC, Robot
 from kincal.lie import se3
 from kincal.lie.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix
 from kincal.schema import ANGLE, LENGTH, SCHEMAS, Field, Schema
@@ -111,7 +112,6 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
         f = np.array([ctx.length if t == PRISMATIC else ctx.angle for t in model.joint_types])
         q[a] = table.take([f"{a}.{j}" for j in model.joint_names]) * f
     measured = _measured(ctx, schema, table, known)
-    _plausible_units(ctx, table, robot, q, schema, measured, u)
     meta = {"noise": noise, "manifest": str(manifest), "description": top.get("description", "")}
     if "t" in table.header:
         meta["t"] = table.take(["t"])[:, 0]
@@ -121,51 +121,30 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
                               f"'{kind}' with arms {arms}; expected only {', '.join(table.used)}")
     name = str(top.get("name") or manifest.stem)
     try:
-        return Dataset(kind, resolved, tuple(arms), q, measured, known, name, meta, frames)
+        ds = Dataset(kind, resolved, tuple(arms), q, measured, known, name, meta, frames)
     except KincalError as exc:
         raise DataFormatError(f"{manifest}: {exc}") from None
+    _plausible_units(ctx, table, robot, ds, u)
+    return ds
 
 
-# Units implausible for the robot (caught before any solve): a revolute joint reading beyond this many rad
-# (degrees declared radians), or measured points whose spread differs from the nominal tool's by this factor
-# (metres declared mm, or mm declared metres) while the tool moves at least MIN_TOOL_SPREAD (m).
-MAX_JOINT_RAD = 4 * math.pi
-SPREAD_FACTOR = 30.0
-MIN_TOOL_SPREAD = 0.01
-
-
-def _plausible_units(ctx, table, robot: Robot, q: dict, schema: Schema, measured: dict, u: dict) -> None:
-    """Raise on joint readings or measured lengths whose size does not fit the robot: a unit mix-up."""
-    for a, qa in q.items():
-        revolute = np.array([t != PRISMATIC for t in robot[a].joint_types])
-        big = np.abs(qa) * revolute > MAX_JOINT_RAD
-        if big.any():
-            i, j = np.argwhere(big)[0]
-            raise DataFormatError(
-                f"{table.path}: line {table.rows[i][0]}, column '{a}.{robot[a].joint_names[j]}': expected a joint "
-                f"angle within +-4 pi rad, found {qa[i, j] / ctx.angle:.6g} {u['angle']}: "
-                f"check units.angle ('{u['angle']}') in {ctx.file}: are the readings in "
-                f"{'degrees' if u['angle'] == 'rad' else 'other units'}?")
-    if len(q) != 1:
+def _plausible_units(ctx, table: _Table, robot: Robot, ds: Dataset, u: dict) -> None:
+    """Raise, naming file, line and column, on joint readings or measured lengths whose size does not fit the
+    robot: a unit mix-up (``kincal.estimation.plausibility``)."""
+    bad = implausible_units(robot, ds)
+    if bad is None:
         return
-    (a, qa), = q.items()
-    tool = _spread(forward_kinematics(robot[a], qa)[:, :3, 3])
-    for f in schema.measured:
-        if f.key in measured and (f.form == "pose" or (f.form == "points" and f.unit == LENGTH)):
-            x = measured[f.key][:, :3, 3] if f.form == "pose" else measured[f.key]
-            ratio = _spread(x) / tool if tool >= MIN_TOOL_SPREAD else 1.0
-            if not 1 / SPREAD_FACTOR <= ratio <= SPREAD_FACTOR:
-                cols = _columns(f, table)[:3] if f.form == "pose" else _columns(f, table)
-                raise DataFormatError(
-                    f"{table.path}: columns '{cols[0]}'..'{cols[-1]}': the measured {f.key} spread over "
-                    f"{_spread(x) * 1e3:.4g} mm RMS where the nominal {robot.name} tool moves {tool * 1e3:.4g} mm RMS "
-                    f"at these joint readings ({ratio:.3g} times): check units.length ('{u['length']}') in "
-                    f"{ctx.file}{_unit_hint(ratio, ctx.length)}")
-
-
-def _spread(x: np.ndarray) -> float:
-    """RMS distance of points (N, ..., 3) from their mean over the samples."""
-    return float(np.sqrt(np.mean(np.sum((x - x.mean(axis=0)) ** 2, axis=-1))))
+    if bad.field == "q":
+        raise DataFormatError(
+            f"{table.path}: line {table.rows[bad.sample][0]}, column '{bad.arm}.{robot[bad.arm].joint_names[bad.joint]}':"
+            f" expected a joint angle within +-4 pi rad, found {bad.value / ctx.angle:.6g} {u['angle']}: check "
+            f"units.angle ('{u['angle']}') in {ctx.file}: are the readings in "
+            f"{'degrees' if u['angle'] == 'rad' else 'other units'}?")
+    f = SCHEMAS[ds.kind].field(bad.field)
+    cols = _columns(f, table)[:3] if f.form == "pose" else _columns(f, table)
+    raise DataFormatError(
+        f"{table.path}: columns '{cols[0]}'..'{cols[-1]}': {bad.describe(robot)}: check units.length "
+        f"('{u['length']}') in {ctx.file}{_unit_hint(bad.value, ctx.length)}")
 
 
 def _unit_hint(ratio: float, length: float) -> str:
