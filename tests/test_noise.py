@@ -5,7 +5,8 @@ import pytest
 
 from kincal import robots
 from kincal.errors import DataFormatError, ModelError
-from kincal.estimation import calibrate
+from kincal.estimation import Problem, calibrate
+from kincal.estimation.problem import stated_sigmas
 from kincal.io.units import noise_from_file
 from kincal.noise import DEFAULT, PIXEL, POSITION, Noise
 from kincal.simulate import generate_pose
@@ -36,6 +37,10 @@ def test_noise_over_and_validation():
 def test_unstated_quantity_is_an_error_not_a_guess():
     ur = robots.load("ur10")
     ds, _, _ = generate_pose(ur, None, n=20, rng=0)
+    # whitening never guesses: a noise without an orientation sigma cannot whiten orientation residuals ...
+    exp = Problem.build(ur, [ds], "offsets").experiments[0]
     with pytest.raises(ModelError, match="orientation residuals .* no orientation standard deviation"):
-        calibrate(ur, [ds], "offsets", noise=Noise(position=1e-5))
+        stated_sigmas(exp, Noise(position=1e-5))
+    # ... and the one noise rule states it: the argument over the data set's own over kincal.noise.DEFAULT
+    assert Problem.build(ur, [ds], "offsets", noise=Noise(position=1e-5)).noise[0].orientation == DEFAULT.orientation
     assert calibrate(ur, [ds], "offsets", noise=Noise(position=1e-5, orientation=1e-5)).status == "converged"

@@ -94,4 +94,11 @@ class Noise:
 DEFAULT = Noise(position=1e-5, orientation=1e-5, joint=1e-5)
 NONE = Noise()
 
-__all__ = ["DEFAULT", "NONE", "Noise", "ORIENTATION", "PIXEL", "POSITION", "Quantity"]
+
+def effective(explicit: Noise | None, stated: Mapping[str, float] | None) -> Noise:
+    """The one noise rule (API, job files, CLI): per quantity, the ``explicit`` noise (a ``calibrate`` argument,
+    a job file's ``noise:``) where it states one, else the data set's own stated noise (``stated``: SI keys, as
+    ``Dataset.meta["noise"]`` holds a manifest's or a generator's), else ``DEFAULT``."""
+    return (explicit or NONE).over(Noise.from_si(stated or {})).over(DEFAULT)
+
+__all__ = ["DEFAULT", "NONE", "Noise", "ORIENTATION", "PIXEL", "POSITION", "Quantity", "effective"]

@@ -27,9 +27,11 @@ import numpy as np
 from kincal._validate import as_array
 from kincal.errors import ModelError, ShapeError
 from kincal.analysis.columns import scatter_columns
+from kincal.analysis.error_budget import measurement_noise, unexplained_error
 from kincal.experiments._kernel import point_jacobian
 from kincal.kinematics import chain, tool_jacobians
 from kincal.lie import se3
+from kincal.noise import Noise
 from kincal.schema import BETWEEN, TOOL, WORLD, schema_of
 
 # Tool motion (m or rad) per unit of a direction below which it does not matter here: exact gauges come out
@@ -66,6 +68,11 @@ class Prediction:
     weak_moving: int  # the same for weakly identifiable directions
     directions: tuple[DirectionEffect, ...]  # named directions that move the tool, largest effect first
     messages: tuple[str, ...]
+    position_noise: np.ndarray | None = None  # (N,) m: what the measurement's stated noise adds (0: none given)
+    orientation_noise: np.ndarray | None = None  # (N,) rad
+    position_model: float = 0.0  # m: RMS error the calibrated model cannot represent (``error_budget``)
+    orientation_model: float = 0.0  # rad
+    doubts: tuple[str, ...] = ()  # why not to trust the model besides undetermined directions (misfit, ...)
 
     @property
     def samples(self) -> int:
@@ -73,36 +80,58 @@ class Prediction:
 
     @property
     def trusted(self) -> bool:
-        """No direction the data cannot determine, or determine only from the noise, moves the predicted poses."""
-        return self.null_moving == 0 and self.weak_moving == 0
+        """No direction the data cannot determine, or determine only from the noise, moves the predicted poses,
+        and nothing else (``doubts``: a model that does not explain its data, validation worse than nominal)
+        speaks against the model."""
+        return self.null_moving == 0 and self.weak_moving == 0 and not self.doubts
+
+    @property
+    def position_rms_predicted(self) -> float:
+        """The RMS position error (m) to expect at these configurations: parameter uncertainty, the stated
+        measurement noise and the model error the calibration could not explain, in quadrature."""
+        return _expected(self.position_std, self.position_noise, self.position_model)
+
+    @property
+    def orientation_rms_predicted(self) -> float:
+        """The same for the orientation (rad)."""
+        return _expected(self.orientation_std, self.orientation_noise, self.orientation_model)
 
     def stats(self) -> dict:
-        """RMS and max of the standard deviations, largest effects per unit (SI: m, rad)."""
+        """RMS and max of the standard deviations, largest effects per unit, the expected RMS error and its
+        parts (SI: m, rad)."""
         return {"position_std_rms": _rms(self.position_std), "position_std_max": _max(self.position_std),
                 "orientation_std_rms": _rms(self.orientation_std), "orientation_std_max": _max(self.orientation_std),
                 "null_position_max": _max(self.null_position), "null_orientation_max": _max(self.null_orientation),
-                "weak_position_max": _max(self.weak_position), "weak_orientation_max": _max(self.weak_orientation)}
+                "weak_position_max": _max(self.weak_position), "weak_orientation_max": _max(self.weak_orientation),
+                "position_rms_predicted": self.position_rms_predicted,
+                "orientation_rms_predicted": self.orientation_rms_predicted,
+                "position_noise_rms": _rms(_zeros(self.position_noise, self.samples)),
+                "orientation_noise_rms": _rms(_zeros(self.orientation_noise, self.samples)),
+                "position_model": self.position_model, "orientation_model": self.orientation_model}
 
 
-def tool_jacobian(result, q, arm: str) -> tuple[np.ndarray, np.ndarray]:
+def tool_jacobian(result, q, arm: str, with_jq: bool = False):
     """Calibrated ``T_world_tool`` (N, 4, 4) at joint readings q (N, n) and its Jacobian (N, 6, p_free): the
     world-frame left increment per free local coordinate of ``result`` (columns in ``result.covariance``
-    order; experiment frames get zero columns)."""
+    order; experiment frames get zero columns); ``with_jq``: also the one w.r.t. the joint readings (N, 6, n)."""
     a = _arm_values(result, arm)
     q = _joints(q, a, arm)
     kin = chain(a.screws, q + a.offsets, a.base, a.home, a.tool)
-    blocks, _ = tool_jacobians(kin, np.broadcast_to(np.eye(6), (len(q), 6, 6)), a.screws, a.generators,
-                               a.joint_compliance, with_jq=False)
+    blocks, jq = tool_jacobians(kin, np.broadcast_to(np.eye(6), (len(q), 6, 6)), a.screws, a.generators,
+                                a.joint_compliance, with_jq=with_jq)
     layout = result.layout
     J = scatter_columns({f"{arm}.{part}": Jb for part, Jb in blocks.items()}, layout, np.flatnonzero(layout.free),
                         (len(q), 6))
-    return kin.tool, J
+    return (kin.tool, J, jq) if with_jq else (kin.tool, J)
 
 
-def predicted_accuracy(result, q, arm: str, *, register: bool = True, register_tool: bool = False) -> Prediction:
-    """Predicted standard deviations of the tool pose at q (N, n) and its dependence on unidentifiable and weakly
-    identifiable directions (module docstring). Registration needs 2 configurations (it absorbs one whole)."""
-    T, J = tool_jacobian(result, q, arm)
+def predicted_accuracy(result, q, arm: str, *, register: bool = True, register_tool: bool = False,
+                       noise: Noise | None = None) -> Prediction:
+    """Predicted standard deviations of the tool pose at q (N, n), its dependence on unidentifiable and weakly
+    identifiable directions (module docstring), and the RMS error to expect there (``position_rms_predicted``):
+    with the stated measurement ``noise`` of data taken there (None: the model's own error only) and the model
+    error the calibration could not explain. Registration needs 2 configurations (it absorbs one whole)."""
+    T, J, Jq = tool_jacobian(result, q, arm, with_jq=True)
     if (register or register_tool) and len(T) < 2:
         raise ShapeError(f"q: registration needs at least 2 configurations (a common rigid motion absorbs any "
                          f"change of one pose), found {len(T)}; pass register=False for world-frame predictions")
@@ -120,18 +149,41 @@ def predicted_accuracy(result, q, arm: str, *, register: bool = True, register_t
                for kind, pivot, partners, v in _named_directions(ana, W, _arm_coordinates(result))]
     effects = sorted((e for e in effects if max(e.position, e.orientation) >= NULL_TOL),
                      key=lambda e: (-e.position, -e.orientation))
+    pos_noise, rot_noise = measurement_noise(P @ Jq, noise)
+    pos_model, rot_model = unexplained_error(result)
     pred = Prediction(arm, register, register_tool, np.sqrt(var[:, :3].sum(-1)), np.sqrt(var[:, 3:].sum(-1)),
                       _spectral(Dn[:, :3]), _spectral(Dn[:, 3:]), _spectral(Dw[:, :3]), _spectral(Dw[:, 3:]),
-                      _moving(Dn), _moving(Dw), tuple(effects), ())
+                      _moving(Dn), _moving(Dw), tuple(effects), (), pos_noise, rot_noise,
+                      _finite(pos_model), _finite(rot_model), _doubts(result))
     return replace(pred, messages=_messages(pred, result))
 
 
-def validation_predictions(result, datasets) -> tuple[tuple[str, Prediction], ...]:
+def with_doubts(pred: Prediction, doubts) -> Prediction:
+    """``pred`` with further reasons not to trust the model (e.g. found by validation), its messages rewritten."""
+    if not doubts:
+        return pred
+    return replace(pred, doubts=pred.doubts + tuple(doubts),
+                   messages=pred.messages + tuple(f"the calibrated model should not be trusted: {d}" for d in doubts))
+
+
+def _doubts(result) -> tuple[str, ...]:
+    """What the calibration itself says against trusting its model anywhere."""
+    if result.status == "misfit":
+        return (f"the model does not explain its calibration data (status misfit, residual variance factor "
+                f"{result.sigma2:.3g}): expect the unexplained model error everywhere",)
+    if result.status in ("degenerate", "not converged"):
+        return (f"the calibration is {result.status}",)
+    return ()
+
+
+def validation_predictions(result, datasets, noise=()) -> tuple[tuple[str, Prediction], ...]:
     """(data set name, prediction) for every calibrated arm of every data set, registered as the validation fits
     the data set's frames: the world side unless it is given, the tool side when it is not given (marker offsets,
-    a dual-arm clamp). Per arm: a two-arm set's relative error is only approximated."""
+    a dual-arm clamp). Per arm: a two-arm set's relative error is only approximated. ``noise``: the stated
+    noise of each data set (in order; none: the model's own error only)."""
     out = []
-    for ds in datasets:
+    noise = tuple(noise) or (None,) * len(datasets)
+    for ds, nz in zip(datasets, noise):
         # a given world-side frame: compared in the world frame, else fitted; tool-side frames fitted unless given
         schema = schema_of(ds.kind)
         world, tool = schema.side_key(WORLD), schema.side_key(TOOL, BETWEEN)
@@ -142,7 +194,7 @@ def validation_predictions(result, datasets) -> tuple[tuple[str, Prediction], ..
         for arm in ds.arms:
             if arm in result.state.arms:  # an arm the calibration did not involve was not estimated
                 out.append((ds.name, predicted_accuracy(result, ds.q[arm], arm, register=register,
-                                                        register_tool=register_tool)))
+                                                        register_tool=register_tool, noise=nz)))
     return tuple(out)
 
 
@@ -228,8 +280,14 @@ def _messages(pred: Prediction, result) -> tuple[str, ...]:
             f"{st['position_std_rms'] * 1e3:.3g} mm RMS (max {st['position_std_max'] * 1e3:.3g} mm) and its "
             f"orientation by {np.degrees(st['orientation_std_rms']):.3g} deg RMS "
             f"(max {np.degrees(st['orientation_std_max']):.3g} deg){after}, one standard deviation")]
+    out.append(f"expect errors of {pred.position_rms_predicted * 1e3:.3g} mm and "
+               f"{np.degrees(pred.orientation_rms_predicted):.3g} deg RMS there: the standard deviations, the stated "
+               f"measurement noise ({st['position_noise_rms'] * 1e3:.3g} mm, "
+               f"{np.degrees(st['orientation_noise_rms']):.3g} deg) and the model error the calibration could not "
+               f"explain ({pred.position_model * 1e3:.3g} mm, {np.degrees(pred.orientation_model):.3g} deg) together")
     if result.status == "degenerate":
         out.append("the calibration is degenerate: nothing was estimated, these figures mean nothing")
+    out += [f"the calibrated model should not be trusted: {d}" for d in pred.doubts]
     k = ana.null_space.shape[1]
     if k and not pred.null_moving:
         out.append(f"the {k} direction(s) the data cannot determine do not move the predicted tool poses{after} "
@@ -254,6 +312,18 @@ def _messages(pred: Prediction, result) -> tuple[str, ...]:
                 else f"measure configurations that excite {d.pivot}{partners}")
         out.append(f"the calibrated model should not be trusted at these configurations; {todo}")
     return tuple(out)
+
+
+def _expected(std: np.ndarray, noise: np.ndarray | None, model: float) -> float:
+    return float(np.sqrt(np.mean(std**2 + _zeros(noise, len(std)) ** 2) + model**2)) if len(std) else 0.0
+
+
+def _zeros(x: np.ndarray | None, n: int) -> np.ndarray:
+    return np.zeros(n) if x is None else x
+
+
+def _finite(x: float) -> float:
+    return x if np.isfinite(x) else 0.0
 
 
 def _rms(x: np.ndarray) -> float:

@@ -34,7 +34,7 @@ def main(argv=None) -> int:
     except click.ClickException as exc:
         exc.show()
         return exc.exit_code
-    except SystemExit as exc:  # a command's own exit status (1: not converged), as a return value
+    except SystemExit as exc:  # a command's own exit status (calibrate_cmds.EXIT_CODES), as a return value
         return exc.code if isinstance(exc.code, int) else 1
     return 0
 

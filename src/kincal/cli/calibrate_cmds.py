@@ -89,14 +89,15 @@ def _print_predictions(console: Console, rows) -> None:
         return
     t = Table(title="predicted vs actual on held-out configurations (position mm, orientation deg; undetermined: "
                     "tool mm per mm-or-mrad along directions the data cannot or barely determine)")
-    for c in ("set", "arm", "pos RMS actual", "pos std predicted", "pos max actual", "pos std max",
-              "rot RMS actual", "rot std predicted", "undetermined", "trust"):
+    for c in ("set", "arm", "pos RMS actual", "pos RMS predicted", "pos std", "pos max actual", "pos std max",
+              "rot RMS actual", "rot RMS predicted", "rot std", "undetermined", "trust"):
         t.add_column(c, justify="left" if c in ("set", "arm") else "right")
     for r in rows:
         undetermined = max(r["unidentifiable_position_mm_per_unit_max"] or 0.0, r["weak_position_mm_per_unit_max"] or 0.0)
-        t.add_row(r["set"], r["arm"], _num(r.get("position_mm_rms_actual")), _num(r["position_mm_std_rms"]),
-                  _num(r.get("position_mm_max_actual")), _num(r["position_mm_std_max"]),
-                  _num(r.get("orientation_deg_rms_actual")), _num(r["orientation_deg_std_rms"]),
+        t.add_row(r["set"], r["arm"], _num(r.get("position_mm_rms_actual")), _num(r["position_mm_rms_predicted"]),
+                  _num(r["position_mm_std_rms"]), _num(r.get("position_mm_max_actual")),
+                  _num(r["position_mm_std_max"]), _num(r.get("orientation_deg_rms_actual")),
+                  _num(r["orientation_deg_rms_predicted"]), _num(r["orientation_deg_std_rms"]),
                   _num(undetermined, digits=3), "yes" if r["trusted"] else "NO")
     console.print(t)
     for r in rows:
@@ -118,7 +119,9 @@ def _progress(console: Console, quiet: bool):
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
 @click.option("--plots", is_flag=True, help='Also write PNG plots to OUT/plots (needs "kincal[plot]").')
 def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool) -> None:
-    """Calibrate as described by JOB.yaml (docs/job-format.md) and write the results to OUT."""
+    """Calibrate as described by JOB.yaml (docs/job-format.md) and write the results to OUT.
+
+    Exit codes: 0 converged, 1 not converged, 2 bad input, 3 degenerate, 4 misfit (docs/calibration.md)."""
     console = _console()
     _refuse_existing(out, ("model.yaml", "result.yaml") + (("plots",) if plots else ()))
     j = load_job(job)
@@ -127,8 +130,7 @@ def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool)
     result = run_job(j, _progress(console, quiet or as_json))
     if j.method == "thesis":
         _write_thesis(result, j, out, console, quiet or as_json, as_json)
-        if not result.converged:
-            raise SystemExit(1)
+        _exit("converged" if result.converged else "not converged")
         return
     paths = write_results(result, out)
     figures = []
@@ -140,8 +142,17 @@ def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool)
         print_summary(console, result, j.name)
         console.print(f"wrote {paths['model']} and {paths['result']}"
                       + (f", plots: {', '.join(str(f) for f in figures)}" if figures else ""))
-    if result.status != "converged":
-        raise SystemExit(1)
+    _exit(result.status)
+
+
+# ``kincal calibrate`` and ``kincal demo`` exit with the status' code (docs/calibration.md "Statuses and exit
+# codes"); 2 is kincal's one-line input error (``kincal.cli.main``), 130 an abort.
+EXIT_CODES = {"converged": 0, "not converged": 1, "degenerate": 3, "misfit": 4}
+
+
+def _exit(status: str) -> None:
+    if EXIT_CODES[status]:
+        raise SystemExit(EXIT_CODES[status])
 
 
 def _write_thesis(res, job, out: Path, console, quiet, as_json) -> None:
@@ -226,8 +237,7 @@ def demo_cmd(out: Path | None, samples: int, quiet: bool, as_json: bool) -> None
             console.print(_recovery_table(result, true))
         say(f"wrote {paths['model']}, {paths['result']} and the simulated data in {out} "
             f"({time.perf_counter() - t0:.1f} s)")
-    if result.status != "converged":
-        raise SystemExit(1)
+    _exit(result.status)
 
 
 def _free_directory(base: Path) -> Path:

@@ -16,8 +16,11 @@ from kincal.params import HOME, TWISTS, displacement, twist_coordinates
 
 # Residual variance factor above which the fit is reported as not explaining the data (RMS 10x the noise).
 MISFIT_VARIANCE_FACTOR = 100.0
-# A model whose residuals depend this much less on the joint readings than the nominal's has collapsed.
-COLLAPSE_RATIO = 1e-3
+# A model whose residuals depend this much less (or 1/this more) on the joint readings than the nominal's has
+# collapsed (or blown up): calibration corrects a geometry, it does not rescale the arm's motion 10 times.
+COLLAPSE_RATIO = 0.1
+# Statuses of a ``Result``, in the order a verdict prefers them (docs/calibration.md "Statuses and exit codes").
+STATUSES = ("converged", "misfit", "not converged", "degenerate")
 
 
 def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result:
@@ -28,10 +31,11 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
         lin = steps.linearize(problem, run.state, None if problem.joint_noise else run.whiteners,
                               scale_test_needed(problem))
     ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=list(run.order))
-    status, messages = _status(problem, run, options)
+    weights, slopes = robust_weights(lin.r, options.loss, options.f_scale)
     dof = len(lin.r) - ana.rank
-    sigma2 = lin.cost2 / dof if dof > 0 else float("nan")
-    cov, std, ok = _uncertainty(lin, ana, options, run.order, sigma2, status)
+    sigma2 = variance_factor(lin.r, weights, slopes, ana.rank)
+    status, messages = _status(problem, run, options, sigma2)
+    cov, std, ok = _uncertainty(lin, ana, options, run.order, sigma2, status, weights)
     messages += list(ana.messages)
     if dof <= 0:
         messages.append("as many equations as identifiable parameters: no residual variance, standard deviations "
@@ -50,12 +54,38 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
         after=tuple(problem.statistics(run.state, lin.W)), sigma2=sigma2, status=status,
         iterations=run.iterations, evaluations=run.evaluations, messages=tuple(messages),
         extras=dict(run.state.extras), problem=problem, linearization=lin,
-        twists=_twists(problem, run.state, cov),
+        twists=_twists(problem, run.state, cov), weights=None if options.loss == "linear" else weights,
     )
 
 
-def _status(problem: Problem, run: Iteration, options: SolverOptions) -> tuple[str, list[str]]:
-    """The final status (a collapsed model makes a converged solve degenerate) and what it says."""
+def robust_weights(r: np.ndarray, loss: str, f_scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per whitened residual row, scipy's robust ``loss`` as weights: ``w = rho'(z)`` with ``z = (r / f_scale)^2``
+    (at the optimum the robust fit is the least-squares fit weighted by ``w``) and the slope of the influence
+    ``psi = w r``, ``psi' = rho'(z) + 2 z rho''(z)`` (clipped at 0): how much each row still informs the fit.
+    Both 1 for ``linear``."""
+    z = (r / f_scale) ** 2
+    if loss == "huber":
+        w = np.where(z <= 1, 1.0, 1.0 / np.sqrt(np.maximum(z, 1.0)))
+        return w, np.where(z <= 1, 1.0, 0.0)
+    if loss == "soft_l1":
+        return 1.0 / np.sqrt(1.0 + z), (1.0 + z) ** -1.5
+    if loss == "cauchy":
+        return 1.0 / (1.0 + z), np.clip((1.0 - z) / (1.0 + z) ** 2, 0.0, None)
+    if loss == "arctan":
+        return 1.0 / (1.0 + z**2), np.clip((1.0 - 3.0 * z**2) / (1.0 + z**2) ** 2, 0.0, None)
+    return np.ones_like(r), np.ones_like(r)
+
+
+def variance_factor(r: np.ndarray, weights: np.ndarray, slopes: np.ndarray, rank: int) -> float:
+    """``sum psi^2 / (sum psi' - rank)`` (Huber's scale of an M-estimate; ``chi^2 / (m - rank)`` for the linear
+    loss): rows a robust loss discounts neither inflate it nor count as degrees of freedom. nan without any."""
+    dof = float(np.sum(slopes)) - rank
+    return float(np.sum((weights * r) ** 2)) / dof if dof > 0 else float("nan")
+
+
+def _status(problem: Problem, run: Iteration, options: SolverOptions, sigma2: float) -> tuple[str, list[str]]:
+    """The final status and what it says: a collapsed model makes a solve degenerate, a converged one that does
+    not explain the data (variance factor above ``MISFIT_VARIANCE_FACTOR``) is a misfit."""
     status, messages = run.status, []
     if status == "degenerate":
         messages.append("degenerate experiment: no arm parameter can be identified from these data; "
@@ -65,22 +95,33 @@ def _status(problem: Problem, run: Iteration, options: SolverOptions) -> tuple[s
     if status != "degenerate":
         for name, before_q, after_q in _lost_joint_sensitivity(problem, run.state):
             status = "degenerate"
-            messages.append(
-                f"degenerate solution for '{name}': its residuals no longer depend on the joint readings "
-                f"(sensitivity {before_q:.3g} at the nominal model, {after_q:.3g} at the solution): the solver found "
-                "a model whose tool does not move with the joints, which fits any such data exactly (with "
-                "position-only loops and no known length, every joint axis through one point). Free fewer "
-                "parameters (e.g. 'offsets'), or measure a length")
+            messages.append(_collapse_message(name, before_q, after_q))
+    if status == "converged" and sigma2 > MISFIT_VARIANCE_FACTOR:
+        status = "misfit"
     return status, messages
 
 
+def _collapse_message(name: str, before_q: float, after_q: float) -> str:
+    sens = f"(sensitivity {before_q:.3g} at the nominal model, {after_q:.3g} at the solution)"
+    if after_q > before_q:
+        return (f"degenerate solution for '{name}': its residuals depend {after_q / before_q:.3g} times more on the "
+                f"joint readings than at the nominal model {sens}: the calibrated arm's motion is out of scale with "
+                "the robot. Check the units of the data (lengths in mm or m, joints in deg or rad)")
+    return (f"degenerate solution for '{name}': its residuals no longer depend on the joint readings {sens}: "
+            "the solver found a model whose tool hardly moves with the joints, which fits such data (with "
+            "position-only loops and no known length, every joint axis through one point; measured points or "
+            "poses in metres where the data set says mm). Check the units of the data, free fewer parameters "
+            "(e.g. 'offsets'), or measure a length")
+
+
 def _uncertainty(lin: Linearization, ana: Identifiability, options: SolverOptions, order, sigma2: float,
-                 status: str):
-    """Covariance (p, p) in the solve's gauge, standard deviations (nan where not identifiable) and the mask
-    of identifiable coordinates."""
+                 status: str, weights: np.ndarray):
+    """Covariance (p, p) in the solve's gauge (of the robustly weighted problem with a robust loss), standard
+    deviations (nan where not identifiable) and the mask of identifiable coordinates."""
     p = lin.p
-    V = gauge_basis(lin.Rf, ana, options.gauge, list(order))
-    cov = covariance(lin.Rf, V, sigma2 if np.isfinite(sigma2) else 1.0) if V.shape[1] else np.zeros((p, p))
+    Rf = lin.Rf if options.loss == "linear" else np.linalg.qr(np.sqrt(weights)[:, None] * lin.J, mode="r")
+    V = gauge_basis(Rf, ana, options.gauge, list(order))
+    cov = covariance(Rf, V, sigma2 if np.isfinite(sigma2) else 1.0) if V.shape[1] else np.zeros((p, p))
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
     ok = ana.identifiable & (status != "degenerate")
     return cov, np.where(ok, std, np.nan), ok
@@ -101,18 +142,31 @@ def _misfit_advice(problem: Problem) -> str:
 
 
 def _lost_joint_sensitivity(problem: Problem, state) -> list[tuple[str, float, float]]:
-    """Experiments whose residuals hardly depend on the joint readings any more: (name, RMS |dr/dq| at the
-    nominal state, at ``state``). The data are then explained without the arm moving: a degenerate model."""
+    """Experiments whose residuals (of one quantity: position, orientation, ...) depend on the joint readings
+    ``COLLAPSE_RATIO`` less or 1 / ``COLLAPSE_RATIO`` more than at the nominal state: (name, RMS |dr/dq| at
+    the nominal state, at ``state``). The data are then explained by an arm out of scale with the robot (a
+    collapsed arm that hardly moves, a unit mix-up): a degenerate model."""
     out = []
     for exp in problem.experiments:
         if exp.size > 200:  # a collapse is global: an evenly spread subset shows it as well
             exp = type(exp)(exp.dataset.subset(np.linspace(0, exp.size - 1, 200).astype(int)), exp.frames)
-        rms = []
-        for st in (problem.nominal, state):
-            jq = exp.residual(st, want=set(), jq=True).jq
-            rms.append(float(np.sqrt(np.mean([np.mean(j**2) for j in jq.values()]))) if jq else 0.0)
-        if rms[0] > 0 and rms[1] < COLLAPSE_RATIO * rms[0]:
-            out.append((exp.name, rms[0], rms[1]))
+        comps = exp.components()
+        sens = [_joint_sensitivity(exp, st, comps) for st in (problem.nominal, state)]
+        for q in dict.fromkeys(comps):
+            before, after = sens[0][q], sens[1][q]
+            if before > 0 and not COLLAPSE_RATIO * before <= after <= before / COLLAPSE_RATIO:
+                out.append((exp.name, before, after))
+                break
+    return out
+
+
+def _joint_sensitivity(exp, state, comps) -> dict:
+    """RMS of |dr/dq| over samples, arms and joints, per residual quantity of ``exp`` at ``state``."""
+    jq = exp.residual(state, want=set(), jq=True).jq
+    out = {}
+    for q in dict.fromkeys(comps):
+        rows = np.array([c == q for c in comps], bool)
+        out[q] = float(np.sqrt(np.mean([np.mean(j[:, rows] ** 2) for j in jq.values()]))) if jq else 0.0
     return out
 
 

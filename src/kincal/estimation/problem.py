@@ -23,7 +23,7 @@ from kincal.estimation.start import starting_state
 from kincal.estimation.stats import ResidualStats, residual_norms
 from kincal.experiments import Experiment, build as build_experiments, frame_kinds
 from kincal.kinematics import Robot
-from kincal.noise import DEFAULT as DEFAULT_NOISE, Noise
+from kincal.noise import Noise, effective
 from kincal.params import Layout, Prior, State, build_layout, displacement, pose_retraction_jacobians, retract
 
 VARIANCE_FLOOR = 1e-18
@@ -229,13 +229,15 @@ class Problem:
 
 
 def _noise_per_experiment(noise, exps) -> list[Noise]:
-    """One ``Noise`` for every experiment, or a mapping data set name -> Noise (the default for the others)."""
+    """The noise of every experiment by the one rule (``kincal.noise.effective``): ``noise`` (one ``Noise`` for
+    all, or a mapping data set name -> Noise) where it states a quantity, else the data set's stated noise
+    (``Dataset.meta["noise"]``), else ``kincal.noise.DEFAULT``."""
     if isinstance(noise, Mapping):
         bad = set(noise) - {e.name for e in exps}
         if bad:
             raise ModelError(f"noise given for unknown data set(s) {sorted(bad)}; data sets: {[e.name for e in exps]}")
-        return [noise.get(e.name, DEFAULT_NOISE) for e in exps]
-    return [noise or DEFAULT_NOISE] * len(exps)
+    return [effective(noise.get(e.name) if isinstance(noise, Mapping) else noise, e.dataset.meta.get("noise"))
+            for e in exps]
 
 
 def stated_sigmas(exp: Experiment, noise: Noise) -> np.ndarray:

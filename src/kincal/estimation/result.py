@@ -12,6 +12,7 @@ from kincal.analysis.prediction import Prediction, predicted_accuracy
 from kincal.estimation.problem import Problem
 from kincal.estimation.stats import ResidualStats, ValidationStats
 from kincal.kinematics import Robot
+from kincal.noise import Noise
 from kincal.params import Layout, State
 
 
@@ -56,7 +57,7 @@ class Result:
     before: tuple[ResidualStats, ...]  # per experiment at the start (the nominal values)
     after: tuple[ResidualStats, ...]
     sigma2: float  # residual variance factor (chi^2 / (m - rank)) that scales the covariance
-    status: str  # converged | not converged | degenerate
+    status: str  # converged | misfit | not converged | degenerate (docs/calibration.md "Statuses and exit codes")
     iterations: int  # outer iterations: linearizations, the one that confirmed convergence included
     evaluations: int  # residual evaluations spent on steps (Gauss-Newton trials, least_squares)
     messages: tuple[str, ...]
@@ -66,6 +67,7 @@ class Result:
     twists: tuple[TwistEstimate, ...] = ()  # derived twist coordinates of every arm with free twists
     validation: tuple[ValidationStats, ...] = ()
     predictions: tuple[tuple[str, Prediction], ...] = ()  # (validation set, prediction) per arm
+    weights: np.ndarray | None = None  # robust loss: per whitened residual row, the weight the loss gave it
 
     @property
     def success(self) -> bool:
@@ -80,10 +82,13 @@ class Result:
     def values(self) -> dict[str, float]:
         return {e.name: e.value for e in self.estimates}
 
-    def predict(self, q, arm: str, *, register: bool = True, register_tool: bool = False) -> Prediction:
+    def predict(self, q, arm: str, *, register: bool = True, register_tool: bool = False,
+                noise: Noise | None = None) -> Prediction:
         """Predicted accuracy of the calibrated tool pose of ``arm`` at joint readings q (N, n): standard
-        deviations and dependence on what the data cannot determine (``kincal.analysis.prediction``)."""
-        return predicted_accuracy(self, q, arm, register=register, register_tool=register_tool)
+        deviations, dependence on what the data cannot determine, and the RMS error to expect
+        (``position_rms_predicted``, ``orientation_rms_predicted``) with the model error the calibration could
+        not explain and, given ``noise``, the stated noise of measurements there (``kincal.analysis.prediction``)."""
+        return predicted_accuracy(self, q, arm, register=register, register_tool=register_tool, noise=noise)
 
     def summary(self) -> str:
         lines = [f"status: {self.status} after {self.iterations} outer iterations ({self.evaluations} evaluations)"]

@@ -13,18 +13,22 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Callable, Mapping, Sequence
 
-from kincal.analysis import validation_predictions
+import numpy as np
+
+from kincal.analysis import Prediction, validation_predictions
+from kincal.analysis.prediction import with_doubts
 from kincal.data import Dataset
-from kincal.errors import DegenerateExperimentError
+from kincal.errors import DataFormatError, DegenerateExperimentError
 from kincal.estimation.constraints import FrameDistance
 from kincal.estimation.finalize import finalize
 from kincal.estimation.iterate import iterate
 from kincal.estimation.options import SolverOptions
+from kincal.estimation.plausibility import implausible_units
 from kincal.estimation.problem import Problem
 from kincal.estimation.result import Result
 from kincal.estimation.stats import ResidualStats, ValidationStats
 from kincal.kinematics import Robot
-from kincal.noise import DEFAULT as DEFAULT_NOISE, Noise
+from kincal.noise import Noise, effective
 from kincal.params import Prior
 
 
@@ -52,7 +56,9 @@ def calibrate(
     ``free``: ``"offsets"`` (thesis level 1), ``"kinematic"`` (full POE: offsets, twists, home; level 2) or a
     list of names/globs (level words allowed inside the list). Frames absent from a data set's ``known``
     (fixture pose, clamp, tracker, markers, ...) are always estimated; known ones only when freed by name.
-    ``noise``: one ``Noise`` for all data sets or a mapping data set name -> Noise.
+    ``noise``: one ``Noise`` for all data sets or a mapping data set name -> Noise; per quantity it goes over
+    each data set's stated noise (``Dataset.meta["noise"]``), over ``kincal.noise.DEFAULT`` (the one noise rule,
+    ``kincal.noise.effective``).
     ``constraints``: known relations between frames (``FrameDistance``: e.g. two sockets 50 mm apart).
     The other keywords are ``SolverOptions``.
     """
@@ -72,6 +78,7 @@ def solve(problem: Problem, options: SolverOptions = SolverOptions()) -> Result:
     """Solve ``problem``: the outer loop (``iterate``) and its report (``finalize``). Raises when nothing is
     free or there are fewer equations than free coordinates; reports (``Result.status``) everything else."""
     _require_equations(problem)
+    _require_plausible_units(problem)
     return finalize(problem, options, iterate(problem, options))
 
 
@@ -87,14 +94,35 @@ def evaluate(robot: Robot, datasets: Sequence[Dataset], noise=None) -> list[Resi
 
 def validate(result: Result, datasets: Sequence[Dataset], noise=None) -> Result:
     """``result`` with its errors on held-out ``datasets`` before and after calibration (``validation``) and what
-    the model predicts about its own accuracy there (``predictions``). A per-data-set noise mapping names the
-    calibration's data sets: the validation sets then get the default noise, and for quantities it does not
-    state (pixels) what each validation set states."""
-    if isinstance(noise, Mapping):
-        noise = {v.name: DEFAULT_NOISE.over(Noise.from_si(v.meta.get("noise") or {})) for v in datasets}
-    rows = validation_stats(result.nominal_robot, result.robot, datasets, noise)
+    the model predicts about its own accuracy there (``predictions``). Each held-out set's noise follows the one
+    rule (``kincal.noise.effective``): ``noise`` where it states a quantity (a mapping by data set name: what it
+    gives for that set), else the set's own stated noise, else the default. A prediction is not trusted where
+    the calibrated model is worse than the nominal one (``worse_than_nominal``)."""
+    noises = {v.name: effective(noise.get(v.name) if isinstance(noise, Mapping) else noise, v.meta.get("noise"))
+              for v in datasets}
+    rows = validation_stats(result.nominal_robot, result.robot, datasets, noises)
+    preds = validation_predictions(result, datasets, [noises[v.name] for v in datasets])
+    by_set = {v.experiment: v for v in rows}
+    preds = tuple((name, with_doubts(p, worse_than_nominal(by_set[name], p))) for name, p in preds)
     # next to the validation errors: what the model itself predicts about its accuracy there
-    return replace(result, validation=rows, predictions=validation_predictions(result, datasets))
+    return replace(result, validation=rows, predictions=preds)
+
+
+# Validation after calibration this much above the nominal model's (and above the predicted error) is worse.
+WORSE_RATIO = 1.1
+
+
+def worse_than_nominal(v: ValidationStats, pred: Prediction) -> list[str]:
+    """Why the calibrated model is worse than the nominal one on held-out set ``v``: position or orientation RMS
+    after calibration above ``WORSE_RATIO`` times the nominal model's and above the predicted RMS error."""
+    out = []
+    for part, scale, unit, predicted in (("position", 1e3, "mm", pred.position_rms_predicted),
+                                         ("orientation", 180 / np.pi, "deg", pred.orientation_rms_predicted)):
+        before, after = getattr(v.before, f"{part}_rms"), getattr(v.after, f"{part}_rms")
+        if before is not None and after > WORSE_RATIO * before and after > predicted:
+            out.append(f"on '{v.experiment}' the calibrated model's {part} error ({after * scale:.3g} {unit} RMS) "
+                       f"is worse than the nominal model's ({before * scale:.3g} {unit})")
+    return out
 
 
 def validation_stats(nominal: Robot, calibrated: Robot, datasets: Sequence[Dataset],
@@ -104,6 +132,16 @@ def validation_stats(nominal: Robot, calibrated: Robot, datasets: Sequence[Datas
     before = evaluate(nominal, datasets, noise)
     after = evaluate(calibrated, datasets, noise)
     return tuple(ValidationStats(b.experiment, b.kind, b.samples, b, a) for b, a in zip(before, after))
+
+
+def _require_plausible_units(problem: Problem) -> None:
+    """Refuse data whose joint readings or measured lengths do not fit the robot's size (a unit mix-up): the
+    solve would grind towards an arm 1000 times too small or large (``estimation.plausibility``)."""
+    for exp in problem.experiments:
+        bad = implausible_units(problem.robot, exp.dataset)
+        if bad is not None:
+            raise DataFormatError(f"data set '{exp.name}' ({exp.kind}): {bad.describe(problem.robot)}; check the "
+                                  "units of its joint readings (rad) and lengths (m)")
 
 
 def _require_equations(problem: Problem) -> None:

@@ -32,6 +32,7 @@ import yaml
 
 from kincal.data import Dataset, frames_problem
 from kincal.errors import DataFormatError, KincalError
+from kincal.estimation.plausibility import implausible_units
 from kincal.io import units
 from kincal.io.models import _Ctx, _mapping, _matrix, _number, _pose, _vector, load_robot, save_robot
 from kincal.io.yamlfile import read_text, read_yaml
@@ -119,9 +120,36 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
                               f"'{kind}' with arms {arms}; expected only {', '.join(table.used)}")
     name = str(top.get("name") or manifest.stem)
     try:
-        return Dataset(kind, resolved, tuple(arms), q, measured, known, name, meta, frames)
+        ds = Dataset(kind, resolved, tuple(arms), q, measured, known, name, meta, frames)
     except KincalError as exc:
         raise DataFormatError(f"{manifest}: {exc}") from None
+    _plausible_units(ctx, table, robot, ds, u)
+    return ds
+
+
+def _plausible_units(ctx, table: _Table, robot: Robot, ds: Dataset, u: dict) -> None:
+    """Raise, naming file, line and column, on joint readings or measured lengths whose size does not fit the
+    robot: a unit mix-up (``kincal.estimation.plausibility``)."""
+    bad = implausible_units(robot, ds)
+    if bad is None:
+        return
+    if bad.field == "q":
+        raise DataFormatError(
+            f"{table.path}: line {table.rows[bad.sample][0]}, column '{bad.arm}.{robot[bad.arm].joint_names[bad.joint]}':"
+            f" expected a joint angle within +-4 pi rad, found {bad.value / ctx.angle:.6g} {u['angle']}: check "
+            f"units.angle ('{u['angle']}') in {ctx.file}: are the readings in "
+            f"{'degrees' if u['angle'] == 'rad' else 'other units'}?")
+    f = SCHEMAS[ds.kind].field(bad.field)
+    cols = _columns(f, table)[:3] if f.form == "pose" else _columns(f, table)
+    raise DataFormatError(
+        f"{table.path}: columns '{cols[0]}'..'{cols[-1]}': {bad.describe(robot)}: check units.length "
+        f"('{u['length']}') in {ctx.file}{_unit_hint(bad.value, ctx.length)}")
+
+
+def _unit_hint(ratio: float, length: float) -> str:
+    """The length unit that would bring ``ratio`` closest to 1, as a question."""
+    best = min(units.LENGTH, key=lambda n: abs(math.log(ratio * units.LENGTH[n] / length)))
+    return f": are the columns in '{best}'?" if units.LENGTH[best] != length else ""
 
 
 def _resolve_model(manifest: Path, ref: str) -> str:

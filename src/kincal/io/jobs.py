@@ -18,7 +18,7 @@ import yaml
 from kincal.data import Dataset, frames_problem
 from kincal.errors import DataFormatError
 from kincal.estimation import FrameDistance
-from kincal.noise import DEFAULT as DEFAULT_NOISE, Noise
+from kincal.noise import Noise, effective
 from kincal.io import units
 from kincal.io.datasets import load_dataset
 from kincal.io.jobschema import check_job_types
@@ -178,11 +178,9 @@ def _frames(where, frames, ds: Dataset, robot: Robot) -> Dataset:
 
 
 def _noise(where, data, ds: Dataset) -> Noise:
-    """Job noise (position_mm, orientation_deg, joint_deg, ...) over the data set's own stated noise, over
-    kincal's default for position and orientation."""
-    stated = Noise.from_si(ds.meta.get("noise") or {})
-    job = units.noise_from_file(data or {}, f"{where}: noise")
-    return job.over(stated).over(Noise(position=DEFAULT_NOISE.position, orientation=DEFAULT_NOISE.orientation))
+    """The one noise rule (``kincal.noise.effective``): the job's noise (position_mm, orientation_deg, joint_deg,
+    ...) over the data set's own stated noise, over kincal's default."""
+    return effective(units.noise_from_file(data or {}, f"{where}: noise"), ds.meta.get("noise"))
 
 
 def _prior(f, name, spec) -> Prior:

@@ -104,7 +104,8 @@ def _baseline_to_dict(res: BaselineResult) -> dict:
 
 def prediction_rows(result: Result) -> list[dict]:
     """Per validation set and calibrated arm: the predicted accuracy next to the actual validation errors of the
-    set (mm, deg). Effects of undetermined directions are tool motion per unit norm of a direction in natural
+    set (mm, deg): standard deviations, the RMS error to expect (``*_rms_predicted``: standard deviations,
+    stated measurement noise and unexplained model error in quadrature), the trust verdict and its doubts. Effects of undetermined directions are tool motion per unit norm of a direction in natural
     units: mm per mm-or-mrad and mrad per mm-or-mrad."""
     actual = {v.experiment: v.after for v in result.validation}
     rows = []
@@ -115,7 +116,14 @@ def prediction_rows(result: Result) -> list[dict]:
                "position_mm_std_rms": _f(st["position_std_rms"] * 1e3),
                "position_mm_std_max": _f(st["position_std_max"] * 1e3),
                "orientation_deg_std_rms": _f(st["orientation_std_rms"] * DEG),
-               "orientation_deg_std_max": _f(st["orientation_std_max"] * DEG)}
+               "orientation_deg_std_max": _f(st["orientation_std_max"] * DEG),
+               "position_mm_rms_predicted": _f(st["position_rms_predicted"] * 1e3),
+               "orientation_deg_rms_predicted": _f(st["orientation_rms_predicted"] * DEG),
+               "position_mm_noise_rms": _f(st["position_noise_rms"] * 1e3),
+               "orientation_deg_noise_rms": _f(st["orientation_noise_rms"] * DEG),
+               "position_mm_model_error": _f(st["position_model"] * 1e3),
+               "orientation_deg_model_error": _f(st["orientation_model"] * DEG),
+               "doubts": list(p.doubts)}
         for field, key, scale in _PARTS:
             if after is not None and getattr(after, field) is not None:
                 row[f"{key}_actual"] = _f(getattr(after, field) * scale)

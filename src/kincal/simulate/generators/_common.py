@@ -130,7 +130,7 @@ def validation_set(robot: Robot, arms, n: int, rng: np.random.Generator, name: s
         out[a] = Dataset(
             "pose", robot.name, (a,), {a: q},
             measured={"T_tracker_tool": forward_kinematics(robot[a], q)},
-            name=f"{name}-{a}", meta={"noise_free": True, "frame": "world (registered when evaluated)"},
+            name=f"{name}-{a}", meta={"noise_free": True, "noise": dict(NOISE_FREE), "frame": "world (registered when evaluated)"},
         )
     return out
 
@@ -153,6 +153,10 @@ def exploration_stats(ex: Exploration) -> dict:
         "branches": ex.n_branches,
         "candidates": int(ex.q.shape[0]),
     }
+
+
+# What a noise-free validation set states (the one noise rule then expects no measurement noise there).
+NOISE_FREE = {"position_m": 0.0, "orientation_rad": 0.0, "joint_rad": 0.0}
 
 
 def dataset_meta(kind: str, noise: Noise, extra: dict | None = None) -> dict:

@@ -11,9 +11,9 @@ from kincal.kinematics import Robot
 from kincal.lie import se3
 from kincal.noise import Noise
 from kincal.schema import LENGTH
-from kincal.simulate.generators._common import (ARM, WRENCH, Option, check_n, count_option, dataset_meta, generator,
-                                                known_option, noisy_readings, pick_arm, pose_or,
-                                                random_configurations)
+from kincal.simulate.generators._common import (ARM, NOISE_FREE, WRENCH, Option, check_n, count_option,
+                                                dataset_meta, generator, known_option, noisy_readings, pick_arm,
+                                                pose_or, random_configurations)
 from kincal.simulate.generators._tracker import (random_markers, random_tracker_pose, tool_loads, tool_poses,
                                                  validation_loads)
 from kincal.simulate.noise import tracker_points
@@ -79,5 +79,5 @@ def generate_markers(
     pv = se3.transform_points((se3.inverse(T_wt) @ tool_poses(model, qv, lv))[:, None], p_tm[None])
     mv = {"p_tracker_marker": pv} if lv is None else {"p_tracker_marker": pv, "wrench_tool": lv}
     validation = {arm: Dataset("markers", robot.name, (arm,), {arm: qv}, mv, {}, f"validation-{arm}",
-                               {"noise_free": True})}
+                               {"noise_free": True, "noise": dict(NOISE_FREE)})}
     return ds, truth, validation
