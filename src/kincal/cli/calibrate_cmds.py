@@ -9,15 +9,13 @@ from dataclasses import replace
 from pathlib import Path
 
 import click
-import yaml
 from rich.console import Console
 from rich.table import Table
 
 from kincal.errors import DataFormatError
-from kincal.estimation import evaluate, validation_stats
+from kincal.estimation import validation_stats
 from kincal.io.datasets import load_scenario, write_simulation
 from kincal.io.jobs import load_job, write_job
-from kincal.io.models import save_robot
 from kincal.io.results import prediction_rows, result_to_dict, write_results
 from kincal.report import write_plots
 from kincal.simulate.perturb import perturbation

@@ -23,6 +23,7 @@ column or manifest field. Writers never replace an existing file unless ``overwr
 from __future__ import annotations
 
 import csv
+import math
 import os
 from pathlib import Path
 from typing import Any, Mapping
