@@ -98,6 +98,6 @@ def convert_log(log: Path, model: str, arms: tuple[str, ...], output: Path, ever
     for a in arms:
         robot[a]
     t, q = convert(log, robot, arms, every=every, still_rad_s=still_rad_s, window=window, per_stop=per_stop,
-                   header=not no_header, period_s=period_s or EXTCTRL_PERIOD_S)
+                   header=not no_header, period_s=EXTCTRL_PERIOD_S if period_s is None else period_s)
     write_joint_csv(output, t, q, robot, overwrite=overwrite)
     click.echo(f"{log} -> {output}: {len(t)} samples, arms {', '.join(arms)}")

@@ -1,0 +1,40 @@
+"""Output paths that cannot be written give kincal's one-line error naming the path (issue #10), for every
+command that writes: simulate, convert-log, demo."""
+
+import os
+
+import pytest
+
+from kincal.cli import main
+
+
+def _blocked(tmp_path):
+    """A path under a regular file: no folder can be made there."""
+    f = tmp_path / "a_file"
+    f.write_text("not a folder\n")
+    return f / "out"
+
+
+def _log(tmp_path):
+    p = tmp_path / "log.csv"
+    p.write_text("t," + ",".join(f"arm.c{i + 1}" for i in range(6)) + "\n"
+                 + "\n".join(f"{0.004 * k}," + ",".join("0.1" for _ in range(6)) for k in range(30)) + "\n")
+    return p
+
+
+@pytest.mark.parametrize("command", ["simulate", "convert-log", "demo"])
+def test_unwritable_output_is_one_line_naming_the_path(tmp_path, capsys, command):
+    out = _blocked(tmp_path)
+    argv = {"simulate": ["simulate", "ur10_tracker_markers", "-o", str(out), "--quiet"],
+            "convert-log": ["convert-log", str(_log(tmp_path)), "-m", "ur10", "-o", str(out / "q.csv")],
+            "demo": ["demo", "-o", str(out), "--samples", "40"]}[command]
+    code = main(argv)
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err.startswith("kincal: error: ") and "a_file" in err and "\n" not in err
+    assert "Traceback" not in err
+
+
+def test_convert_log_period_zero_is_refused_not_replaced(tmp_path, capsys):
+    code = main(["convert-log", str(_log(tmp_path)), "-m", "ur10", "-o", str(tmp_path / "q.csv"), "--period-s", "0"])
+    assert code == 2 and "--period-s: expected a finite number > 0" in capsys.readouterr().err
+    assert not os.path.exists(tmp_path / "q.csv")
