@@ -134,3 +134,22 @@ def test_escapes_beyond_unicode_and_nul_in_file_names_are_kincal_errors(tmp_path
         parse_yaml('a: "\\U100010000"\n', "f.yaml")
     with pytest.raises(DataFormatError, match="contains a NUL character"):
         read_text(tmp_path / "a\0b.yaml", "data set manifest")
+
+
+def test_a_byte_order_mark_in_a_log_or_data_csv_keeps_the_first_column(tmp_path):
+    """A BOM used to turn the header's first name into '\\ufefft': the time column was dropped silently."""
+    ur = robots.load("ur10")
+    log = tmp_path / "log.csv"
+    rows = [f"{0.5 * k}," + ",".join("0.1" for _ in range(6)) for k in range(30)]
+    log.write_bytes(codecs.BOM_UTF8 + ("t," + ",".join(f"arm.c{i + 1}" for i in range(6)) + "\n"
+                                       + "\n".join(rows) + "\n").encode())
+    t, _ = convert_log(log, ur, ("arm",))
+    assert t[-1] == pytest.approx(14.5)  # the log's own time column, not a default period
+    from kincal.io.datasets import load_dataset, write_dataset
+    from kincal.simulate import generate_pose
+
+    ds, _, _ = generate_pose(ur, None, n=5, rng=0)
+    manifest = write_dataset(ds, tmp_path / "d.yaml", ur, model="ur10")
+    csv_path = manifest.with_suffix(".csv")
+    csv_path.write_bytes(codecs.BOM_UTF8 + csv_path.read_bytes())
+    np.testing.assert_array_equal(load_dataset(manifest).q["arm"], ds.q["arm"])
