@@ -45,6 +45,22 @@ def _shown(e) -> tuple[str, float, float]:
     return ("deg" if e.unit == "rad" else "mm"), e.value * k, e.std * k
 
 
+# Outlying rows printed on the console at most; result.yaml lists them all.
+MAX_OUTLIERS_SHOWN = 20
+
+
+def _print_outliers(console: Console, outliers) -> None:
+    """The rows left out as outliers, one line each (at most ``MAX_OUTLIERS_SHOWN``, then how many more)."""
+    if not outliers:
+        return
+    console.print(f"{len(outliers)} configuration(s) left out as outliers (standardized residual in sigmas):")
+    for o in outliers[:MAX_OUTLIERS_SHOWN]:
+        where = f"{o.file}: line {o.line}" if o.line is not None else f"sample {o.sample}"
+        console.print(f"  {o.experiment}: {where}: {o.standardized:.3g}", markup=False, highlight=False)
+    if len(outliers) > MAX_OUTLIERS_SHOWN:
+        console.print(f"  and {len(outliers) - MAX_OUTLIERS_SHOWN} more (all in result.yaml)")
+
+
 def print_summary(console: Console, result, title: str) -> None:
     ana = result.identifiability
     console.print(f"{title}: {result.status} after {result.iterations} outer iterations "
@@ -57,6 +73,7 @@ def print_summary(console: Console, result, title: str) -> None:
         t.add_row(b.experiment, b.kind, str(b.samples), _num(b.position_rms, 1e3),
                   _num(a.position_rms, 1e3), _num(b.orientation_rms, DEG), _num(a.orientation_rms, DEG))
     console.print(t)
+    _print_outliers(console, result.outliers)
     if result.validation:
         t = Table(title="validation on held-out configurations (position mm, orientation deg)")
         for c in ("set", "samples", "pos RMS before", "pos RMS after", "pos max before", "pos max after",

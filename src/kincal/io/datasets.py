@@ -23,6 +23,7 @@ column or manifest field. Writers never replace an existing file unless ``overwr
 from __future__ import annotations
 
 import csv
+import math
 import os
 from pathlib import Path
 from typing import Any, Mapping
@@ -111,7 +112,8 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
         f = np.array([ctx.length if t == PRISMATIC else ctx.angle for t in model.joint_types])
         q[a] = table.take([f"{a}.{j}" for j in model.joint_names]) * f
     measured = _measured(ctx, schema, table, known)
-    meta = {"noise": noise, "manifest": str(manifest), "description": top.get("description", "")}
+    meta = {"noise": noise, "manifest": str(manifest), "description": top.get("description", ""),
+            "file": str(csv_path), "lines": np.array([line for line, _ in table.rows], int)}  # header = line 1
     if "t" in table.header:
         meta["t"] = table.take(["t"])[:, 0]
     extra = [c for c in table.header if c not in table.used]

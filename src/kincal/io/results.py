@@ -50,7 +50,7 @@ def result_to_dict(result: Result | BaselineResult) -> dict:
     """The report of a kincal ``Result`` or of a thesis baseline's ``BaselineResult``, one schema: ``format``,
     ``version``, ``method``, ``status``, ``iterations``, ``messages``, ``estimates`` (a list of entries with
     ``name`` and ``value``), ``validation``; kincal adds its identifiability, uncertainty and statistics, the
-    baseline the thesis' Eval_error before and after."""
+    baseline the thesis' Eval_error before and after. ``outliers``: the rows left out of the solve."""
     if isinstance(result, BaselineResult):
         return _baseline_to_dict(result)
     ana = result.identifiability
@@ -77,6 +77,8 @@ def result_to_dict(result: Result | BaselineResult) -> dict:
         ],
         "twists": [{"name": t.name, "value": _f(t.value), "std": _f(t.std)} for t in result.twists],
         "correlated": [{"a": a, "b": b, "rho": r} for a, b, r in result.correlated],
+        "outliers": [{"experiment": o.experiment, "sample": o.sample, "line": o.line, "file": o.file,
+                      "standardized_residual": _f(o.standardized)} for o in result.outliers],
         "residuals_before": [_stats(s) for s in result.before],
         "residuals_after": [_stats(s) for s in result.after],
         "validation": [_validation(v) for v in result.validation],
