@@ -116,6 +116,18 @@ def test_job_lists_rejected_rows_with_their_csv_lines(tmp_path, capsys):
     assert [r["line"] for r in rows] == [i + 2 for i in sorted(bad)]  # header = line 1
     assert all(r["experiment"] == "tracker" and r["file"].endswith("tracker.csv") for r in rows)
     assert all(r["standardized_residual"] > 100 for r in rows)
+    # the loader warns (not an error) about tracker points exactly at the origin
+    (warning,) = saved["data_warnings"]
+    assert "line(s) 9, 42, 101" in warning and "origin" in warning and "warning:" in text
+
+
+def test_loader_warns_on_a_row_repeated_exactly(tmp_path):
+    manifest, _, _ = _files(tmp_path)
+    csv = manifest.with_suffix(".csv")
+    lines = csv.read_text().splitlines()
+    csv.write_text("\n".join(lines + [lines[5]]) + "\n")
+    warnings = load_dataset(manifest).meta["warnings"]
+    assert any(f"line(s) {len(lines) + 1}: repeats an earlier row exactly" in w for w in warnings)
 
 
 def test_job_keep_and_threshold_keys(tmp_path):

@@ -18,7 +18,7 @@ from kincal.estimation import evaluate, validation_stats
 from kincal.io.datasets import load_scenario, write_simulation
 from kincal.io.jobs import load_job, write_job
 from kincal.io.models import save_robot
-from kincal.io.results import prediction_rows, result_to_dict, write_results
+from kincal.io.results import data_warnings, prediction_rows, result_to_dict, write_results
 from kincal.report import write_plots
 from kincal.simulate.perturb import perturbation
 from kincal.simulate.scenario import build_scenario, run
@@ -74,6 +74,8 @@ def print_summary(console: Console, result, title: str) -> None:
                   _num(a.position_rms, 1e3), _num(b.orientation_rms, DEG), _num(a.orientation_rms, DEG))
     console.print(t)
     _print_outliers(console, result.outliers)
+    for w in data_warnings(result):
+        console.print(f"warning: {w}", markup=False, highlight=False)
     if result.validation:
         t = Table(title="validation on held-out configurations (position mm, orientation deg)")
         for c in ("set", "samples", "pos RMS before", "pos RMS after", "pos max before", "pos max after",
