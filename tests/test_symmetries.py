@@ -39,6 +39,7 @@ def _plane_data(robot: Robot, n: int, rng) -> Dataset:
         q2 = q.copy()
         q2[:, 1] += 1e-6
         q[:, 1] -= z / ((forward_kinematics(robot["arm"], q2)[:, :3, 3] @ normal - 0.3 - z) / 1e-6)
+    q = (q + np.pi) % (2 * np.pi) - np.pi  # Newton may wander turns away: readings within one turn
     assert np.abs(forward_kinematics(robot["arm"], q)[:, :3, 3] @ normal - 0.3).max() < 1e-12
     return Dataset("plane", robot.name, ("arm",), {"arm": q}, name="plane")
 
