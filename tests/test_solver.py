@@ -46,8 +46,8 @@ def test_robust_loss_resists_outliers(rng):
     bad = Dataset("pose", "r", ("arm",), ds.q, {"T_tracker_tool": T}, ds.known)
     nominal = Robot("r", {"arm": true.replace(offsets=np.zeros(6))})
     noise = Noise(1e-5, 1e-5, 0.0)
-    plain = calibrate(nominal, [bad], "offsets", noise=noise)
-    robust = calibrate(nominal, [bad], "offsets", noise=noise, loss="soft_l1", f_scale=3.0)
+    plain = calibrate(nominal, [bad], "offsets", noise=noise, outliers="keep")
+    robust = calibrate(nominal, [bad], "offsets", noise=noise, loss="soft_l1", f_scale=3.0, outliers="keep")
     err = lambda r: np.max(np.abs([r.estimate(f"arm.j{i}.offset").value for i in range(1, 7)] - true.offsets))  # noqa
     assert err(robust) < 1e-5 and err(plain) > 100 * err(robust)
 

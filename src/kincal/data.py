@@ -56,6 +56,10 @@ def _ro(a) -> np.ndarray:
     return a
 
 
+# Entries of ``Dataset.meta`` with one value per sample (the CSV line of each row, its time): subsets select them.
+PER_SAMPLE_META = ("lines", "t")
+
+
 @dataclass(frozen=True, eq=False)
 class Dataset:
     """One experiment's data, checked against its kind's schema (``kincal.schema``)."""
@@ -117,6 +121,6 @@ class Dataset:
             {k: v[index] for k, v in self.measured.items()},
             dict(self.known),
             self.name,
-            dict(self.meta),
+            {k: np.asarray(v)[index] if k in PER_SAMPLE_META else v for k, v in self.meta.items()},
             dict(self.frames),
         )

@@ -16,7 +16,7 @@ from kincal.errors import DataFormatError
 from kincal.estimation import validation_stats
 from kincal.io.datasets import load_scenario, write_simulation
 from kincal.io.jobs import load_job, write_job
-from kincal.io.results import prediction_rows, result_to_dict, write_results
+from kincal.io.results import data_warnings, prediction_rows, result_to_dict, write_results
 from kincal.report import write_plots
 from kincal.simulate.perturb import perturbation
 from kincal.simulate.scenario import build_scenario, run
@@ -43,6 +43,22 @@ def _shown(e) -> tuple[str, float, float]:
     return ("deg" if e.unit == "rad" else "mm"), e.value * k, e.std * k
 
 
+# Outlying rows printed on the console at most; result.yaml lists them all.
+MAX_OUTLIERS_SHOWN = 20
+
+
+def _print_outliers(console: Console, outliers) -> None:
+    """The rows left out as outliers, one line each (at most ``MAX_OUTLIERS_SHOWN``, then how many more)."""
+    if not outliers:
+        return
+    console.print(f"{len(outliers)} configuration(s) left out as outliers (standardized residual in sigmas):")
+    for o in outliers[:MAX_OUTLIERS_SHOWN]:
+        where = f"{o.file}: line {o.line}" if o.line is not None else f"sample {o.sample}"
+        console.print(f"  {o.experiment}: {where}: {o.standardized:.3g}", markup=False, highlight=False)
+    if len(outliers) > MAX_OUTLIERS_SHOWN:
+        console.print(f"  and {len(outliers) - MAX_OUTLIERS_SHOWN} more (all in result.yaml)")
+
+
 def print_summary(console: Console, result, title: str) -> None:
     ana = result.identifiability
     console.print(f"{title}: {result.status} after {result.iterations} outer iterations "
@@ -55,6 +71,9 @@ def print_summary(console: Console, result, title: str) -> None:
         t.add_row(b.experiment, b.kind, str(b.samples), _num(b.position_rms, 1e3),
                   _num(a.position_rms, 1e3), _num(b.orientation_rms, DEG), _num(a.orientation_rms, DEG))
     console.print(t)
+    _print_outliers(console, result.outliers)
+    for w in data_warnings(result):
+        console.print(f"warning: {w}", markup=False, highlight=False)
     if result.validation:
         t = Table(title="validation on held-out configurations (position mm, orientation deg)")
         for c in ("set", "samples", "pos RMS before", "pos RMS after", "pos max before", "pos max after",

@@ -9,6 +9,7 @@ import numpy as np
 
 from kincal.analysis import Identifiability, Linearization
 from kincal.analysis.prediction import Prediction, predicted_accuracy
+from kincal.estimation.outliers import Outlier
 from kincal.estimation.problem import Problem
 from kincal.estimation.stats import ResidualStats, ValidationStats
 from kincal.kinematics import Robot
@@ -68,6 +69,7 @@ class Result:
     validation: tuple[ValidationStats, ...] = ()
     predictions: tuple[tuple[str, Prediction], ...] = ()  # (validation set, prediction) per arm
     weights: np.ndarray | None = None  # robust loss: per whitened residual row, the weight the loss gave it
+    outliers: tuple[Outlier, ...] = ()  # configurations left out of the solve (``calibrate(outliers=...)``)
 
     @property
     def success(self) -> bool:

@@ -23,6 +23,8 @@ from kincal.estimation.constraints import FrameDistance
 from kincal.estimation.finalize import finalize
 from kincal.estimation.iterate import iterate
 from kincal.estimation.options import SolverOptions
+from kincal.estimation.outliers import (ROBUST_F_SCALE, ROBUST_LOSS, any_beyond, find_outliers, kept,
+                                        outlier_threshold)
 from kincal.estimation.plausibility import implausible_units
 from kincal.estimation.problem import Problem
 from kincal.estimation.result import Result
@@ -49,6 +51,7 @@ def calibrate(
     validation: Sequence[Dataset] = (),
     constraints: Sequence[FrameDistance] = (),
     progress: Callable[[int, float], None] | None = None,
+    outliers: str | float = "reject",
 ) -> Result:
     """Calibrate ``robot`` from ``datasets``: ``solve(Problem.build(...), SolverOptions(...))``, then
     ``validate`` on the held-out ``validation`` sets.
@@ -60,6 +63,8 @@ def calibrate(
     each data set's stated noise (``Dataset.meta["noise"]``), over ``kincal.noise.DEFAULT`` (the one noise rule,
     ``kincal.noise.effective``).
     ``constraints``: known relations between frames (``FrameDistance``: e.g. two sockets 50 mm apart).
+    ``outliers``: ``"reject"`` (default: rows beyond a tail probability of 1e-6 after a robust pass are left out
+    and listed in ``Result.outliers``), ``"keep"``, or the tail probability (``estimation.outliers``).
     The other keywords are ``SolverOptions``.
     """
     if not datasets:
@@ -69,9 +74,31 @@ def calibrate(
         raise DegenerateExperimentError(
             f"every parameter is fixed: nothing to estimate (free={free!r}, fixed={list(fixed)!r})"
         )
+    threshold = outlier_threshold(outliers)
     options = SolverOptions(gauge, loss, f_scale, max_outer, rank_rtol, correlation_threshold, progress)
     result = solve(problem, options)
+    if threshold is not None and any_beyond(problem, result.state, threshold):
+        result = _without_outliers(result, options, threshold,
+                                   lambda kept_sets: Problem.build(robot, kept_sets, free, fixed, priors, noise,
+                                                                   constraints))
     return validate(result, validation, noise) if validation else result
+
+
+def _without_outliers(result: Result, options: SolverOptions, threshold: float, rebuild) -> Result:
+    """The solve of ``result.problem`` again without its outlying rows: found at a robust pass (Cauchy loss,
+    unless the solve's own loss is robust already), then the solve with ``options`` on the rest (``rebuild``
+    makes the problem from the kept data sets). ``result`` itself when no row is beyond ``threshold``."""
+    problem = result.problem
+    robust = result
+    if options.loss == "linear":
+        robust = solve(problem, replace(options, loss=ROBUST_LOSS, f_scale=ROBUST_F_SCALE, progress=None))
+    found = find_outliers(problem, robust.state, threshold)
+    if not found:
+        return result
+    final = solve(rebuild(kept([e.dataset for e in problem.experiments], found)), options)
+    note = (f"{len(found)} configuration(s) left out as outliers (standardized residual beyond a tail probability "
+            f"of {threshold:.3g}; listed in 'outliers'): the estimates and statistics are of the other rows")
+    return replace(final, outliers=tuple(found), messages=(note,) + final.messages)
 
 
 def solve(problem: Problem, options: SolverOptions = SolverOptions()) -> Result:

@@ -112,7 +112,9 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
         f = np.array([ctx.length if t == PRISMATIC else ctx.angle for t in model.joint_types])
         q[a] = table.take([f"{a}.{j}" for j in model.joint_names]) * f
     measured = _measured(ctx, schema, table, known)
-    meta = {"noise": noise, "manifest": str(manifest), "description": top.get("description", "")}
+    meta = {"noise": noise, "manifest": str(manifest), "description": top.get("description", ""),
+            "file": str(csv_path), "lines": np.array([line for line, _ in table.rows], int),  # header = line 1
+            "warnings": _impossible_rows(table, measured)}
     if "t" in table.header:
         meta["t"] = table.take(["t"])[:, 0]
     extra = [c for c in table.header if c not in table.used]
@@ -246,6 +248,40 @@ def _measured(ctx, schema: Schema, table: _Table, known: dict) -> dict:
                                   f"'{schema.kind}' needs columns {p}1.x, {p}1.y, {p}1.z (and {p}2.x ... for more)")
         out[f.key] = _READ_COLUMNS[f.form](ctx, f, table, cols, known)
     return out
+
+
+# Rows listed per kind of impossible row at most; the count says how many there are.
+MAX_ROW_WARNINGS = 5
+
+
+def _impossible_rows(table: _Table, measured: dict) -> tuple[str, ...]:
+    """Warnings (not errors: the outlier rule leaves such rows out) on rows no instrument gives: a measured
+    point or position exactly at the origin (a tracker that lost its target reports zeros), a row repeated
+    exactly (a logger that wrote a reading twice)."""
+    out = []
+    for key, m in measured.items():
+        m = np.asarray(m, float)
+        pts = m[..., :3, 3] if m.shape[-2:] == (4, 4) else m
+        if pts.shape[-1] != 3:
+            continue
+        zero = np.flatnonzero(np.all(pts.reshape(len(pts), -1, 3) == 0, axis=2).any(axis=1))
+        out += _row_warning(table, zero, f"'{key}' has a point exactly at the origin (a lost target?)")
+    seen, repeated = {}, []
+    for r, (_, values) in enumerate(table.rows):
+        key = tuple(v.strip() for v in values)
+        if key in seen:
+            repeated.append(r)
+        seen.setdefault(key, r)
+    out += _row_warning(table, np.array(repeated, int), "repeats an earlier row exactly")
+    return tuple(out)
+
+
+def _row_warning(table: _Table, rows: np.ndarray, what: str) -> list[str]:
+    if not len(rows):
+        return []
+    lines = ", ".join(str(table.rows[r][0]) for r in rows[:MAX_ROW_WARNINGS])
+    more = f" and {len(rows) - MAX_ROW_WARNINGS} more" if len(rows) > MAX_ROW_WARNINGS else ""
+    return [f"{table.path}: line(s) {lines}{more}: {what}"]
 
 
 def _read_pose_columns(ctx, f: Field, table: _Table, cols, known) -> np.ndarray:

@@ -28,7 +28,7 @@ from kincal.kinematics import Robot
 from kincal.params import LEVELS, Prior
 
 _TOP = {"format", "version", "name", "model", "data", "validation", "free", "fixed", "priors", "gauge", "solver",
-        "description", "constraints"}
+        "description", "constraints", "outliers"}
 _SOLVER = {"method", "loss", "f_scale", "max_outer", "rank_rtol", "correlation_threshold"}
 _LOSSES = ("linear", "huber", "soft_l1", "cauchy", "arctan")
 
@@ -50,6 +50,7 @@ class Job:
     method: str = "kincal"
     options: Mapping[str, Any] = field(default_factory=dict)  # loss, f_scale, max_outer, rank_rtol, ...
     constraints: tuple = ()  # FrameDistance
+    outliers: str | float = "reject"  # reject | keep | a tail probability (``calibrate(outliers=...)``)
 
 
 def load_job(path) -> Job:
@@ -104,7 +105,7 @@ def load_job(path) -> Job:
         raise DataFormatError(f"{f}: field 'constraints' must be a list, found {constraints!r}")
     constraints = tuple(_constraint(f"{f}: constraints[{i}]", c) for i, c in enumerate(constraints))
     return Job(path, str(top.get("name", path.stem)), robot, datasets, validation, free, fixed, priors, noise, gauge,
-               method, options, constraints)
+               method, options, constraints, _outliers(f, top.get("outliers", "reject")))
 
 
 def write_job(path, *, name: str, model: str, data, validation=(), free: str | list[str] = "offsets") -> Path:
@@ -119,6 +120,18 @@ def write_job(path, *, name: str, model: str, data, validation=(), free: str | l
     except FileExistsError:
         raise DataFormatError(f"{path}: file exists; not overwritten (choose another output directory)") from None
     return path
+
+
+def _outliers(f: str, spec) -> str | float:
+    """``outliers: reject | keep | {threshold: p}`` -> ``calibrate``'s ``outliers`` (p a tail probability)."""
+    if spec in ("reject", "keep"):
+        return spec
+    if isinstance(spec, dict) and set(spec) == {"threshold"}:
+        p = spec["threshold"]
+        if isinstance(p, (int, float)) and not isinstance(p, bool) and 0 < p < 1:
+            return float(p)
+    raise DataFormatError(f"{f}: field 'outliers' must be 'reject', 'keep' or {{threshold: p}} with p a tail "
+                          f"probability in (0, 1) (e.g. 1e-6), found {spec!r}")
 
 
 def _constraint(where, spec):

@@ -42,6 +42,9 @@ JOB_SCHEMA = {
             "correlation_threshold": {"type": "number", "exclusiveMinimum": 0, "maximum": 1},
         }},
         "constraints": {"type": ["array", "null"], "items": {"type": "object"}},
+        "outliers": {"oneOf": [{"enum": ["reject", "keep"]}, {
+            "type": "object", "required": ["threshold"], "additionalProperties": False,
+            "properties": {"threshold": {"type": "number", "exclusiveMinimum": 0, "exclusiveMaximum": 1}}}]},
     },
 }
 

@@ -50,7 +50,8 @@ def result_to_dict(result: Result | BaselineResult) -> dict:
     """The report of a kincal ``Result`` or of a thesis baseline's ``BaselineResult``, one schema: ``format``,
     ``version``, ``method``, ``status``, ``iterations``, ``messages``, ``estimates`` (a list of entries with
     ``name`` and ``value``), ``validation``; kincal adds its identifiability, uncertainty and statistics, the
-    baseline the thesis' Eval_error before and after."""
+    baseline the thesis' Eval_error before and after. ``outliers``: the rows left out of the solve,
+    ``data_warnings``: impossible rows the loaders found."""
     if isinstance(result, BaselineResult):
         return _baseline_to_dict(result)
     ana = result.identifiability
@@ -77,6 +78,9 @@ def result_to_dict(result: Result | BaselineResult) -> dict:
         ],
         "twists": [{"name": t.name, "value": _f(t.value), "std": _f(t.std)} for t in result.twists],
         "correlated": [{"a": a, "b": b, "rho": r} for a, b, r in result.correlated],
+        "outliers": [{"experiment": o.experiment, "sample": o.sample, "line": o.line, "file": o.file,
+                      "standardized_residual": _f(o.standardized)} for o in result.outliers],
+        "data_warnings": data_warnings(result),
         "residuals_before": [_stats(s) for s in result.before],
         "residuals_after": [_stats(s) for s in result.after],
         "validation": [_validation(v) for v in result.validation],
@@ -84,6 +88,12 @@ def result_to_dict(result: Result | BaselineResult) -> dict:
         "frames": {k: np.asarray(v.as_array() if hasattr(v, "as_array") else v).tolist()
                    for k, v in result.extras.items()},
     }
+
+
+def data_warnings(result: Result) -> list[str]:
+    """The loaders' warnings on the data sets solved (impossible rows: ``kincal.io.datasets``)."""
+    exps = result.problem.experiments if result.problem is not None else ()
+    return [w for e in exps for w in e.dataset.meta.get("warnings", ())]
 
 
 def _baseline_to_dict(res: BaselineResult) -> dict:

@@ -14,7 +14,7 @@ def run_job(job: Job, progress=None):
         return _thesis(job)
     return calibrate(job.robot, job.datasets, job.free, fixed=job.fixed, priors=job.priors, noise=job.noise,
                      gauge=job.gauge, validation=job.validation, constraints=job.constraints, progress=progress,
-                     **job.options)
+                     outliers=job.outliers, **job.options)
 
 
 def _thesis(job: Job):

@@ -1,0 +1,97 @@
+"""Outlying configurations (rows): found after a robust pass, named, left out of the final solve.
+
+The rule (docs/calibration.md "Outliers"): per configuration, the whitened residual's chi^2 over its ``k``
+components, divided by a robust scale (the median row's chi^2 over the chi^2 median at ``k`` dof, at least 1: a
+model error shared by all rows is not an outlier, stated noise that is too large is not shrunk). A row whose
+scaled chi^2 has a tail probability below ``threshold`` (default ``DEFAULT_THRESHOLD``) is an outlier.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import chi2
+
+from kincal.errors import ModelError
+
+# Tail probability below which a row is an outlier: one false alarm in a million clean rows.
+DEFAULT_THRESHOLD = 1e-6
+# The robust first pass: a Cauchy loss with this scale in whitened units (sigmas).
+ROBUST_LOSS, ROBUST_F_SCALE = "cauchy", 3.0
+# At most this fraction of a data set's rows is rejected: beyond it the model, not the rows, is wrong.
+MAX_FRACTION = 0.5
+
+
+@dataclass(frozen=True)
+class Outlier:
+    """One rejected configuration: data set name, sample index in it, CSV line (header = line 1; None for
+    in-memory data), file (None likewise) and standardized residual (the row's whitened residual norm over the
+    robust scale, in sigmas)."""
+
+    experiment: str
+    sample: int
+    line: int | None
+    file: str | None
+    standardized: float
+
+
+def outlier_threshold(outliers) -> float | None:
+    """``"reject"`` -> ``DEFAULT_THRESHOLD``, ``"keep"`` -> None, a number in (0, 1) -> itself (tail probability)."""
+    if outliers == "reject":
+        return DEFAULT_THRESHOLD
+    if outliers == "keep":
+        return None
+    if isinstance(outliers, (int, float)) and not isinstance(outliers, bool) and 0 < outliers < 1:
+        return float(outliers)
+    raise ModelError(f"outliers must be 'reject', 'keep' or a tail probability in (0, 1), got {outliers!r}")
+
+
+def row_chi2(problem, state) -> list[np.ndarray]:
+    """Per experiment of ``problem``, the whitened chi^2 of each configuration (N,) at ``state``."""
+    out = []
+    for W, res in zip(problem.whiteners(state), problem.residuals(state)):
+        out.append(np.sum(np.einsum("nij,nj->ni", W, res.r) ** 2, axis=1))
+    return out
+
+
+def standardized(problem, state) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per experiment: (scaled chi^2, tail probability) of each row, with the robust scale of the module doc."""
+    rows = row_chi2(problem, state)
+    out = []
+    for exp, c in zip(problem.experiments, rows):
+        k = len(exp.components())
+        scale = max(float(np.median(c)) / chi2.median(k), 1.0)
+        out.append((c / scale, chi2.sf(c / scale, k)))
+    return out
+
+
+def find_outliers(problem, state, threshold: float) -> list[Outlier]:
+    """The rows of ``problem``'s data sets beyond ``threshold`` at ``state`` (the worst first within a set;
+    at most ``MAX_FRACTION`` of a set)."""
+    found = []
+    for exp, (c, p) in zip(problem.experiments, standardized(problem, state)):
+        bad = np.flatnonzero(p < threshold)
+        bad = bad[np.argsort(p[bad])][: int(MAX_FRACTION * exp.size)]
+        lines, file = exp.dataset.meta.get("lines"), exp.dataset.meta.get("file")
+        for i in sorted(bad):
+            found.append(Outlier(exp.name, int(i), None if lines is None else int(lines[i]), file,
+                                 float(np.sqrt(c[i]))))
+    return found
+
+
+def any_beyond(problem, state, threshold: float) -> bool:
+    """Whether any row is beyond ``threshold`` at ``state`` (the screen before a robust pass)."""
+    return any(bool(np.any(p < threshold)) for _, p in standardized(problem, state))
+
+
+def kept(datasets, outliers: list[Outlier]):
+    """``datasets`` without the ``outliers`` rows (a data set named by an outlier by its ``name``)."""
+    out = []
+    for ds in datasets:
+        drop = [o.sample for o in outliers if o.experiment == ds.name]
+        if not drop:
+            out.append(ds)
+            continue
+        out.append(ds.subset(np.setdiff1d(np.arange(ds.size), drop)))
+    return out
