@@ -222,3 +222,21 @@ def test_every_status_has_an_exit_code_and_is_documented():
     for status, code in EXIT_CODES.items():
         assert re.search(rf"`{status}`.*\|\s*{code}\s*\|", section), status
     assert re.search(r"\|\s*2\s*\|", section)  # input errors
+
+
+def test_a_model_worse_than_nominal_on_held_out_data_is_a_misfit():
+    """Validation worse after calibration than before is a misfit (issue 9, finding 3), even when the model fits
+    its own data: here the held-out data come from the nominal robot itself, which the calibration (from a
+    perturbed robot's data) has rightly left."""
+    ur = robots.load("ur10")
+    offsets = ur["arm"].offsets + np.random.default_rng(3).uniform(-0.01, 0.01, ur["arm"].dof)
+    true = ur.replace_arm("arm", ur["arm"].replace(offsets=offsets))  # what level 'offsets' can explain
+    ds, _, _ = generate_pose(true, None, n=60, rng=4, noise=Noise(position=1e-5, orientation=1e-5))
+    fit = calibrate(ur, [ds], "offsets")
+    assert fit.status == "converged"
+    _, _, held_out = generate_pose(ur, None, n=40, rng=5)  # validation sets of the nominal robot: it is exact there
+    res = calibrate(ur, [ds], "offsets", validation=list(held_out.values()))
+    v = res.validation[0]
+    assert v.after.position_rms > 1.1 * v.before.position_rms
+    assert res.status == "misfit" and res.messages[0].startswith("the calibrated model is worse than the nominal")
+    assert not res.predictions[0][1].trusted and EXIT_CODES["misfit"] != 0

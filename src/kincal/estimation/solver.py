@@ -124,15 +124,23 @@ def validate(result: Result, datasets: Sequence[Dataset], noise=None) -> Result:
     the model predicts about its own accuracy there (``predictions``). Each held-out set's noise follows the one
     rule (``kincal.noise.effective``): ``noise`` where it states a quantity (a mapping by data set name: what it
     gives for that set), else the set's own stated noise, else the default. A prediction is not trusted where
-    the calibrated model is worse than the nominal one (``worse_than_nominal``)."""
+    the calibrated model is worse than the nominal one (``worse_than_nominal``); a converged result is then a
+    ``misfit``: the model does not explain held-out data as well as the nominal one did."""
     noises = {v.name: effective(noise.get(v.name) if isinstance(noise, Mapping) else noise, v.meta.get("noise"))
               for v in datasets}
     rows = validation_stats(result.nominal_robot, result.robot, datasets, noises)
     preds = validation_predictions(result, datasets, [noises[v.name] for v in datasets])
     by_set = {v.experiment: v for v in rows}
-    preds = tuple((name, with_doubts(p, worse_than_nominal(by_set[name], p))) for name, p in preds)
+    worse = {name: worse_than_nominal(by_set[name], p) for name, p in preds}
+    preds = tuple((name, with_doubts(p, worse[name])) for name, p in preds)
     # next to the validation errors: what the model itself predicts about its accuracy there
-    return replace(result, validation=rows, predictions=preds)
+    result = replace(result, validation=rows, predictions=preds)
+    sets = sorted(name for name, why in worse.items() if why)
+    if sets and result.status == "converged":
+        note = (f"the calibrated model is worse than the nominal one on held-out data ({', '.join(sets)}): it does "
+                "not explain the robot; status misfit")
+        result = replace(result, status="misfit", messages=(note,) + result.messages)
+    return result
 
 
 # Validation after calibration this much above the nominal model's (and above the predicted error) is worse.
