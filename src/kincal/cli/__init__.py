@@ -28,9 +28,9 @@ def main(argv=None) -> int:
     except KincalError as exc:
         click.echo(f"kincal: error: {exc}", err=True)
         return 2
-    except OSError as exc:  # an output path that cannot be written (permissions, a file where a folder is needed)
+    except OSError as exc:  # a path the system refuses (permissions, a file where a folder is needed)
         where = f"{exc.filename}: " if exc.filename else ""
-        click.echo(f"kincal: error: {where}cannot write: {exc.strerror or exc}", err=True)
+        click.echo(f"kincal: error: {where}{exc.strerror or exc}", err=True)
         return 2
     except click.exceptions.Abort:
         click.echo("kincal: aborted", err=True)

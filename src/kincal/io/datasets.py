@@ -74,9 +74,7 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
         raise ctx.fail("format", f"expected {FORMAT!r}, found {top['format']!r}")
     if top["version"] != VERSION or isinstance(top["version"], bool):
         raise ctx.fail("version", f"expected {VERSION}, found {top['version']!r}")
-    kind = top["kind"]
-    if not isinstance(kind, str) or kind not in SCHEMAS:
-        raise ctx.fail("kind", f"expected one of {', '.join(SCHEMAS)}, found {kind!r}")
+    kind = ctx.one_of("kind", top["kind"], SCHEMAS)
     schema = SCHEMAS[kind]
     arms = top["arms"]
     if not isinstance(arms, list) or not all(isinstance(a, str) and a for a in arms) or len(set(arms)) != len(arms):
@@ -609,9 +607,7 @@ def _truth(ctx, data: Any, robot: Robot) -> dict:
         if not (np.isfinite(c) and c >= 0):
             raise ctx.fail(f"truth.{COMPLIANCE_KEY}", f"expected a compliance >= 0, found {c!r}")
         over["compliance"] = c
-    level = truth.get("level", "thesis")
-    if not isinstance(level, str) or level not in PERTURBATION_LEVELS:
-        raise ctx.fail("truth.level", f"expected one of {', '.join(PERTURBATION_LEVELS)}, found {level!r}")
+    level = ctx.one_of("truth.level", truth.get("level", "thesis"), PERTURBATION_LEVELS)
     arms = truth.get("arms")
     if arms is not None and (not isinstance(arms, list) or any(a not in robot.arms for a in arms)):
         raise ctx.fail("truth.arms", f"expected a list of arms of '{robot.name}' ({', '.join(robot.arms)}), "
@@ -621,10 +617,7 @@ def _truth(ctx, data: Any, robot: Robot) -> dict:
 
 def _experiment(ctx, exp: Any, robot: Robot) -> tuple[str, dict]:
     """(kind, generator keyword arguments) of ``experiment:``, each key read as its declared option."""
-    if not isinstance(exp, dict) or not isinstance(exp.get("kind"), str) or exp["kind"] not in GENERATOR_OPTIONS:
-        raise ctx.fail("experiment.kind", f"expected one of {', '.join(GENERATOR_OPTIONS)}, found "
-                       f"{exp.get('kind') if isinstance(exp, dict) else exp!r}")
-    kind = exp["kind"]
+    kind = ctx.one_of("experiment.kind", exp.get("kind") if isinstance(exp, dict) else exp, GENERATOR_OPTIONS)
     declared = {o.name: o for o in GENERATOR_OPTIONS[kind]}
     exp = _mapping(ctx, exp, "experiment", set(declared) | {"kind"})
     options = {}

@@ -51,6 +51,12 @@ class _Ctx:
     def fail(self, path: str, msg: str) -> DataFormatError:
         return DataFormatError(f"{self.file}: {path}: {msg}")
 
+    def one_of(self, path: str, value: Any, allowed) -> str:
+        """``value`` if it is one of the names ``allowed`` (text only: a list or mapping is never a name)."""
+        if not isinstance(value, str) or value not in allowed:
+            raise self.fail(path, f"expected one of {', '.join(allowed)}, found {value!r}")
+        return value
+
 
 # --------------------------------------------------------------------------------------------- reading
 
