@@ -15,7 +15,7 @@ uncertainty and noise; ``calibrate(..., cv=K)`` uses it for the predictions inst
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Callable, Sequence
 
 import numpy as np
@@ -24,15 +24,19 @@ from kincal.analysis.columns import scatter_columns
 from kincal.analysis.error_budget import component_noise, unexplained_error
 from kincal.data import Dataset
 from kincal.errors import ModelError
+from kincal.estimation.outliers import DEFAULT_THRESHOLD, beyond, scaled_chi2
+from kincal.estimation.problem import VARIANCE_FLOOR
 from kincal.noise import ORIENTATION, POSITION
 
 
 @dataclass(frozen=True)
 class HeldOut:
-    """Sums over held-out residuals of one quantity (position or orientation): ``squares`` the actual squared
-    components, ``predicted`` the predicted variances (parameters + noise + model error), ``parameters`` and
-    ``noise`` those parts, ``components`` how many, ``groups`` how many error vectors (3-vectors for points,
-    scalars for distances, one per configuration for orientation: what an RMS is taken over)."""
+    """Sums over held-out residuals of one quantity (position or orientation), outlying rows left out:
+    ``squares`` the actual squared components, ``predicted`` the predicted variances (parameters + noise +
+    model error), ``parameters`` and ``noise`` those parts, ``components`` how many, ``groups`` how many error
+    vectors (3-vectors for points, scalars for distances, one per configuration for orientation: what an RMS
+    is taken over); ``squares_all`` and ``groups_all`` the same with the outlying rows, ``flagged`` how many
+    rows the outlier rule flagged (``estimation.outliers``)."""
 
     squares: float = 0.0
     predicted: float = 0.0
@@ -40,17 +44,25 @@ class HeldOut:
     noise: float = 0.0
     components: int = 0
     groups: int = 0
+    squares_all: float = 0.0
+    groups_all: int = 0
+    flagged: int = 0
 
     def __add__(self, other: "HeldOut") -> "HeldOut":
         return HeldOut(*(a + b for a, b in zip(self.astuple(), other.astuple())))
 
     def astuple(self) -> tuple:
-        return self.squares, self.predicted, self.parameters, self.noise, self.components, self.groups
+        return tuple(getattr(self, f.name) for f in fields(self))
 
     @property
     def rms(self) -> float:
         """Actual RMS length of the held-out error vectors (m or rad); nan without any."""
         return float(np.sqrt(self.squares / self.groups)) if self.groups else float("nan")
+
+    @property
+    def rms_all(self) -> float:
+        """The actual RMS with the outlying rows."""
+        return float(np.sqrt(self.squares_all / self.groups_all)) if self.groups_all else float("nan")
 
     @property
     def rms_predicted(self) -> float:
@@ -112,24 +124,29 @@ def folds(datasets: Sequence[Dataset], k: int, seed: int = 0) -> list[list[np.nd
     return [np.array_split(rng.permutation(d.size), k) for d in datasets]
 
 
-def cross_validate(datasets: Sequence[Dataset], k: int, fit: Callable, seed: int = 0) -> CrossValidation:
+def cross_validate(datasets: Sequence[Dataset], k: int, fit: Callable, seed: int = 0,
+                   threshold: float | None = DEFAULT_THRESHOLD) -> CrossValidation:
     """Calibrate with ``fit(training data sets) -> Result`` on ``k - 1`` folds and evaluate the held-out fold at
-    the training solution, for each of ``k`` folds (module docstring)."""
+    the training solution, for each of ``k`` folds (module docstring); ``threshold``: the outlier rule's for
+    held-out rows (None: keep all)."""
     parts = folds(datasets, k, seed)
     out, results = [], []
     for i in range(k):
         train = [d.subset(np.setdiff1d(np.arange(d.size), p[i])) for d, p in zip(datasets, parts)]
         test = [d.subset(np.sort(p[i])) for d, p in zip(datasets, parts)]
         res = fit(train)
-        pos, rot = held_out_prediction(res, test)
+        pos, rot = held_out_prediction(res, test, threshold)
         out.append(Fold(i, {d.name: len(p[i]) for d, p in zip(datasets, parts)}, res.status, res.sigma2, pos, rot))
         results.append(res)
     return CrossValidation(k, seed, tuple(out), tuple(results))
 
 
-def held_out_prediction(result, datasets: Sequence[Dataset]) -> tuple[HeldOut, HeldOut]:
+def held_out_prediction(result, datasets: Sequence[Dataset],
+                        threshold: float | None = DEFAULT_THRESHOLD) -> tuple[HeldOut, HeldOut]:
     """Actual and predicted held-out residuals of ``datasets`` at ``result``'s solution and frames (each set
-    evaluated as the calibration's experiment of the same name), pooled per quantity: (position, orientation)."""
+    evaluated as the calibration's experiment of the same name), pooled per quantity: (position, orientation).
+    Rows beyond the outlier rule's ``threshold`` (whitened by the stated noise; None: keep all) are left out
+    of the sums and counted (``HeldOut.flagged``), as calibration leaves them out of its fit."""
     problem = result.problem
     by_name = {e.name: (e, nz) for e, nz in zip(problem.experiments, problem.noise)}
     model = dict(zip((POSITION, ORIENTATION), unexplained_error(result)))
@@ -144,16 +161,24 @@ def held_out_prediction(result, datasets: Sequence[Dataset]) -> tuple[HeldOut, H
         J = scatter_columns(res.jac, problem.layout, problem.free_idx, (N, c))
         param = np.sum((J @ result.covariance) * J, axis=-1).clip(0)  # diag(J C J^T), (N, c)
         noise = component_noise(exp, nz, res.jq)
-        comps = exp.components()
+        keep = np.ones(N, bool)
+        if threshold is not None:
+            keep[beyond(scaled_chi2(np.sum(res.r**2 / np.maximum(noise, VARIANCE_FLOOR), axis=1), c)[1],
+                        threshold)] = False
         for q in sums:
-            mask = np.array([x == q for x in comps], bool)
+            mask = np.array([x == q for x in exp.components()], bool)
             if mask.any():
-                me2 = _finite(model[q]) ** 2 / 3  # per component
-                sums[q] = sums[q] + HeldOut(float(np.sum(res.r[:, mask] ** 2)),
-                                            float(np.sum(param[:, mask] + noise[:, mask]) + me2 * N * mask.sum()),
-                                            float(np.sum(param[:, mask])), float(np.sum(noise[:, mask])),
-                                            int(N * mask.sum()), N * _groups(q, int(mask.sum())))
+                sums[q] = sums[q] + _sums(res.r[:, mask], param[:, mask], noise[:, mask], keep,
+                                          _finite(model[q]) ** 2 / 3, _groups(q, int(mask.sum())))
     return sums[POSITION], sums[ORIENTATION]
+
+
+def _sums(r, param, noise, keep, model2: float, groups: int) -> HeldOut:
+    """``HeldOut`` of one quantity's components (N, c) of one data set; ``model2``: model error per component."""
+    n = int(keep.sum())
+    return HeldOut(float(np.sum(r[keep] ** 2)), float(np.sum(param[keep] + noise[keep]) + model2 * r[keep].size),
+                   float(np.sum(param[keep])), float(np.sum(noise[keep])), int(r[keep].size), n * groups,
+                   float(np.sum(r**2)), len(r) * groups, len(r) - n)
 
 
 def _groups(q, count: int) -> int:
