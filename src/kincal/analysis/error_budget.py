@@ -52,6 +52,20 @@ def measurement_noise(Eq: np.ndarray, noise: Noise | None) -> tuple[np.ndarray, 
     return np.sqrt(pos), np.sqrt(rot)
 
 
+def model_error(result) -> tuple[float, float]:
+    """The model error (m, rad; RMS length of a 3-vector) to carry into predictions: the cross-validated one
+    when ``result`` has a cross-validation (``calibrate(..., cv=K)``), else ``unexplained_error``'s. The
+    orientation part is nan (unknown) when the calibration data measure no orientation but show a model error
+    in position: nothing in them bounds what the model gets wrong about orientation."""
+    cv = getattr(result, "cross_validation", None)
+    pos, rot = unexplained_error(result)
+    if cv is not None:
+        pos, rot = cv.position_model, (cv.orientation_model if np.isfinite(rot) else rot)
+    if not np.isfinite(rot) and not pos > 0:
+        rot = 0.0  # position within its noise: the parameters' uncertainty is all there is to predict
+    return (pos if np.isfinite(pos) else 0.0), rot
+
+
 def unexplained_error(result) -> tuple[float, float]:
     """The RMS length (m, rad) of the position and orientation error the calibrated model cannot represent, as
     new configurations would show it: per residual component, the mean square of the *leave-one-configuration-

@@ -15,7 +15,7 @@ uncertainty and noise; ``calibrate(..., cv=K)`` uses it for the predictions inst
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Callable, Sequence
 
 import numpy as np
@@ -121,7 +121,12 @@ def folds(datasets: Sequence[Dataset], k: int, seed: int = 0) -> list[list[np.nd
         raise ModelError(f"cv: {k} folds need at least {k} configurations per data set; {', '.join(small)} "
                          "have fewer")
     rng = np.random.default_rng(seed)
-    return [np.array_split(rng.permutation(d.size), k) for d in datasets]
+    return [permuted_folds(d.size, k, rng) for d in datasets]
+
+
+def permuted_folds(n: int, k: int, rng: np.random.Generator) -> list[np.ndarray]:
+    """``k`` disjoint index sets covering ``range(n)``, from one random permutation."""
+    return np.array_split(rng.permutation(n), k)
 
 
 def cross_validate(datasets: Sequence[Dataset], k: int, fit: Callable, seed: int = 0,
@@ -191,3 +196,21 @@ def _groups(q, count: int) -> int:
 
 def _finite(x: float) -> float:
     return x if np.isfinite(x) else 0.0
+
+
+def with_cross_validation(result, cv: CrossValidation):
+    """``result`` with its cross-validation and a message saying what it found (the model error it carries
+    into the predictions)."""
+    parts = []
+    for name, scale, unit in (("position", 1e3, "mm"), ("orientation", 180 / np.pi, "deg")):
+        h = cv.pooled(name)
+        if not h.groups_all:
+            continue
+        outl = f" ({h.rms_all * scale:.3g} {unit} with the {h.flagged} outlying row(s))" if h.flagged else ""
+        parts.append(f"{name} RMS {h.rms * scale:.3g} {unit}{outl} against {h.rms_predicted * scale:.3g} {unit} "
+                     f"predicted from the training folds, model error {getattr(cv, f'{name}_model') * scale:.3g} "
+                     f"{unit}")
+    note = (f"cross-validated over {cv.k} folds by configuration (frames from the training folds, nothing refitted "
+            f"on the held-out fold): held-out {'; '.join(parts)}; the predictions carry the cross-validated model "
+            "error")
+    return replace(result, cross_validation=cv, messages=result.messages + (note,))
