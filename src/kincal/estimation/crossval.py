@@ -24,7 +24,7 @@ from kincal.analysis.columns import scatter_columns
 from kincal.analysis.error_budget import component_noise, unexplained_error
 from kincal.data import Dataset
 from kincal.errors import ModelError
-from kincal.estimation.outliers import DEFAULT_THRESHOLD, beyond, scaled_chi2
+from kincal.estimation.outliers import DEFAULT_THRESHOLD, beyond, scaled_chi2, states_noise
 from kincal.estimation.problem import VARIANCE_FLOOR
 from kincal.noise import ORIENTATION, POSITION
 
@@ -150,8 +150,8 @@ def held_out_prediction(result, datasets: Sequence[Dataset],
                         threshold: float | None = DEFAULT_THRESHOLD) -> tuple[HeldOut, HeldOut]:
     """Actual and predicted held-out residuals of ``datasets`` at ``result``'s solution and frames (each set
     evaluated as the calibration's experiment of the same name), pooled per quantity: (position, orientation).
-    Rows beyond the outlier rule's ``threshold`` (whitened by the stated noise; None: keep all) are left out
-    of the sums and counted (``HeldOut.flagged``), as calibration leaves them out of its fit."""
+    Rows beyond the outlier rule's ``threshold`` (whitened by the stated noise; None, or no noise stated: keep
+    all) are left out of the sums and counted (``HeldOut.flagged``), as calibration leaves them out of its fit."""
     problem = result.problem
     by_name = {e.name: (e, nz) for e, nz in zip(problem.experiments, problem.noise)}
     model = dict(zip((POSITION, ORIENTATION), unexplained_error(result)))
@@ -167,7 +167,7 @@ def held_out_prediction(result, datasets: Sequence[Dataset],
         param = np.sum((J @ result.covariance) * J, axis=-1).clip(0)  # diag(J C J^T), (N, c)
         noise = component_noise(exp, nz, res.jq)
         keep = np.ones(N, bool)
-        if threshold is not None:
+        if threshold is not None and states_noise(ds, nz):
             keep[beyond(scaled_chi2(np.sum(res.r**2 / np.maximum(noise, VARIANCE_FLOOR), axis=1), c)[1],
                         threshold)] = False
         for q in sums:

@@ -14,6 +14,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from kincal.errors import ModelError
+from kincal.experiments import KINDS
 
 # Tail probability below which a row is an outlier: one false alarm in a million clean rows.
 DEFAULT_THRESHOLD = 1e-6
@@ -85,6 +86,12 @@ def find_outliers(problem, state, threshold: float) -> list[Outlier]:
             found.append(Outlier(exp.name, int(i), None if lines is None else int(lines[i]), file,
                                  float(np.sqrt(c[i]))))
     return found
+
+
+def states_noise(ds, noise) -> bool:
+    """Whether ``noise`` states a positive standard deviation for a residual quantity of data set ``ds`` or its
+    encoders: rows are standardized by it, so noise-free (simulated) data have no outliers to find."""
+    return noise.joint_sigma() > 0 or any((noise.sigma(q) or 0.0) > 0 for q in KINDS[ds.kind](ds, {}).components())
 
 
 def any_beyond(problem, state, threshold: float) -> bool:

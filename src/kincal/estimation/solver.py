@@ -21,13 +21,12 @@ from kincal.analysis.prediction import understated, with_doubts
 from kincal.data import Dataset
 from kincal.errors import DataFormatError, DegenerateExperimentError
 from kincal.estimation.constraints import FrameDistance
-from kincal.experiments import KINDS
 from kincal.estimation.crossval import cross_validate, with_cross_validation
 from kincal.estimation.finalize import finalize, untrusted_note
 from kincal.estimation.iterate import iterate
 from kincal.estimation.options import SolverOptions
 from kincal.estimation.outliers import (ROBUST_F_SCALE, ROBUST_LOSS, any_beyond, find_outliers, kept,
-                                        outlier_threshold)
+                                        outlier_threshold, states_noise)
 from kincal.estimation.plausibility import implausible_units
 from kincal.estimation.problem import Problem
 from kincal.estimation.result import Result
@@ -172,7 +171,7 @@ def _validation_outliers(result: Result, datasets, noises, threshold):
     """``result`` with the validation rows beyond ``threshold`` (the calibration data's outlier rule, at the
     calibrated model with the sets' frames fitted) listed, their sets' errors with every row and a message;
     and the validation sets without those rows."""
-    noisy = [d for d in datasets if _states_noise(d, noises[d.name])]
+    noisy = [d for d in datasets if states_noise(d, noises[d.name])]
     if threshold is None or not noisy:
         return result, datasets
     found = find_outliers(*_frames_fitted(result.robot, noisy, noises), threshold)
@@ -189,12 +188,6 @@ def _validation_outliers(result: Result, datasets, noises, threshold):
                   f"{_mm(v.after.position_rms)} with them" for v in every)
     return replace(result, validation_outliers=tuple(found), validation_all=every,
                    messages=result.messages + notes), kept_sets
-
-
-def _states_noise(ds: Dataset, noise: Noise) -> bool:
-    """Whether ``noise`` states a positive standard deviation for a residual quantity of ``ds`` or its encoders:
-    rows are standardized by it, so noise-free (simulated) data have no outliers to find."""
-    return noise.joint_sigma() > 0 or any((noise.sigma(q) or 0.0) > 0 for q in KINDS[ds.kind](ds, {}).components())
 
 
 def _mm(x) -> str:
