@@ -4,7 +4,10 @@ validation data, and the model error the calibration could not explain.
 A validation residual at a configuration is the calibrated model's error there plus the measurement's own
 noise. The model's error has two parts: the parameters' uncertainty (``Prediction.position_std``) and what
 the model cannot represent at all, which the calibration data show as residuals beyond their stated noise
-(a variance factor above 1). Their mean squares add (``Prediction.position_rms_predicted``).
+(a variance factor above 1), measured as a configuration the fit did not see would show it (leave-one-
+configuration-out residuals) or by cross-validation (``kincal.estimation.crossval``). Their mean squares add
+(``Prediction.position_rms_predicted``). Noise is attributed to the data that state it: stated backlash is
+measurement noise of the calibration data (whitening leaves it out), not a model error to carry elsewhere.
 """
 
 from __future__ import annotations
