@@ -15,14 +15,21 @@ from dataclasses import dataclass
 import numpy as np
 
 from kincal.data import Dataset
-from kincal.estimation import calibrate
+from kincal.estimation import calibrate, crossval
 from kincal.kinematics import forward_kinematics
 from kincal.lie import se3, so3
 
 
 def folds(n: int, k: int, seed: int = 0) -> list[np.ndarray]:
-    """k disjoint held-out index sets covering range(n), from one random permutation."""
-    return np.array_split(np.random.default_rng(seed).permutation(n), k)
+    """k disjoint held-out index sets covering range(n), from one random permutation: the package's folds
+    (``kincal.estimation.crossval.folds``) of one data set of n configurations."""
+    return crossval.permuted_folds(n, k, np.random.default_rng(seed))
+
+
+def honest_prediction(robot, ds: Dataset, free, k: int = 6, seed: int = 0, **options) -> crossval.CrossValidation:
+    """The package's k-fold cross-validation (``calibrate``'s ``cv``) of one data set: held-out RMS against the
+    RMS predicted from each fold's training fit alone (outlying held-out rows left out, as calibration does)."""
+    return crossval.cross_validate([ds], k, lambda train: calibrate(robot, train, free, **options), seed)
 
 
 def prediction_errors(result, ds: Dataset) -> tuple[np.ndarray, np.ndarray | None]:

@@ -279,3 +279,31 @@ def motoman_leica(path: Path, name: str = "leica_right_hand_6x6x6") -> Dataset:
     rows = rows[np.isfinite(rows[:, 19:22]).all(axis=1)]
     return Dataset("markers", "motoman", ("right",), {"right": rows[:, _MOTOMAN_COLUMNS["right"]]},
                    {"p_tracker_marker": rows[:, None, 19:22]}, name=name, meta={"source": MOTOMAN})
+
+
+# ------------------------------------------------- honest prediction: k-fold held-out RMS against the predicted
+
+def _wu_case(kind: str):
+    path = folder(WU)
+    return wu_robot(path), (wu_markers if kind == "markers" else wu_pose)(path), "kinematic", NOISE["wu"]
+
+
+def _figaroh_case(name: str, free: str):
+    robot, ds = {"talos": figaroh_talos, "tiago": figaroh_tiago}[name](folder(FIGAROH) / name)
+    return robot, ds, free, NOISE["mocap"]
+
+
+def _motoman_case():
+    return motoman_robot(), motoman_self_touch(folder(MOTOMAN)), MOTOMAN_FREE, NOISE["motoman"]
+
+
+# name -> () -> (nominal robot, data set, free, stated noise): the cases of docs/real-data.md "Honest prediction"
+HONEST_CASES = {
+    "wu markers": lambda: _wu_case("markers"),
+    "wu frames": lambda: _wu_case("pose"),
+    "motoman self-touch": _motoman_case,
+    "talos offsets": lambda: _figaroh_case("talos", "offsets"),
+    "talos kinematic": lambda: _figaroh_case("talos", "kinematic"),
+    "tiago offsets": lambda: _figaroh_case("tiago", "offsets"),
+    "tiago kinematic": lambda: _figaroh_case("tiago", "kinematic"),
+}

@@ -10,6 +10,7 @@ from kincal.errors import DataFormatError, ModelError
 from kincal.estimation import calibrate
 from kincal.io.datasets import load_dataset, write_dataset
 from kincal.io.jobs import load_job, write_job
+from kincal.io.results import result_to_dict
 from kincal.robots import load
 from kincal.simulate import Noise
 from kincal.simulate.generators import generate_markers
@@ -140,3 +141,30 @@ def test_job_keep_and_threshold_keys(tmp_path):
     _, job, _ = _files(tmp_path / "c", {"threshold": 2})
     with pytest.raises(DataFormatError, match="outliers"):
         load_job(job)
+
+
+def test_validation_rows_follow_the_same_rule():
+    """Outlying rows in a validation set (noise stated) are flagged by the calibration data's rule, listed and
+    left out of the validation errors, which also say the RMS with them; noise-free sets have none to find."""
+    rng = np.random.default_rng(5)
+    true = UR10.replace_arm("arm", UR10["arm"].replace(offsets=rng.uniform(-0.01, 0.01, 6)))
+    ds, _, val = generate_markers(true, n=80, rng=5, noise=Noise(position=SIGMA), n_validation=60)
+    v = val["arm"]
+    clean = calibrate(UR10, [ds], "offsets", validation=[v])
+    assert clean.validation_outliers == () and clean.validation_all == ()  # noise-free: nothing standardizes
+    noisy = Dataset(v.kind, v.robot, v.arms, v.q, {"p_tracker_marker": v.measured["p_tracker_marker"]
+                                                   + rng.normal(0, SIGMA, v.measured["p_tracker_marker"].shape)},
+                    dict(v.known), v.name, {**v.meta, "noise": {"position_m": SIGMA}}, dict(v.frames))
+    dirty, bad = _corrupt(noisy, 0.05, "zero", 3)
+    res = calibrate(UR10, [ds], "offsets", validation=[dirty])
+    assert {o.sample for o in res.validation_outliers} == bad
+    assert all(o.experiment == v.name for o in res.validation_outliers)
+    (kept,), (every,) = res.validation, res.validation_all
+    assert kept.samples == v.size - len(bad) and every.samples == v.size
+    assert kept.after.position_rms < 0.1e-3 < every.after.position_rms  # zeros are metres off
+    assert any(m.startswith(f"validation set '{v.name}': {len(bad)} row(s) beyond the outlier rule")
+               for m in res.messages)
+    report = result_to_dict(res)
+    assert len(report["validation_outliers"]) == len(bad) and report["validation_all_rows"][0]["samples"] == v.size
+    kept_all = calibrate(UR10, [ds], "offsets", validation=[dirty], outliers="keep")
+    assert kept_all.validation_outliers == () and kept_all.validation[0].samples == v.size

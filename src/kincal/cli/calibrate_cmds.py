@@ -16,7 +16,8 @@ from kincal.errors import DataFormatError
 from kincal.estimation import validation_stats
 from kincal.io.datasets import load_scenario, write_simulation
 from kincal.io.jobs import load_job, write_job
-from kincal.io.results import data_warnings, prediction_rows, result_to_dict, write_results
+from kincal.io.results import (cross_validation_dict, data_warnings, prediction_rows, result_to_dict,
+                               write_results)
 from kincal.report import write_plots
 from kincal.simulate.perturb import perturbation
 from kincal.simulate.scenario import build_scenario, run
@@ -47,11 +48,11 @@ def _shown(e) -> tuple[str, float, float]:
 MAX_OUTLIERS_SHOWN = 20
 
 
-def _print_outliers(console: Console, outliers) -> None:
+def _print_outliers(console: Console, outliers, what: str = "") -> None:
     """The rows left out as outliers, one line each (at most ``MAX_OUTLIERS_SHOWN``, then how many more)."""
     if not outliers:
         return
-    console.print(f"{len(outliers)} configuration(s) left out as outliers (standardized residual in sigmas):")
+    console.print(f"{len(outliers)} {what}configuration(s) left out as outliers (standardized residual in sigmas):")
     for o in outliers[:MAX_OUTLIERS_SHOWN]:
         where = f"{o.file}: line {o.line}" if o.line is not None else f"sample {o.sample}"
         console.print(f"  {o.experiment}: {where}: {o.standardized:.3g}", markup=False, highlight=False)
@@ -61,7 +62,9 @@ def _print_outliers(console: Console, outliers) -> None:
 
 def print_summary(console: Console, result, title: str) -> None:
     ana = result.identifiability
-    console.print(f"{title}: {result.status} after {result.iterations} outer iterations "
+    untrusted = result.status == "converged" and not result.trusted
+    verdict = " (NOT TRUSTED at the validation configurations)" if untrusted else ""
+    console.print(f"{title}: {result.status}{verdict} after {result.iterations} outer iterations "
                   f"({result.evaluations} evaluations); rank {ana.rank} of {len(ana.names)} free parameters; "
                   f"residual variance factor {_num(result.sigma2)}")
     t = Table(title="residuals per experiment (position mm, orientation deg)")
@@ -85,7 +88,9 @@ def print_summary(console: Console, result, title: str) -> None:
                       _num(v.after.position_max, 1e3), _num(v.before.orientation_rms, DEG),
                       _num(v.after.orientation_rms, DEG))
         console.print(t)
+    _print_outliers(console, result.validation_outliers, "validation ")
     _print_predictions(console, prediction_rows(result))
+    _print_cross_validation(console, cross_validation_dict(result.cross_validation))
     t = Table(title="estimates (offsets and compliances absolute; twist/pose coordinates as change from nominal)")
     for c in ("parameter", "value", "std", "unit"):
         t.add_column(c, justify="left" if c == "parameter" else "right")
@@ -122,6 +127,28 @@ def _print_predictions(console: Console, rows) -> None:
             console.print(f"- {r['set']} ({r['arm']}): {m}")
 
 
+def _print_cross_validation(console: Console, cv) -> None:
+    """Held-out RMS per fold and overall against the RMS predicted from each fold's training fit."""
+    if cv is None:
+        return
+    t = Table(title=f"{cv['folds']}-fold cross-validation by configuration (held-out, frames from the training "
+                    "folds; position mm, orientation deg; outlying held-out rows left out, with them in brackets)")
+    for c in ("fold", "status", "var factor", "pos RMS actual", "pos RMS predicted", "rot RMS actual",
+              "rot RMS predicted"):
+        t.add_column(c, justify="left" if c in ("fold", "status") else "right")
+    rows = [(str(f["fold"] + 1), f["status"], _num(f["residual_variance_factor"]), f) for f in cv["per_fold"]]
+    for label, status, vf, f in rows + [("all", "", "", cv["overall"])]:
+        cells = []
+        for q, unit in (("position", "mm"), ("orientation", "deg")):
+            actual, with_out = f.get(f"{q}_{unit}_rms_actual"), f.get(f"{q}_{unit}_rms_actual_with_outliers")
+            shown = _num(actual) + (f" ({_num(with_out)})" if f.get(f"{q}_outlying_rows") else "")
+            cells += [shown if actual is not None else "-", _num(f.get(f"{q}_{unit}_rms_predicted"))]
+        t.add_row(label, status, vf, *cells)
+    console.print(t)
+    console.print(f"- cross-validated model error carried into the predictions: "
+                  f"{_num(cv['model_error_position_mm'])} mm, {_num(cv['model_error_orientation_deg'])} deg")
+
+
 def _progress(console: Console, quiet: bool):
     if quiet:
         return None
@@ -135,13 +162,21 @@ def _progress(console: Console, quiet: bool):
 @click.option("--quiet", is_flag=True, help="Print nothing but errors.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
 @click.option("--plots", is_flag=True, help='Also write PNG plots to OUT/plots (needs "kincal[plot]").')
-def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool) -> None:
+@click.option("--cv", type=click.IntRange(2, 1000), default=None, metavar="K",
+              help="K-fold cross-validation by configuration (overrides the job's solver.cv); its model error "
+                   "goes into the predictions (docs/calibration.md).")
+def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool, cv: int | None) -> None:
     """Calibrate as described by JOB.yaml (docs/job-format.md) and write the results to OUT.
 
-    Exit codes: 0 converged, 1 not converged, 2 bad input, 3 degenerate, 4 misfit (docs/calibration.md)."""
+    Exit codes: 0 converged, 1 not converged, 2 bad input, 3 degenerate, 4 misfit, 5 converged but not
+    trusted at the validation configurations (docs/calibration.md)."""
     console = _console()
     _refuse_existing(out, ("model.yaml", "result.yaml") + (("plots",) if plots else ()))
     j = load_job(job)
+    if cv is not None:
+        if j.method == "thesis":
+            raise DataFormatError(f"{job}: --cv needs kincal's solver (solver.method 'kincal'), not 'thesis'")
+        j = replace(j, options={**j.options, "cv": cv})
     if not (quiet or as_json):
         console.print(f"calibrating '{j.name}': {len(j.datasets)} data set(s), free: {j.free}, method: {j.method}")
     result = run_job(j, _progress(console, quiet or as_json))
@@ -159,17 +194,21 @@ def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool)
         print_summary(console, result, j.name)
         console.print(f"wrote {paths['model']} and {paths['result']}"
                       + (f", plots: {', '.join(str(f) for f in figures)}" if figures else ""))
-    _exit(result.status)
+    _exit(result.status, result.trusted)
 
 
 # ``kincal calibrate`` and ``kincal demo`` exit with the status' code (docs/calibration.md "Statuses and exit
 # codes"); 2 is kincal's one-line input error (``kincal.cli.main``), 130 an abort.
 EXIT_CODES = {"converged": 0, "not converged": 1, "degenerate": 3, "misfit": 4}
+# A converged result that is not trusted where it was validated (``Result.trusted``): it fits, but directions its
+# data cannot determine move the tool there.
+UNTRUSTED_EXIT = 5
 
 
-def _exit(status: str) -> None:
-    if EXIT_CODES[status]:
-        raise SystemExit(EXIT_CODES[status])
+def _exit(status: str, trusted: bool = True) -> None:
+    code = EXIT_CODES[status] or (0 if trusted else UNTRUSTED_EXIT)
+    if code:
+        raise SystemExit(code)
 
 
 def _write_thesis(res, job, out: Path, console, quiet, as_json) -> None:
@@ -254,7 +293,7 @@ def demo_cmd(out: Path | None, samples: int, quiet: bool, as_json: bool) -> None
             console.print(_recovery_table(result, true))
         say(f"wrote {paths['model']}, {paths['result']} and the simulated data in {out} "
             f"({time.perf_counter() - t0:.1f} s)")
-    _exit(result.status)
+    _exit(result.status, result.trusted)
 
 
 def _free_directory(base: Path) -> Path:

@@ -23,6 +23,18 @@ COLLAPSE_RATIO = 0.1
 STATUSES = ("converged", "misfit", "not converged", "degenerate")
 
 
+def untrusted_note(result, predictions) -> str | None:
+    """Why a converged, validated ``result`` must not read as success although it fits: directions the data
+    cannot (or barely) determine move the tool at a validation set's configurations, so the model cannot
+    vouch for its accuracy there (``Result.trusted`` false; ``kincal calibrate`` exits 5). None otherwise."""
+    moving = sorted({name for name, p in predictions if p.null_moving or p.weak_moving})
+    if result.status != "converged" or not moving:
+        return None
+    return (f"not trusted: directions the calibration data cannot determine (held at nominal) or determine only "
+            f"from the noise move the tool on the validation set(s) {', '.join(moving)}; the model fits its data "
+            "but cannot vouch for its accuracy there (exit code 5)")
+
+
 def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result:
     """The ``Result`` of the loop's outcome ``run``: linearize the final state if the loop moved it, analyse it,
     the covariance in the solve's gauge scaled by the residual variance, estimates, twists and messages."""

@@ -14,6 +14,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from kincal.errors import ModelError
+from kincal.experiments import KINDS
 
 # Tail probability below which a row is an outlier: one false alarm in a million clean rows.
 DEFAULT_THRESHOLD = 1e-6
@@ -55,29 +56,42 @@ def row_chi2(problem, state) -> list[np.ndarray]:
     return out
 
 
+def scaled_chi2(c: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """(scaled chi^2, tail probability) of rows with chi^2 ``c`` (N,) over ``k`` components each: the robust
+    scale of the module doc (the median row over the chi^2 median at ``k`` dof, at least 1)."""
+    scale = max(float(np.median(c)) / chi2.median(k), 1.0) if len(c) else 1.0
+    return c / scale, chi2.sf(c / scale, k)
+
+
+def beyond(p: np.ndarray, threshold: float) -> np.ndarray:
+    """Sorted indices of the rows whose tail probability ``p`` is below ``threshold``: the worst
+    ``MAX_FRACTION`` of the rows at most."""
+    bad = np.flatnonzero(p < threshold)
+    return np.sort(bad[np.argsort(p[bad])][: int(MAX_FRACTION * len(p))])
+
+
 def standardized(problem, state) -> list[tuple[np.ndarray, np.ndarray]]:
     """Per experiment: (scaled chi^2, tail probability) of each row, with the robust scale of the module doc."""
-    rows = row_chi2(problem, state)
-    out = []
-    for exp, c in zip(problem.experiments, rows):
-        k = len(exp.components())
-        scale = max(float(np.median(c)) / chi2.median(k), 1.0)
-        out.append((c / scale, chi2.sf(c / scale, k)))
-    return out
+    return [scaled_chi2(c, len(exp.components())) for exp, c in zip(problem.experiments, row_chi2(problem, state))]
 
 
 def find_outliers(problem, state, threshold: float) -> list[Outlier]:
-    """The rows of ``problem``'s data sets beyond ``threshold`` at ``state`` (the worst first within a set;
-    at most ``MAX_FRACTION`` of a set)."""
+    """The rows of ``problem``'s data sets beyond ``threshold`` at ``state`` (at most ``MAX_FRACTION`` of a set,
+    the worst): the rule for calibration data and, at the calibrated model with its frames fitted, for
+    validation data alike."""
     found = []
     for exp, (c, p) in zip(problem.experiments, standardized(problem, state)):
-        bad = np.flatnonzero(p < threshold)
-        bad = bad[np.argsort(p[bad])][: int(MAX_FRACTION * exp.size)]
         lines, file = exp.dataset.meta.get("lines"), exp.dataset.meta.get("file")
-        for i in sorted(bad):
+        for i in beyond(p, threshold):
             found.append(Outlier(exp.name, int(i), None if lines is None else int(lines[i]), file,
                                  float(np.sqrt(c[i]))))
     return found
+
+
+def states_noise(ds, noise) -> bool:
+    """Whether ``noise`` states a positive standard deviation for a residual quantity of data set ``ds`` or its
+    encoders: rows are standardized by it, so noise-free (simulated) data have no outliers to find."""
+    return noise.joint_sigma() > 0 or any((noise.sigma(q) or 0.0) > 0 for q in KINDS[ds.kind](ds, {}).components())
 
 
 def any_beyond(problem, state, threshold: float) -> bool:

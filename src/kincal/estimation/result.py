@@ -9,6 +9,7 @@ import numpy as np
 
 from kincal.analysis import Identifiability, Linearization
 from kincal.analysis.prediction import Prediction, predicted_accuracy
+from kincal.estimation.crossval import CrossValidation
 from kincal.estimation.outliers import Outlier
 from kincal.estimation.problem import Problem
 from kincal.estimation.stats import ResidualStats, ValidationStats
@@ -70,10 +71,20 @@ class Result:
     predictions: tuple[tuple[str, Prediction], ...] = ()  # (validation set, prediction) per arm
     weights: np.ndarray | None = None  # robust loss: per whitened residual row, the weight the loss gave it
     outliers: tuple[Outlier, ...] = ()  # configurations left out of the solve (``calibrate(outliers=...)``)
+    cross_validation: CrossValidation | None = None  # ``calibrate(..., cv=K)``: held-out errors per fold
+    validation_outliers: tuple[Outlier, ...] = ()  # validation rows beyond the outlier rule (not in ``validation``)
+    validation_all: tuple[ValidationStats, ...] = ()  # validation sets with such rows: their errors with every row
+
+    @property
+    def trusted(self) -> bool:
+        """Converged, and every validation prediction trusted (``Prediction.trusted``): nothing the data cannot
+        determine moves the tool where the model was validated."""
+        return self.status == "converged" and all(p.trusted for _, p in self.predictions)
 
     @property
     def success(self) -> bool:
-        return self.status == "converged"
+        """A model to use: converged and ``trusted`` (a model that cannot vouch for itself is no success)."""
+        return self.trusted
 
     def estimate(self, name: str) -> Estimate:
         for e in self.estimates:

@@ -11,20 +11,22 @@ Jacobian, then re-centre (conform twists, re-linearize tangent bases). ``estimat
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import partial
 from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
 from kincal.analysis import Prediction, validation_predictions
-from kincal.analysis.prediction import with_doubts
+from kincal.analysis.prediction import understated, with_doubts
 from kincal.data import Dataset
 from kincal.errors import DataFormatError, DegenerateExperimentError
 from kincal.estimation.constraints import FrameDistance
-from kincal.estimation.finalize import finalize
+from kincal.estimation.crossval import cross_validate, with_cross_validation
+from kincal.estimation.finalize import finalize, untrusted_note
 from kincal.estimation.iterate import iterate
 from kincal.estimation.options import SolverOptions
 from kincal.estimation.outliers import (ROBUST_F_SCALE, ROBUST_LOSS, any_beyond, find_outliers, kept,
-                                        outlier_threshold)
+                                        outlier_threshold, states_noise)
 from kincal.estimation.plausibility import implausible_units
 from kincal.estimation.problem import Problem
 from kincal.estimation.result import Result
@@ -52,6 +54,7 @@ def calibrate(
     constraints: Sequence[FrameDistance] = (),
     progress: Callable[[int, float], None] | None = None,
     outliers: str | float = "reject",
+    cv: int | None = None,
 ) -> Result:
     """Calibrate ``robot`` from ``datasets``: ``solve(Problem.build(...), SolverOptions(...))``, then
     ``validate`` on the held-out ``validation`` sets.
@@ -64,7 +67,10 @@ def calibrate(
     ``kincal.noise.effective``).
     ``constraints``: known relations between frames (``FrameDistance``: e.g. two sockets 50 mm apart).
     ``outliers``: ``"reject"`` (default: rows beyond a tail probability of 1e-6 after a robust pass are left out
-    and listed in ``Result.outliers``), ``"keep"``, or the tail probability (``estimation.outliers``).
+    and listed in ``Result.outliers``), ``"keep"``, or the tail probability (``estimation.outliers``); the
+    same rule flags validation rows (``validate``).
+    ``cv``: K-fold cross-validation by configuration (``estimation.crossval``, ``Result.cross_validation``);
+    its model error replaces the variance factor's in the predictions.
     The other keywords are ``SolverOptions``.
     """
     if not datasets:
@@ -81,7 +87,12 @@ def calibrate(
         result = _without_outliers(result, options, threshold,
                                    lambda kept_sets: Problem.build(robot, kept_sets, free, fixed, priors, noise,
                                                                    constraints))
-    return validate(result, validation, noise) if validation else result
+    if cv:
+        fit = partial(calibrate, robot, free=free, fixed=fixed, priors=priors, noise=noise, gauge=gauge, loss=loss,
+                      f_scale=f_scale, max_outer=max_outer, rank_rtol=rank_rtol,
+                      correlation_threshold=correlation_threshold, constraints=constraints, outliers=outliers)
+        result = with_cross_validation(result, cross_validate(datasets, cv, fit, threshold=threshold))
+    return validate(result, validation, noise, outliers) if validation else result
 
 
 def _without_outliers(result: Result, options: SolverOptions, threshold: float, rebuild) -> Result:
@@ -112,27 +123,39 @@ def solve(problem: Problem, options: SolverOptions = SolverOptions()) -> Result:
 def evaluate(robot: Robot, datasets: Sequence[Dataset], noise=None) -> list[ResidualStats]:
     """Residual statistics of ``robot`` on ``datasets``; unknown frames (fixture, tracker, ...) are fitted first
     with every arm parameter fixed."""
+    problem, state = _frames_fitted(robot, datasets, noise)
+    return problem.statistics(state)
+
+
+def _frames_fitted(robot: Robot, datasets: Sequence[Dataset], noise=None):
+    """The problem of ``robot`` on ``datasets`` with every arm parameter fixed, and its state with the unknown
+    frames fitted."""
     problem = Problem.build(robot, datasets, [], (), None, noise)
     state = problem.nominal
     if len(problem.free_idx):
         state = iterate(problem, SolverOptions(max_outer=10)).state
-    return problem.statistics(state)
+    return problem, state
 
 
-def validate(result: Result, datasets: Sequence[Dataset], noise=None) -> Result:
+def validate(result: Result, datasets: Sequence[Dataset], noise=None, outliers: str | float = "reject") -> Result:
     """``result`` with its errors on held-out ``datasets`` before and after calibration (``validation``) and what
     the model predicts about its own accuracy there (``predictions``). Each held-out set's noise follows the one
     rule (``kincal.noise.effective``): ``noise`` where it states a quantity (a mapping by data set name: what it
     gives for that set), else the set's own stated noise, else the default. A prediction is not trusted where
     the calibrated model is worse than the nominal one (``worse_than_nominal``); a converged result is then a
-    ``misfit``: the model does not explain held-out data as well as the nominal one did."""
+    ``misfit``: the model does not explain held-out data as well as the nominal one did. Rows beyond the
+    ``outliers`` rule at the calibrated model are left out of the errors and predictions
+    (``validation_outliers``; ``validation_all`` has the errors with them)."""
     noises = {v.name: effective(noise.get(v.name) if isinstance(noise, Mapping) else noise, v.meta.get("noise"))
               for v in datasets}
+    result, datasets = _validation_outliers(result, datasets, noises, outlier_threshold(outliers))
     rows = validation_stats(result.nominal_robot, result.robot, datasets, noises)
     preds = validation_predictions(result, datasets, [noises[v.name] for v in datasets])
     by_set = {v.experiment: v for v in rows}
     worse = {name: worse_than_nominal(by_set[name], p) for name, p in preds}
-    preds = tuple((name, with_doubts(p, worse[name])) for name, p in preds)
+    preds = tuple((name, with_doubts(p, worse[name] + understated(p, name, by_set[name].after.position_rms,
+                                                                     by_set[name].after.orientation_rms)))
+                  for name, p in preds)
     # next to the validation errors: what the model itself predicts about its accuracy there
     result = replace(result, validation=rows, predictions=preds)
     sets = sorted(name for name, why in worse.items() if why)
@@ -140,7 +163,35 @@ def validate(result: Result, datasets: Sequence[Dataset], noise=None) -> Result:
         note = (f"the calibrated model is worse than the nominal one on held-out data ({', '.join(sets)}): it does "
                 "not explain the robot; status misfit")
         result = replace(result, status="misfit", messages=(note,) + result.messages)
-    return result
+    note = untrusted_note(result, preds)
+    return replace(result, messages=(note,) + result.messages) if note else result
+
+
+def _validation_outliers(result: Result, datasets, noises, threshold):
+    """``result`` with the validation rows beyond ``threshold`` (the calibration data's outlier rule, at the
+    calibrated model with the sets' frames fitted) listed, their sets' errors with every row and a message;
+    and the validation sets without those rows."""
+    noisy = [d for d in datasets if states_noise(d, noises[d.name])]
+    if threshold is None or not noisy:
+        return result, datasets
+    found = find_outliers(*_frames_fitted(result.robot, noisy, noises), threshold)
+    if not found:
+        return result, datasets
+    named = {o.experiment for o in found}
+    every = validation_stats(result.nominal_robot, result.robot, [d for d in datasets if d.name in named], noises)
+    kept_sets = kept(datasets, found)
+    without = {v.experiment: v for v in validation_stats(result.nominal_robot, result.robot,
+                                                         [d for d in kept_sets if d.name in named], noises)}
+    notes = tuple(f"validation set '{v.experiment}': {sum(o.experiment == v.experiment for o in found)} row(s) "
+                  "beyond the outlier rule left out of its validation errors (listed in 'validation_outliers'); "
+                  f"position RMS after calibration {_mm(without[v.experiment].after.position_rms)} without them, "
+                  f"{_mm(v.after.position_rms)} with them" for v in every)
+    return replace(result, validation_outliers=tuple(found), validation_all=every,
+                   messages=result.messages + notes), kept_sets
+
+
+def _mm(x) -> str:
+    return "-" if x is None else f"{x * 1e3:.3g} mm"
 
 
 # Validation after calibration this much above the nominal model's (and above the predicted error) is worse.
@@ -154,7 +205,7 @@ def worse_than_nominal(v: ValidationStats, pred: Prediction) -> list[str]:
     for part, scale, unit, predicted in (("position", 1e3, "mm", pred.position_rms_predicted),
                                          ("orientation", 180 / np.pi, "deg", pred.orientation_rms_predicted)):
         before, after = getattr(v.before, f"{part}_rms"), getattr(v.after, f"{part}_rms")
-        if before is not None and after > WORSE_RATIO * before and after > predicted:
+        if before is not None and after > WORSE_RATIO * before and not after <= predicted:  # nan: not predicted
             out.append(f"on '{v.experiment}' the calibrated model's {part} error ({after * scale:.3g} {unit} RMS) "
                        f"is worse than the nominal model's ({before * scale:.3g} {unit})")
     return out

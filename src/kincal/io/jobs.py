@@ -29,7 +29,7 @@ from kincal.params import LEVELS, Prior
 
 _TOP = {"format", "version", "name", "model", "data", "validation", "free", "fixed", "priors", "gauge", "solver",
         "description", "constraints", "outliers"}
-_SOLVER = {"method", "loss", "f_scale", "max_outer", "rank_rtol", "correlation_threshold"}
+_SOLVER = {"method", "loss", "f_scale", "max_outer", "rank_rtol", "correlation_threshold", "cv"}
 _LOSSES = ("linear", "huber", "soft_l1", "cauchy", "arctan")
 
 

@@ -40,6 +40,7 @@ JOB_SCHEMA = {
             "max_outer": {"type": "integer", "minimum": 1, "maximum": 10000},
             "rank_rtol": {"type": "number", "exclusiveMinimum": 0, "exclusiveMaximum": 1},
             "correlation_threshold": {"type": "number", "exclusiveMinimum": 0, "maximum": 1},
+            "cv": {"type": "integer", "minimum": 2, "maximum": 1000},
         }},
         "constraints": {"type": ["array", "null"], "items": {"type": "object"}},
         "outliers": {"oneOf": [{"enum": ["reject", "keep"]}, {

@@ -60,6 +60,7 @@ def result_to_dict(result: Result | BaselineResult) -> dict:
         "version": 1,
         "method": "kincal",
         "status": result.status,
+        "trusted": result.trusted,
         "iterations": result.iterations,
         "evaluations": result.evaluations,
         "residual_variance_factor": _f(result.sigma2),
@@ -78,16 +79,49 @@ def result_to_dict(result: Result | BaselineResult) -> dict:
         ],
         "twists": [{"name": t.name, "value": _f(t.value), "std": _f(t.std)} for t in result.twists],
         "correlated": [{"a": a, "b": b, "rho": r} for a, b, r in result.correlated],
-        "outliers": [{"experiment": o.experiment, "sample": o.sample, "line": o.line, "file": o.file,
-                      "standardized_residual": _f(o.standardized)} for o in result.outliers],
+        "outliers": [_outlier(o) for o in result.outliers],
         "data_warnings": data_warnings(result),
         "residuals_before": [_stats(s) for s in result.before],
         "residuals_after": [_stats(s) for s in result.after],
         "validation": [_validation(v) for v in result.validation],
         "predict": prediction_rows(result),
+        "validation_outliers": [_outlier(o) for o in result.validation_outliers],
+        "validation_all_rows": [_validation(v) for v in result.validation_all],
+        "cross_validation": cross_validation_dict(result.cross_validation),
         "frames": {k: np.asarray(v.as_array() if hasattr(v, "as_array") else v).tolist()
                    for k, v in result.extras.items()},
     }
+
+
+def _outlier(o) -> dict:
+    return {"experiment": o.experiment, "sample": o.sample, "line": o.line, "file": o.file,
+            "standardized_residual": _f(o.standardized)}
+
+
+def cross_validation_dict(cv) -> dict | None:
+    """``calibrate(..., cv=K)``'s folds: per fold the held-out RMS (outlying rows left out, and with them) and
+    the RMS predicted from its training fit (mm, deg), then the same pooled over the folds and the
+    cross-validated model error the predictions carry. None without a cross-validation."""
+    if cv is None:
+        return None
+
+    def part(h, scale, unit, quantity):
+        if not h.groups_all:
+            return {}
+        return {f"{quantity}_{unit}_rms_actual": _f(h.rms * scale), f"{quantity}_{unit}_rms_predicted":
+                _f(h.rms_predicted * scale), f"{quantity}_{unit}_rms_actual_with_outliers": _f(h.rms_all * scale),
+                f"{quantity}_outlying_rows": h.flagged}
+
+    def figures(get):
+        return {**part(get("position"), 1e3, "mm", "position"), **part(get("orientation"), DEG, "deg", "orientation")}
+
+    return {"folds": cv.k, "seed": cv.seed,
+            "per_fold": [{"fold": f.index, "held_out": dict(f.held_out), "status": f.status,
+                          "residual_variance_factor": _f(f.sigma2), **figures(lambda q: getattr(f, q))}
+                         for f in cv.folds],
+            "overall": figures(cv.pooled),
+            "model_error_position_mm": _f(cv.position_model * 1e3),
+            "model_error_orientation_deg": _f(cv.orientation_model * DEG)}
 
 
 def data_warnings(result: Result) -> list[str]:
