@@ -168,7 +168,7 @@ def test_held_parameter_patterns_and_errors_checked():
 
 
 def test_cli_analyze_scenario_and_json(tmp_path, capsys):
-    assert main(["analyze", "src/kincal/scenarios/frida_clamp_one.yaml", "--workspace", "20"]) == 0
+    assert main(["analyze", "frida_clamp_one", "--workspace", "20"]) == 0
     out = capsys.readouterr().out
     assert "rank 11 of 13" in out and "right.j7.offset cannot be identified" in out and "O1" in out
     assert main(["analyze", "src/kincal/scenarios/frida_dual_bracket.yaml", "--workspace", "20", "--json",
@@ -177,6 +177,17 @@ def test_cli_analyze_scenario_and_json(tmp_path, capsys):
     assert data["rank"] == data["free"] and set(data["observability"]) == {"O1", "O2", "O3", "O4", "O5"}
     assert data["errors"]["given"] == {"clamp.v_x": 0.01, "clamp.w_y": 0.1}
     assert all(v["position_rms"] > 0 for v in data["errors"]["tool"].values())
+
+
+def test_cli_analyze_job_with_data(tmp_path, capsys):
+    """A job's data sets (here simulated and written by ``kincal simulate``) analysed at the nominal model."""
+    assert main(["simulate", "frida_dual_bracket", "-o", str(tmp_path / "sim"), "--quiet"]) == 0
+    job = tmp_path / "job.yaml"
+    job.write_text("format: kincal-job\nversion: 1\nmodel: frida\ndata: [sim/data.yaml]\nfree: offsets\n")
+    capsys.readouterr()
+    assert main(["analyze", str(job), "--workspace", "20", "--held", "clamp.v_*"]) == 0
+    out = capsys.readouterr().out
+    assert "rank 14 of 14" in out and "clamp.v_x" in out and "clamp.w_x" not in out
 
 
 def test_cli_analyze_bad_error_spelling(capsys):

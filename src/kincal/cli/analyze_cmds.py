@@ -7,7 +7,6 @@ import json
 import math
 import re
 from dataclasses import replace
-from pathlib import Path
 
 import click
 from rich.table import Table
@@ -15,7 +14,7 @@ from rich.table import Table
 from kincal.analysis.observability import MEANINGS
 from kincal.cli.calibrate_cmds import DEG, _console, _num, _shown
 from kincal.errors import DataFormatError
-from kincal.io.datasets import load_scenario
+from kincal.io.datasets import load_scenario, scenario_path
 from kincal.io.jobs import load_job
 from kincal.io.yamlfile import read_yaml
 from kincal.simulate.perturb import perturbation
@@ -39,8 +38,10 @@ def _errors(values: tuple[str, ...]) -> dict[str, float]:
     return out
 
 
-def _inputs(path: Path, free: str | None):
-    """(robot, datasets, calibrate arguments) of a job file, or of a scenario simulated on the nominal robot."""
+def _inputs(source: str, free: str | None):
+    """(robot, datasets, calibrate arguments) of a job file, or of a scenario (a file or a built-in name)
+    simulated on the nominal robot."""
+    path = scenario_path(source)
     top = read_yaml(path, "job or scenario file")
     if isinstance(top, dict) and top.get("format") == "kincal-scenario":
         sc = build_scenario(load_scenario(path))
@@ -52,7 +53,7 @@ def _inputs(path: Path, free: str | None):
 
 
 @click.command("analyze")
-@click.argument("source", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("source")
 @click.option("--free", default=None, help="What to calibrate (a level or comma-separated names); "
               "default: the job's, or 'offsets' for a scenario.")
 @click.option("--held", multiple=True, help="Held (fixed) parameter, name or glob, whose errors to propagate; "
@@ -63,9 +64,9 @@ def _inputs(path: Path, free: str | None):
               help="Random configurations within the joint limits over which the tool accuracy is predicted.")
 @click.option("--seed", default=0, show_default=True, type=int, help="Seed of the workspace sample.")
 @click.option("--json", "as_json", is_flag=True, help="Print the analysis as JSON instead of tables.")
-def analyze_cmd(source: Path, free, held, errors, workspace: int, seed: int, as_json: bool) -> None:
-    """Analyse the experiment of JOB.yaml (its data, measured or not) or SCENARIO.yaml (its configurations on
-    the nominal robot): rank and what cannot be identified, observability indices, predicted standard
+def analyze_cmd(source: str, free, held, errors, workspace: int, seed: int, as_json: bool) -> None:
+    """Analyse the experiment of JOB.yaml (its data) or of a scenario (SCENARIO.yaml or a built-in name such as
+    frida_clamp_one: its configurations on the nominal robot): rank and what cannot be identified, observability indices, predicted standard
     deviations, predicted tool accuracy over the workspace, and the effect of errors in held parameters."""
     robot, datasets, args = _inputs(source, free)
     if isinstance(args["free"], str) and "," in args["free"]:
