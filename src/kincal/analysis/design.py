@@ -37,7 +37,8 @@ RIDGE = 1e-8
 CHUNK = 4096
 MAX_PASSES = 10
 SPECTRAL = ("E", "O2", "O3", "O4", "O5")  # non-smooth in M: exchanged from random starts too
-RESTARTS = 4
+RESTARTS = 8
+SMOOTHING = (1, 4, 16)  # exponents p of phi_p on the way to a spectral criterion
 
 
 @dataclass(frozen=True)
@@ -60,8 +61,9 @@ def information(X: np.ndarray) -> np.ndarray:
 
 
 def criterion_value(M: np.ndarray, criterion: str, workspace: np.ndarray | None = None, configurations: int = 1):
-    """The criterion (larger is better) of information M (r, r)."""
-    _check(criterion, workspace)
+    """The criterion (larger is better) of information M (r, r); an integer p: Kiefer's phi_p."""
+    if not isinstance(criterion, int):
+        _check(criterion, workspace)
     lam = np.linalg.eigvalsh(M)
     if criterion == "D":
         return float(np.sum(np.log(np.maximum(lam, 1e-300))))
@@ -71,7 +73,7 @@ def criterion_value(M: np.ndarray, criterion: str, workspace: np.ndarray | None 
             return -float(np.trace(Minv))
         var = np.einsum("wcr,rs,wcs->w", workspace, Minv, workspace)
         return -float(var.mean() if criterion == "I" else var.max())
-    return _spectral(np.sqrt(np.maximum(lam, 0))[None], criterion, configurations)[0]
+    return float(_spectral(np.sqrt(np.maximum(lam, 0))[None, ::-1], criterion, configurations)[0])
 
 
 def select(X: np.ndarray, K: int, criterion: str = "D", *, workspace: np.ndarray | None = None,
@@ -88,12 +90,11 @@ def select(X: np.ndarray, K: int, criterion: str = "D", *, workspace: np.ndarray
     greedy = criterion_value(eps * np.eye(r) + information(X[chosen]), criterion, workspace, K)
     if not exchange:
         return Selection(np.array(chosen), criterion, greedy, greedy, 0)
-    best, value, swaps = _exchange(X, chosen, criterion, workspace, eps)
+    best, value, swaps = _exchange_smoothed(X, chosen, criterion, workspace, eps)
     if criterion in SPECTRAL:
         rng = np.random.default_rng(seed)
         for _ in range(RESTARTS):
-            start = list(rng.choice(N, K, replace=False))
-            other, v, n = _exchange(X, start, criterion, workspace, eps)
+            other, v, n = _exchange_smoothed(X, list(rng.choice(N, K, replace=False)), criterion, workspace, eps)
             swaps += n
             if v > value:
                 best, value = other, v
@@ -103,6 +104,8 @@ def select(X: np.ndarray, K: int, criterion: str = "D", *, workspace: np.ndarray
 def _greedy(X, K, criterion, workspace, eps) -> list[int]:
     """Add the best candidate K times; until the design has full rank every criterion but D is flat in the
     missing directions, so D chooses until then."""
+    if criterion in ("D", "O1"):
+        return _greedy_d(X, K, eps)
     r = X.shape[-1]
     M = eps * np.eye(r)
     chosen: list[int] = []
@@ -116,8 +119,25 @@ def _greedy(X, K, criterion, workspace, eps) -> list[int]:
     return chosen
 
 
+def _exchange_smoothed(X, chosen, criterion, workspace, eps):
+    """Exchange for ``criterion``; the smallest eigenvalue (E, O3: single swaps stall where several eigenvalues
+    tie) first through Kiefer's smooth phi_p = -(mean lambda^-p)^(1/p), p = 1, 4, 16, which
+    tends to the smallest eigenvalue as p grows."""
+    swaps = 0
+    if criterion in ("E", "O3"):
+        for p in SMOOTHING:
+            chosen, _, n = _exchange(X, chosen, p, workspace, eps)
+            swaps += n
+    chosen, value, n = _exchange(X, chosen, criterion, workspace, eps)
+    return chosen, value, swaps + n
+
+
 def _exchange(X, chosen, criterion, workspace, eps) -> tuple[list[int], float, int]:
     """Fedorov exchange from ``chosen``: (design, criterion value, swaps)."""
+    if criterion in ("D", "O1"):
+        chosen, _, swaps = _exchange_d(X, chosen, eps)
+        return chosen, criterion_value(eps * np.eye(X.shape[-1]) + information(X[chosen]), criterion, workspace,
+                                       len(chosen)), swaps
     chosen = list(chosen)
     K, r = len(chosen), X.shape[-1]
     M = eps * np.eye(r) + information(X[chosen])
@@ -139,6 +159,109 @@ def _exchange(X, chosen, criterion, workspace, eps) -> tuple[list[int], float, i
     return chosen, value, swaps
 
 
+class _LogDet:
+    """D-optimal bookkeeping with rank-k updates: ``M``, ``M^-1``, ``log det M`` and, for every candidate,
+    ``G_i = X_i M^-1 X_i^T`` (k, k), kept current as candidates are added and removed (Woodbury), so that
+    scoring all candidates costs O(N k^2 r) per step instead of O(N k r^2)."""
+
+    def __init__(self, X: np.ndarray, M: np.ndarray):
+        self.X, self.flat = X, X.reshape(-1, X.shape[-1])
+        self.reset(M)
+
+    def reset(self, M: np.ndarray) -> None:
+        """Recompute from ``M`` (also against drift after many updates)."""
+        self.M, self.Minv = M, np.linalg.inv(M)
+        self.logdet = float(np.linalg.slogdet(M)[1])
+        Y = (self.flat @ self.Minv).reshape(self.X.shape)
+        self.G = Y @ np.swapaxes(self.X, 1, 2)
+
+    def scores(self, G=None, logdet=None) -> np.ndarray:
+        """log det of M (or the ``G``, ``logdet`` given) with each candidate added."""
+        G = self.G if G is None else G
+        return (self.logdet if logdet is None else logdet) + _logdet_plus_identity(G)
+
+    def _cross(self, i: int, sign: float):
+        """(Z_i, U, C): Z_i = X_i M^-1, U = X Z_i^T per candidate (N, k, k), C = (I + sign G_i)^-1."""
+        Z = self.X[i] @ self.Minv
+        U = (self.flat @ Z.T).reshape(self.X.shape[0], -1, Z.shape[0])
+        C = np.linalg.inv(np.eye(Z.shape[0]) + sign * self.G[i])
+        return Z, U, C
+
+    def without(self, i: int):
+        """(G, logdet) of M with candidate i removed, not committed."""
+        _, U, C = self._cross(i, -1.0)
+        return self.G + _sandwich(U, C), self.logdet + float(np.linalg.slogdet(np.linalg.inv(C))[1])
+
+    def add(self, i: int, sign: float = 1.0) -> None:
+        """Commit adding (sign 1) or removing (sign -1) candidate i."""
+        Z, U, C = self._cross(i, sign)
+        self.logdet -= float(np.linalg.slogdet(C)[1])
+        self.G = self.G - sign * _sandwich(U, C)
+        self.Minv = self.Minv - sign * (Z.T @ C @ Z)
+        self.M = self.M + sign * (self.X[i].T @ self.X[i])
+
+
+def _sandwich(U: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """U_i C U_i^T for every i: (N, k, k)."""
+    N, k, _ = U.shape
+    UC = (U.reshape(-1, k) @ C).reshape(N, k, k)
+    return np.einsum("nac,nbc->nab", UC, U)
+
+
+def _logdet_plus_identity(G: np.ndarray) -> np.ndarray:
+    """log det(I + G_i) for symmetric positive semi-definite G (N, k, k); closed forms for k <= 3 (batched
+    LAPACK calls on tiny matrices cost more than the arithmetic)."""
+    k = G.shape[-1]
+    A = G + np.eye(k)
+    if k == 1:
+        det = A[:, 0, 0]
+    elif k == 2:
+        det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
+    elif k == 3:
+        det = np.einsum("ni,ni->n", A[:, 0], np.cross(A[:, 1], A[:, 2]))
+    else:
+        sign, logdet = np.linalg.slogdet(A)
+        return np.where(sign > 0, logdet, -np.inf)
+    return np.log(np.maximum(det, 1e-300))  # round-off can leave a chosen candidate's downdate at <= 0
+
+
+def _greedy_d(X, K, eps) -> list[int]:
+    st = _LogDet(X, eps * np.eye(X.shape[-1]))
+    chosen: list[int] = []
+    for _ in range(K):
+        sc = st.scores()
+        sc[chosen] = -np.inf
+        i = int(np.argmax(sc))
+        chosen.append(i)
+        st.add(i)
+    return chosen
+
+
+def _exchange_d(X, chosen, eps) -> tuple[list[int], float, int]:
+    """Fedorov exchange for D with the rank-k bookkeeping of ``_LogDet``."""
+    chosen = list(chosen)
+    st = _LogDet(X, eps * np.eye(X.shape[-1]) + information(X[chosen]))
+    swaps = 0
+    for _ in range(MAX_PASSES):
+        changed = False
+        for pos in range(len(chosen)):
+            out = chosen[pos]
+            G, logdet = st.without(out)
+            sc = st.scores(G, logdet)
+            sc[chosen] = -np.inf
+            j = int(np.argmax(sc))
+            if sc[j] > st.logdet + 1e-9 * max(abs(st.logdet), 1.0):
+                st.add(out, -1.0)
+                st.add(j)
+                chosen[pos] = j
+                swaps += 1
+                changed = True
+        st.reset(st.M)
+        if not changed:
+            break
+    return chosen, st.logdet, swaps
+
+
 def _check(criterion: str, workspace) -> None:
     if criterion not in CRITERIA:
         raise ModelError(f"criterion {criterion!r}: expected one of {', '.join(CRITERIA)}")
@@ -151,7 +274,7 @@ def _scores(M: np.ndarray, X: np.ndarray, criterion: str, workspace, configurati
     out = np.empty(len(X))
     if criterion == "O1":  # a monotone function of D for a fixed number of configurations
         return np.exp(_scores(M, X, "D", workspace, configurations) / (2 * X.shape[-1])) / np.sqrt(configurations)
-    if criterion in SPECTRAL:
+    if criterion in SPECTRAL or isinstance(criterion, int):
         for s in range(0, len(X), CHUNK):
             x = X[s: s + CHUNK]
             lam = np.linalg.eigvalsh(M + np.einsum("nkr,nks->nrs", x, x))
@@ -191,8 +314,11 @@ def _woodbury(M, L, Minv, logdet, x, criterion, workspace) -> np.ndarray:
     return -var.max(axis=1)
 
 
-def _spectral(s: np.ndarray, criterion: str, configurations: int) -> np.ndarray:
-    """Criterion per row of singular values s (n, r), descending."""
+def _spectral(s: np.ndarray, criterion, configurations: int) -> np.ndarray:
+    """Criterion per row of singular values s (n, r), descending; an integer p: Kiefer's phi_p of s^2."""
+    if isinstance(criterion, int):
+        lam = np.maximum(s, 1e-150) ** 2
+        return -np.mean(lam ** -float(criterion), axis=1) ** (1.0 / criterion)
     if criterion == "E":
         return s[:, -1] ** 2
     s = np.maximum(s, 1e-300)
