@@ -131,3 +131,62 @@ def test_bad_input_says_what_to_change():
         design(UR10, "markers", {"arm": ARM}, 30, pool=0)
     with pytest.raises(ModelError, match="criterion"):
         select(_pool(), 3, "Z")
+
+
+def test_next_makes_identifiable_what_more_data_can_and_names_what_it_cannot():
+    """--next on a tracker data set of one configuration: the chosen ones make every reachable parameter
+    identifiable; the tracker gauge (joint 1) and the marker gauge (the last joint) stay, named as structural.
+    One clamp of unknown pose: j1 and j7 can never be identified from more clamp data, and that is said."""
+    from kincal.workflow.augment import next_configurations
+    ds, _, _ = generate_markers(UR10, ARM, n=40, rng=0, noise=Noise(position=5e-5), markers=3)
+    a = next_configurations(UR10, [ds.subset(np.arange(1))], 4, free="offsets", noise=Noise(position=5e-5),
+                            pool=300)
+    assert a.rank_before < a.rank_after == 19 and "arm.elbow.offset" in a.gained
+    assert set(a.gained) == set(a.reachable)
+    assert {n for n, _ in a.structural} == {"arm.shoulder_pan.offset", "arm.wrist_3.offset"}
+    from kincal.simulate import generate_clamp
+    clamp, _, _ = generate_clamp(FRIDA, "right", n=30, rng=0, noise=Noise(joint=1e-5))
+    b = next_configurations(FRIDA, [clamp], 5, free="offsets", noise=Noise(joint=1e-5), pool=60)
+    assert b.rank_before == b.rank_after == 11 and not b.gained
+    assert {n for n, _ in b.structural} == {"right.j1.offset", "right.j7.offset"}
+    assert all("fixture" in words for _, words in b.structural)
+
+
+def test_cli_design_writes_targets_in_model_and_controller_order(tmp_path, capsys):
+    from kincal.cli import main
+    out = tmp_path / "design"
+    assert main(["design", "frida_dual_bracket", "-n", "30", "--pool", "200", "-o", str(out)]) == 0
+    assert "chose 30 of 200" in capsys.readouterr().out
+    targets = np.loadtxt(out / "targets.csv", delimiter=",", skiprows=1)
+    motor = np.loadtxt(out / "controller.csv", delimiter=",", skiprows=1)
+    header = (out / "targets.csv").read_text().splitlines()[0].split(",")
+    assert targets.shape == (30, 14) and header[0] == "left.j1" and header[-1] == "right.j7"
+    left = FRIDA["left"]
+    order = np.asarray(left.controller_order)
+    np.testing.assert_allclose(motor[:, :7], targets[:, :7][:, order] * left.gear_ratios[order])
+    for i, arm in enumerate(("left", "right")):
+        assert FRIDA[arm].within_limits(targets[:, 7 * i: 7 * i + 7]).all()
+    summary = (out / "design.yaml").read_text()
+    assert "criterion_random_median" in summary and "format: kincal-design" in summary
+    assert main(["design", "frida_dual_bracket", "-n", "30", "--pool", "200", "-o", str(out)]) == 2  # no overwrite
+    assert "not overwritten" in capsys.readouterr().err
+    assert not list(tmp_path.glob(".design.kincal-tmp-*"))
+
+
+def test_cli_design_next_and_bad_input(tmp_path, capsys):
+    from kincal.cli import main
+    assert main(["simulate", "frida_clamp_one", "-o", str(tmp_path / "sim"), "--quiet"]) == 0
+    job = tmp_path / "job.yaml"
+    job.write_text("format: kincal-job\nversion: 1\nmodel: frida\ndata: [sim/data.yaml]\nfree: offsets\n")
+    capsys.readouterr()
+    assert main(["design", str(job), "--next", "3", "--pool", "40", "-o", str(tmp_path / "next")]) == 0
+    out = capsys.readouterr().out
+    assert "calibrating the job first" in out
+    assert "cannot become identifiable with more" in out and "right.j1.offset cannot be identified" in out
+    assert (tmp_path / "next" / "targets.csv").read_text().count("\n") == 4
+    for args, words in ((["frida_dual_bracket", "-o", str(tmp_path / "x")], "either -n K"),
+                        (["ur10_tracker_markers", "-n", "30", "--box", "1,2,3", "-o", str(tmp_path / "y")], "6 comma"),
+                        (["frida_dual_bracket", "-n", "3", "--pool", "50", "-o", str(tmp_path / "z")], "choose at least")):
+        assert main(["design", *args]) == 2
+        err = capsys.readouterr().err
+        assert words in err and err.count("\n") == 1

@@ -77,37 +77,38 @@ def criterion_value(M: np.ndarray, criterion: str, workspace: np.ndarray | None 
 
 
 def select(X: np.ndarray, K: int, criterion: str = "D", *, workspace: np.ndarray | None = None,
-           exchange: bool = True, seed: int = 0) -> Selection:
+           exchange: bool = True, seed: int = 0, base: np.ndarray | None = None) -> Selection:
     """Choose K of the N candidates X (N, k, r): greedy, then exchange passes (each selected configuration
     swapped for the best candidate while the criterion improves). The non-smooth criteria (E, O2..O5) also
-    exchange from ``RESTARTS`` random starts and keep the best. Deterministic for a seed."""
+    exchange from ``RESTARTS`` random starts and keep the best. ``base`` (r, r): information already at hand
+    (an existing calibration's data) that the chosen candidates add to. Deterministic for a seed."""
     _check(criterion, workspace)
     N, k, r = X.shape
     if not 1 <= K <= N:
         raise ModelError(f"cannot choose {K} of {N} candidates")
     eps = RIDGE * max(np.trace(information(X)) / (N * r), 1e-300)
-    chosen = _greedy(X, K, criterion, workspace, eps)
-    greedy = criterion_value(eps * np.eye(r) + information(X[chosen]), criterion, workspace, K)
+    M0 = eps * np.eye(r) + (0.0 if base is None else base)
+    chosen = _greedy(X, K, criterion, workspace, M0, eps)
+    greedy = criterion_value(M0 + information(X[chosen]), criterion, workspace, K)
     if not exchange:
         return Selection(np.array(chosen), criterion, greedy, greedy, 0)
-    best, value, swaps = _exchange_smoothed(X, chosen, criterion, workspace, eps)
+    best, value, swaps = _exchange_smoothed(X, chosen, criterion, workspace, M0)
     if criterion in SPECTRAL:
         rng = np.random.default_rng(seed)
         for _ in range(RESTARTS):
-            other, v, n = _exchange_smoothed(X, list(rng.choice(N, K, replace=False)), criterion, workspace, eps)
+            other, v, n = _exchange_smoothed(X, list(rng.choice(N, K, replace=False)), criterion, workspace, M0)
             swaps += n
             if v > value:
                 best, value = other, v
     return Selection(np.array(best), criterion, value, greedy, swaps)
 
 
-def _greedy(X, K, criterion, workspace, eps) -> list[int]:
+def _greedy(X, K, criterion, workspace, M0, eps) -> list[int]:
     """Add the best candidate K times; until the design has full rank every criterion but D is flat in the
     missing directions, so D chooses until then."""
     if criterion in ("D", "O1"):
-        return _greedy_d(X, K, eps)
-    r = X.shape[-1]
-    M = eps * np.eye(r)
+        return _greedy_d(X, K, M0)
+    M = M0
     chosen: list[int] = []
     for _ in range(K):
         full = np.linalg.eigvalsh(M)[0] > 1e3 * eps
@@ -119,28 +120,27 @@ def _greedy(X, K, criterion, workspace, eps) -> list[int]:
     return chosen
 
 
-def _exchange_smoothed(X, chosen, criterion, workspace, eps):
+def _exchange_smoothed(X, chosen, criterion, workspace, M0):
     """Exchange for ``criterion``; the smallest eigenvalue (E, O3: single swaps stall where several eigenvalues
     tie) first through Kiefer's smooth phi_p = -(mean lambda^-p)^(1/p), p = 1, 4, 16, which
     tends to the smallest eigenvalue as p grows."""
     swaps = 0
     if criterion in ("E", "O3"):
         for p in SMOOTHING:
-            chosen, _, n = _exchange(X, chosen, p, workspace, eps)
+            chosen, _, n = _exchange(X, chosen, p, workspace, M0)
             swaps += n
-    chosen, value, n = _exchange(X, chosen, criterion, workspace, eps)
+    chosen, value, n = _exchange(X, chosen, criterion, workspace, M0)
     return chosen, value, swaps + n
 
 
-def _exchange(X, chosen, criterion, workspace, eps) -> tuple[list[int], float, int]:
+def _exchange(X, chosen, criterion, workspace, M0) -> tuple[list[int], float, int]:
     """Fedorov exchange from ``chosen``: (design, criterion value, swaps)."""
     if criterion in ("D", "O1"):
-        chosen, _, swaps = _exchange_d(X, chosen, eps)
-        return chosen, criterion_value(eps * np.eye(X.shape[-1]) + information(X[chosen]), criterion, workspace,
-                                       len(chosen)), swaps
+        chosen, _, swaps = _exchange_d(X, chosen, M0)
+        return chosen, criterion_value(M0 + information(X[chosen]), criterion, workspace, len(chosen)), swaps
     chosen = list(chosen)
-    K, r = len(chosen), X.shape[-1]
-    M = eps * np.eye(r) + information(X[chosen])
+    K = len(chosen)
+    M = M0 + information(X[chosen])
     value, swaps = criterion_value(M, criterion, workspace, K), 0
     for _ in range(MAX_PASSES):
         changed = False
@@ -225,8 +225,8 @@ def _logdet_plus_identity(G: np.ndarray) -> np.ndarray:
     return np.log(np.maximum(det, 1e-300))  # round-off can leave a chosen candidate's downdate at <= 0
 
 
-def _greedy_d(X, K, eps) -> list[int]:
-    st = _LogDet(X, eps * np.eye(X.shape[-1]))
+def _greedy_d(X, K, M0) -> list[int]:
+    st = _LogDet(X, M0.copy())
     chosen: list[int] = []
     for _ in range(K):
         sc = st.scores()
@@ -237,10 +237,10 @@ def _greedy_d(X, K, eps) -> list[int]:
     return chosen
 
 
-def _exchange_d(X, chosen, eps) -> tuple[list[int], float, int]:
+def _exchange_d(X, chosen, M0) -> tuple[list[int], float, int]:
     """Fedorov exchange for D with the rank-k bookkeeping of ``_LogDet``."""
     chosen = list(chosen)
-    st = _LogDet(X, eps * np.eye(X.shape[-1]) + information(X[chosen]))
+    st = _LogDet(X, M0 + information(X[chosen]))
     swaps = 0
     for _ in range(MAX_PASSES):
         changed = False

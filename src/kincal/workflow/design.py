@@ -70,6 +70,7 @@ def candidate_pool(robot: Robot, kind: str, options: Mapping, pool: int, seed: i
         raise ModelError(f"experiment kind {kind!r}: expected one of {', '.join(sorted(GENERATORS))}")
     if pool < 1:
         raise ModelError(f"candidate pool: expected at least 1 candidate, found {pool}")
+    options = {k: v for k, v in options.items() if k != "n"}  # the pool size decides
     ds, truth, _ = GENERATORS[kind](robot, n=pool, rng=seed, noise=SimNoise(), n_validation=2, **options)
     keep = _within(ds, robot, truth, limits)
     if not keep.any():
