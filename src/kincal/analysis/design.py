@@ -93,6 +93,11 @@ def select(X: np.ndarray, K: int, criterion: str = "D", *, workspace: np.ndarray
     if not exchange:
         return Selection(np.array(chosen), criterion, greedy, greedy, 0)
     best, value, swaps = _exchange_smoothed(X, chosen, criterion, workspace, M0)
+    if criterion in ("A", "I", "G"):  # also from the D-optimal design: a good start for variance criteria
+        other, v, n = _exchange(X, _exchange_d(X, _greedy_d(X, K, M0), M0)[0], criterion, workspace, M0)
+        swaps += n
+        if v > value:
+            best, value = other, v
     if criterion in SPECTRAL:
         rng = np.random.default_rng(seed)
         for _ in range(RESTARTS):
