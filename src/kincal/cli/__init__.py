@@ -7,7 +7,7 @@ import sys
 import click
 
 from kincal import __version__
-from kincal.cli import analyze_cmds, calibrate_cmds, design_cmds, model_cmds, simulate_cmds
+from kincal.cli import analyze_cmds, calibrate_cmds, design_cmds, export_cmds, model_cmds, simulate_cmds
 from kincal.errors import KincalError
 
 
@@ -17,7 +17,7 @@ def cli() -> None:
     """kincal: kinematic calibration of robot arms."""
 
 
-for _module in (model_cmds, simulate_cmds, calibrate_cmds, analyze_cmds, design_cmds):  # each defines ``register(group)``
+for _module in (model_cmds, simulate_cmds, calibrate_cmds, analyze_cmds, design_cmds, export_cmds):  # each defines ``register(group)``
     _module.register(cli)
 
 
