@@ -36,7 +36,7 @@ def test_model_show_json_of_a_file(tmp_path):
     assert data["name"] == "ur10" and arm["dof"] == 6
     assert arm["joints"][2]["name"] == "elbow" and arm["joints"][2]["lower_deg"] == pytest.approx(-360)
     np.testing.assert_allclose(arm["joints"][1]["axis"], [0, -1, 0])
-    np.testing.assert_allclose(arm["home"]["xyz_m"], [-1.1843, -0.2561, 0.0023])
+    np.testing.assert_allclose(arm["home"]["xyz_m"], [-1.1843, -0.256141, 0.0116])  # UR CB3 table (issue #12)
 
 
 def test_fk_deg_and_rad_agree_with_library():

@@ -69,11 +69,14 @@ def test_pybotics_mdh_table_imports_to_their_fk_vectors():
     assert np.abs(got[:, :3, :3] - T[:, :3, :3]).max() < 1e-12
 
 
-def test_builtin_ur10_reproduces_pybotics_fk_vectors():
+def test_builtin_ur10_is_universal_robots_table_not_pybotics():
+    """pybotics' UR10 (the vectors above) is another UR10 table (d1 0.118, a2 0.6127, a3 0.5716, d4 0.1639);
+    the built-in follows Universal Robots' CB3 table since issue #12 item 7 (checked against the
+    manufacturer's own forward-kinematics test in tests/test_robots.py). The two differ by millimetres."""
     q, T = _pybotics_vectors()
     got = forward_kinematics(robots.load("ur10")["arm"], q)
-    assert np.abs(got[:, :3, 3] - T[:, :3, 3]).max() < 1e-12
-    assert np.abs(got[:, :3, :3] - T[:, :3, :3]).max() < 1e-12
+    gap = np.linalg.norm(got[:, :3, 3] - T[:, :3, 3], axis=1)
+    assert 1e-3 < np.median(gap) < 0.05
 
 
 # ------------------------------------------------------------------------------------------- URDF import

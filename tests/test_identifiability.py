@@ -85,3 +85,21 @@ def test_weak_directions_below_a_singular_value_gap_are_reported():
     assert gap.rank == 5 and len(gap.weak) == 2
     smooth = analyse(U @ np.diag([1.0, 0.1, 1e-2, 1e-3, 1e-4]) @ V.T, names)
     assert smooth.rank == 5 and len(smooth.weak) == 0
+
+
+def test_right_svd_falls_back_when_lapack_divide_and_conquer_fails(monkeypatch):
+    """gesdd fails to converge on rare matrices (met on a UR10 marker problem): the QR-reduced SVD then uses
+    gesvd instead of raising numpy's LinAlgError out of the solver."""
+    import sys
+
+    cov_module = sys.modules["kincal.analysis.covariance"]  # the package exports a function of the same name
+    A = np.random.default_rng(0).normal(size=(40, 6))
+    expected = np.linalg.svd(A, compute_uv=False)
+
+    def failing(*args, **kwargs):
+        raise np.linalg.LinAlgError("SVD did not converge")
+
+    monkeypatch.setattr(cov_module.np.linalg, "svd", failing)
+    S, Vt = cov_module.right_svd(A)
+    np.testing.assert_allclose(S, expected, rtol=1e-12)
+    np.testing.assert_allclose(np.abs(Vt @ Vt.T), np.eye(6), atol=1e-12)

@@ -205,8 +205,8 @@ def test_frida_fk_matches_table_a1_by_pinocchio_and_sequential_rotations(arm, rn
 # ------------------------------------------------------------------------------------ DH / MDH / eq. 21
 
 
-UR10_DH = dict(a=[0, -0.6127, -0.5716, 0, 0, 0], alpha=[np.pi / 2, 0, 0, np.pi / 2, -np.pi / 2, 0],
-               d=[0.118, 0, 0, 0.1639, 0.1157, 0.0922])
+UR10_DH = dict(a=[0, -0.612, -0.5723, 0, 0, 0], alpha=[np.pi / 2, 0, 0, np.pi / 2, -np.pi / 2, 0],
+               d=[0.1273, 0, 0, 0.163941, 0.1157, 0.0922])  # Universal Robots' CB3 table (issue #12 item 7)
 PANDA_MDH = dict(a=[0, 0, 0, 0.0825, -0.0825, 0, 0.088],
                  alpha=[0, -np.pi / 2, np.pi / 2, np.pi / 2, -np.pi / 2, np.pi / 2, np.pi / 2],
                  d=[0.333, 0, 0.316, 0, 0.384, 0, 0])
@@ -279,3 +279,12 @@ def test_every_builtin_matches_pinocchio_on_its_exported_urdf(name, rng):
         q = _configs(model, rng, 200)
         ref = _pinocchio_fk(to_urdf(model), "tool", {n: q[:, i] for i, n in enumerate(model.joint_names)})
         _assert_poses_equal(forward_kinematics(model, q), ref)
+
+
+def test_ur10_matches_universal_robots_forward_kinematics_check():
+    """The built-in UR10 against the check in Universal Robots' own driver (ur_calibration's test of the ideal
+    UR10): joint values and expected tool position copied from there (issue #12, item 7)."""
+    q = np.array([[-1.6007002035724085, -1.7271001974688929, -2.2029998938189905, -0.8079999128924769,
+                   1.5951000452041626, -0.0309999624835413]])
+    p = forward_kinematics(robots.load("ur10")["arm"], q)[0, :3, 3]
+    np.testing.assert_allclose(p, [-0.179925914147547, -0.606869755162764, 0.230789102067257], atol=1e-9)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Sequence
 
 import numpy as np
+import scipy.linalg
 
 
 def right_svd(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -16,7 +17,10 @@ def right_svd(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     m, p = A.shape
     if m > 2 * p:
         A = np.linalg.qr(A, mode="r")
-    _, S, Vt = np.linalg.svd(A, full_matrices=False)
+    try:
+        _, S, Vt = np.linalg.svd(A, full_matrices=False)
+    except np.linalg.LinAlgError:  # LAPACK's divide-and-conquer (gesdd) fails to converge on rare matrices
+        _, S, Vt = scipy.linalg.svd(A, full_matrices=False, lapack_driver="gesvd")
     return S, Vt
 
 

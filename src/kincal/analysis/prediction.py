@@ -355,3 +355,16 @@ def _rms(x: np.ndarray) -> float:
 
 def _max(x: np.ndarray) -> float:
     return float(np.max(x, initial=0.0))
+
+
+def tool_motion(result, q, arm: str, delta: np.ndarray, *, register: bool = True) -> np.ndarray:
+    """(N, 6) (or (N, 6, h) for h columns of ``delta``): the tool point's displacement and the tool's rotation
+    (world frame, m and rad) at q (N, n) when the free coordinates of ``result`` move by ``delta`` (p_free,) or
+    (p_free, h), to first order; ``register``: with the
+    common rigid motion of all N poses removed, as ``predicted_accuracy`` does."""
+    T, J = tool_jacobian(result, q, arm)
+    P = _point_map(T[:, :3, 3])
+    E = P @ J
+    if register:
+        E = _unregistered_part(E, P)
+    return E @ np.asarray(delta, float)

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
 import sys
 
 import click
+from threadpoolctl import threadpool_limits
 
 from kincal import __version__
-from kincal.cli import calibrate_cmds, model_cmds, simulate_cmds
+from kincal.cli import analyze_cmds, calibrate_cmds, design_cmds, export_cmds, list_cmds, model_cmds, simulate_cmds
 from kincal.errors import KincalError
 
 
@@ -17,12 +20,54 @@ def cli() -> None:
     """kincal: kinematic calibration of robot arms."""
 
 
-for _module in (model_cmds, simulate_cmds, calibrate_cmds):  # each defines ``register(group)``
+for _module in (model_cmds, list_cmds, simulate_cmds, calibrate_cmds, analyze_cmds, design_cmds, export_cmds):  # each defines ``register(group)``
     _module.register(cli)
+
+# One whole phrase per command in ``kincal --help`` (click would cut the docstring's first line mid-phrase).
+SHORT_HELP = {
+    "analyze": "Before measuring: what an experiment identifies, how well.",
+    "calibrate": "Calibrate as a job file describes; write model and result.",
+    "convert-log": "Controller motor log -> joint readings at standstills.",
+    "demo": "Calibrate Frida's clamped arms from built-in data.",
+    "design": "Choose the configurations to measure (or to add).",
+    "export": "Write a model as URDF, DH, controller offsets or JSON.",
+    "fk": "Tool pose for one joint configuration.",
+    "import": "Read a URDF chain into a kincal model file.",
+    "model": "Inspect robot models (built-in names or files).",
+    "robots": "List the built-in robots.",
+    "scenarios": "List the built-in simulation scenarios.",
+    "simulate": "Simulate a scenario: data set, truth, validation.",
+}
+for _name, _text in SHORT_HELP.items():
+    if _name in cli.commands:
+        cli.commands[_name].short_help = _text
+
+
+# Environment variables by which a user chooses BLAS threads; without them the CLI uses one (see blas_threads).
+BLAS_VARIABLES = ("KINCAL_BLAS_THREADS", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def blas_threads():
+    """A context limiting BLAS to ``KINCAL_BLAS_THREADS`` threads (default 1) unless the user set a BLAS thread
+    variable: kincal's matrices are small and many, and BLAS threads spinning against each other (or against
+    other processes on a small machine) made the CLI 2-3.5x slower."""
+    chosen = {v: os.environ[v] for v in BLAS_VARIABLES if os.environ.get(v)}
+    if chosen and "KINCAL_BLAS_THREADS" not in chosen:
+        return contextlib.nullcontext()
+    try:
+        limit = max(1, int(chosen.get("KINCAL_BLAS_THREADS", 1)))
+    except ValueError:
+        limit = 1
+    return threadpool_limits(limits=limit, user_api="blas")
 
 
 def main(argv=None) -> int:
     """Console entry point: kincal errors become one clear line and exit code 2, never a traceback."""
+    with blas_threads():
+        return _main(argv)
+
+
+def _main(argv) -> int:
     try:
         cli.main(args=argv, prog_name="kincal", standalone_mode=False)
     except KincalError as exc:

@@ -32,6 +32,7 @@ VERSION = 1
 ROTATION_TOL = 1e-6  # published matrices are rounded; larger errors need `orthonormalize: true`
 AXIS_TOL = 1e-6
 _BUILTIN = resources.files(__package__) / "builtin_robots"
+BUILTIN_ROBOTS = _BUILTIN  # the folder of the built-in model files (a Traversable)
 TWIST_TOL = 1e-9  # twists are what save_robot writes: they must already be exact joint screws
 
 _TOP_KEYS = {"format", "version", "name", "units", "meta", "arms"}

@@ -8,7 +8,8 @@ Revolute/prismatic limits are kept (missing lower/upper attributes mean unlimite
 are unlimited. URDF axes are normalized (URDF
 treats ``axis`` as a direction). Mimic, floating and planar joints are refused.
 
-Export (``to_urdf``): one link per joint, every joint frame parallel to the arm base frame at q = 0,
+Export (``to_urdf``): one link per joint (named ``<joint>_link``), every joint frame parallel to the arm base
+frame at q = 0,
 so axes are generally not along z; joint offsets are folded into the origins
 (``exp(xi (q + o)) = F exp(xi_local o) exp(xi_local q) F^-1``). Meant for cross-checks (pinocchio).
 """
@@ -126,7 +127,7 @@ def _origin_xml(T: np.ndarray) -> str:
 
 
 def to_urdf(model: ArmModel, *, root: str = "world", flange: str = "flange", tip: str = "tool") -> str:
-    """URDF text of ``model``: links ``root`` -> ``base`` -> ``link1`` ... ``linkN`` -> ``flange`` -> ``tip``.
+    """URDF text of ``model``: links ``root`` -> ``base`` -> ``<joint>_link`` per joint -> ``flange`` -> ``tip``.
 
     Joint names are the model's joint names. Revolute joints with infinite limits become 'continuous';
     prismatic joints need finite limits (URDF requires them).
@@ -144,7 +145,7 @@ def to_urdf(model: ArmModel, *, root: str = "world", flange: str = "flange", tip
             local = se3.join(v, np.zeros(3))
         frame = se3.make(np.eye(3), point)
         origin = se3.inverse(previous) @ frame @ se3.exp(local * model.offsets[i])
-        link = f"link{i + 1}"
+        link = f"{jname}_link"
         rows.append(f'  <link name="{link}"/>')
         lo, up = model.lower[i], model.upper[i]
         if kind == REVOLUTE and not (np.isfinite(lo) and np.isfinite(up)):

@@ -54,6 +54,9 @@ class IKResult:
     rot_err: np.ndarray
     iterations: np.ndarray
     split: int | None = None
+    last: np.ndarray | None = None  # (N, m) where every input ended, converged or not
+    last_pos_err: np.ndarray | None = None  # (N,) m
+    last_rot_err: np.ndarray | None = None  # (N,) rad
 
     @property
     def n_converged(self) -> int:
@@ -194,7 +197,7 @@ def solve(
         alive = ~done & (lam < _LAMBDA_MAX)
     ok = np.flatnonzero(done)
     return IKResult(
-        q[ok], ok, int(N - ok.size), perr[ok], rerr[ok], iters[ok], getattr(constraint, "split", None)
+        q[ok], ok, int(N - ok.size), perr[ok], rerr[ok], iters[ok], getattr(constraint, "split", None), q, perr, rerr
     )
 
 

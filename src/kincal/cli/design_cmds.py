@@ -1,0 +1,128 @@
+"""``kincal design``: choose the configurations to measure (a scenario's experiment), or the next ones to add
+to an existing calibration (``--next K JOB.yaml``)."""
+
+from __future__ import annotations
+
+import math
+from datetime import datetime, timezone
+from pathlib import Path
+
+import click
+import numpy as np
+
+from kincal import __version__
+from kincal.analysis.design import CRITERIA
+from kincal.cli.calibrate_cmds import _console
+from kincal.errors import DataFormatError
+from kincal.io.datasets import load_scenario, scenario_path
+from kincal.io.jobs import load_job
+from kincal.io.models import load_robot
+from kincal.io.targets import write_targets
+from kincal.io.yamlfile import read_yaml
+from kincal.simulate.scenario import build_scenario
+from kincal.workflow.augment import next_configurations
+from kincal.workflow import run_job
+from kincal.workflow.design import Candidates, design
+
+
+def _floats(text: str | None, n: int, option: str) -> np.ndarray | None:
+    if text is None:
+        return None
+    try:
+        v = np.array([float(x) for x in text.split(",")])
+    except ValueError:
+        v = np.zeros(0)
+    if v.shape != (n,) or not np.all(np.isfinite(v)):
+        raise DataFormatError(f"{option} {text!r}: expected {n} comma-separated numbers")
+    return v
+
+
+def _limits(box: str | None, cone: float | None) -> Candidates:
+    b = _floats(box, 6, "--box")
+    if b is not None and not np.all(b[:3] < b[3:]):
+        raise DataFormatError(f"--box {box!r}: expected xmin,ymin,zmin,xmax,ymax,zmax (m) with each min below its max")
+    if cone is not None and not 0 < cone <= 180:
+        raise DataFormatError(f"--cone {cone}: expected a half-angle in degrees in (0, 180]")
+    return Candidates(None if b is None else (b[:3], b[3:]), None if cone is None else math.radians(cone))
+
+
+@click.command("design")
+@click.argument("source")
+@click.option("-n", "count", type=click.IntRange(1, None), default=None, help="Configurations to choose.")
+@click.option("--next", "next_count", type=click.IntRange(1, None), default=None,
+              help="Choose this many configurations to add to the calibration of SOURCE (a job file).")
+@click.option("--result", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="With --next: a calibrate output folder of the job (its model.yaml); default: calibrate the job.")
+@click.option("-o", "--output", type=click.Path(path_type=Path), required=True, help="Output folder (new).")
+@click.option("--free", default=None, help="What the calibration will free (default: the job's, or 'offsets').")
+@click.option("--criterion", type=click.Choice(CRITERIA), default="D", show_default=True,
+              help="D, A, E, O1-O5, or I / G: mean / max predicted tool error over the workspace.")
+@click.option("--pool", type=click.IntRange(1, None), default=2000, show_default=True, help="Candidates to draw.")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--box", default=None, help="Tracker experiments: tool position box xmin,ymin,zmin,xmax,ymax,zmax (m).")
+@click.option("--cone", type=float, default=None, help="Tracker experiments: line-of-sight half-angle (deg).")
+def design_cmd(source, count, next_count, result, output, free, criterion, pool, seed, box, cone) -> None:
+    """Choose configurations to measure for the experiment of SOURCE (a scenario file or built-in name), or
+    with --next the ones that most improve the calibration of a job. Writes joint targets in model order and in
+    controller order (motor units) and design.yaml."""
+    if (count is None) == (next_count is None):
+        raise DataFormatError("give either -n K (a new experiment from a scenario) or --next K (a job to extend)")
+    console = _console()
+    if next_count is not None:
+        robot, q, summary = _next(source, next_count, result, free, pool, seed, console)
+    else:
+        robot, q, summary = _design(source, count, free, criterion, pool, seed, _limits(box, cone), console)
+    paths = write_targets(output, robot, q, summary)
+    console.print(f"wrote {', '.join(str(p) for p in paths.values())}")
+
+
+def _design(source, K, free, criterion, pool, seed, limits, console):
+    sc = build_scenario(load_scenario(scenario_path(source)))
+    free = free or "offsets"
+    d = design(sc.robot, sc.kind, sc.options, K, free=free, pool=pool, criterion=criterion, noise=sc.noise,
+               seed=seed, limits=limits)
+    console.print(f"chose {K} of {d.pool} candidates by {criterion}: criterion {d.selection.value:.6g} against "
+                  f"{d.random:.6g} for the median of 20 random designs; rank {d.rank} of {d.free}")
+    console.print(f"predicted tool position std over the workspace: {d.tool_rms * 1e3:.4g} mm RMS "
+                  f"(max {d.tool_max * 1e3:.4g}); random designs of {K}: {d.random_tool_rms * 1e3:.4g} mm RMS")
+    summary = _common(source, criterion, free, pool, seed) | {
+        "experiment": sc.kind, "configurations": K, "candidates": d.pool, "rank": d.rank, "free_parameters": d.free,
+        "criterion_value": d.selection.value, "criterion_random_median": d.random,
+        "exchanges": d.selection.exchanges, "tool_position_std_rms_m": d.tool_rms,
+        "tool_position_std_max_m": d.tool_max, "tool_position_std_rms_random_m": d.random_tool_rms}
+    return sc.robot, dict(d.dataset.q), summary
+
+
+def _next(source, K, result, free, pool, seed, console):
+    if read_yaml(Path(source), "job file").get("format") != "kincal-job":
+        raise DataFormatError(f"{source}: --next needs a job file (format: kincal-job)")
+    job = load_job(source)
+    if result is None:  # the information counts at the calibrated model: calibrate first
+        console.print("calibrating the job first (give --result DIR to use an existing calibration)")
+        robot = run_job(job).robot
+    else:
+        robot = load_robot(result / "model.yaml")
+    free = free or job.free
+    a = next_configurations(robot, list(job.datasets), K, free=free, noise=job.noise, pool=pool, seed=seed)
+    console.print(f"chose {K} configurations of '{a.base}': rank {a.rank_before} -> {a.rank_after}")
+    for name in a.gained:
+        console.print(f"  now identifiable: {name}")
+    for name, words in a.structural:
+        console.print(f"  cannot become identifiable with more '{a.base}' data: {words}")
+    summary = _common(source, "D", free, pool, seed) | {
+        "extends": a.base, "configurations": K, "rank_before": a.rank_before, "rank_after": a.rank_after,
+        "now_identifiable": list(a.gained), "reachable_with_the_pool": list(a.reachable),
+        "structurally_unidentifiable": [{"parameter": n, "why": w} for n, w in a.structural]}
+    return robot, dict(a.dataset.q), summary
+
+
+def _common(source, criterion, free, pool, seed) -> dict:
+    return {"format": "kincal-design", "version": 1, "kincal": __version__,
+            "date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "source": str(source),
+            "criterion": criterion, "free": free if isinstance(free, str) else list(free), "pool": pool,
+            "seed": seed, "units": {"targets.csv": "rad (m for prismatic joints)",
+                                    "controller.csv": "motor rad (q x gear ratio), controller channel order"}}
+
+
+def register(group: click.Group) -> None:
+    group.add_command(design_cmd)

@@ -1,0 +1,137 @@
+"""Export a (calibrated) model to the formats controllers and ROS take (``kincal export``; docs/deploy.md).
+
+- ``urdf``: an arm imported from a URDF (``kincal import``, which records the file and chain in the arm's
+  ``meta.urdf``) is written back into that URDF with only the chain's joint origins changed
+  (``kincal.io.urdf_patch``); a native arm becomes a clean URDF whose links are named after the joints.
+- ``dh``, ``mdh``: the DH table (``kincal.kinematics.dh.to_dh``) with the base, flange and tool transforms
+  that close it, and the largest forward-kinematics difference to the model at 200 random configurations.
+  Nearly parallel consecutive axes (a calibrated model) are refused as ill-conditioned.
+- ``controller``: the joint offsets per controller channel in motor units via the gear ratios.
+- ``json``: the model file's content as JSON.
+
+Every file is written under a temporary name beside the target and renamed at the end; an existing target is
+never overwritten unless asked.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from kincal.errors import DataFormatError
+from kincal.io.models import robot_to_dict
+from kincal.io.urdf import from_urdf, to_urdf
+from kincal.io.urdf_patch import patch_urdf
+from kincal.kinematics import ArmModel, Robot, forward_kinematics
+from kincal.kinematics.dh import to_dh
+
+FORMATS = ("urdf", "dh", "mdh", "controller", "json")
+CHECK_CONFIGURATIONS = 200
+SIGN_CONVENTION = ("joint angle = controller reading + offset (theta = q + o); a controller that adds a "
+                   "calibration offset to its reading takes these values as they are, one that subtracts takes "
+                   "their negatives")
+
+
+def export_text(robot: Robot, arm: str, fmt: str, model_file: Path | None = None) -> str:
+    """The text of ``arm`` of ``robot`` in format ``fmt`` (``model_file``: where the model was read from, to
+    resolve a recorded URDF path)."""
+    if fmt not in FORMATS:
+        raise DataFormatError(f"--to {fmt!r}: expected one of {', '.join(FORMATS)}")
+    a = robot[arm]
+    if fmt == "urdf":
+        return _urdf(a, model_file)
+    if fmt in ("dh", "mdh"):
+        return yaml.safe_dump(dh_document(a, modified=fmt == "mdh"), sort_keys=False)
+    if fmt == "controller":
+        return yaml.safe_dump(controller_document(a), sort_keys=False)
+    return json.dumps(robot_to_dict(robot), indent=2) + "\n"
+
+
+def write_text(path, text: str, overwrite: bool = False) -> Path:
+    """Write ``text`` to ``path`` through a temporary file in the same folder (renamed at the end)."""
+    p = Path(path)
+    if p.is_dir():
+        raise DataFormatError(f"{p}: is a folder; expected a file name")
+    if p.exists() and not overwrite:
+        raise DataFormatError(f"{p}: exists; not overwritten (--overwrite replaces it)")
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.kincal-tmp-", dir=p.parent)
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, p)
+    except OSError as exc:
+        raise DataFormatError(f"{p}: cannot write: {exc.strerror or exc}") from None
+    return p
+
+
+def _urdf(a: ArmModel, model_file: Path | None) -> str:
+    src = a.meta.get("urdf") if a.meta else None
+    if not src:
+        return to_urdf(a)
+    file = Path(str(src["file"]))
+    if not file.is_absolute() and model_file is not None:
+        file = model_file.parent / file
+    if not file.is_file():
+        raise DataFormatError(f"arm '{a.name}' was imported from {file}, which is not there any more: export needs "
+                              "that URDF to patch (or remove meta.urdf to write a new one)")
+    nominal = from_urdf(file, src["base_link"], src["tip_link"])
+    return patch_urdf(file, src["base_link"], src["tip_link"], nominal, a)
+
+
+def dh_document(a: ArmModel, modified: bool) -> dict:
+    """The DH table of ``a`` as plain data (m, rad), with its closing transforms and its FK check."""
+    t = to_dh(a, modified=modified)
+    rng = np.random.default_rng(0)
+    q = rng.uniform(np.maximum(a.lower, -np.pi), np.minimum(a.upper, np.pi), (CHECK_CONFIGURATIONS, a.dof))
+    diff = forward_kinematics(t.to_model(), q) - forward_kinematics(a, q)
+    rows = [{"joint": n, "type": k, "a_m": float(x), "alpha_rad": float(al), "d_m": float(d), "theta_rad": float(th)}
+            for n, k, x, al, d, th in zip(t.joint_names, t.joint_types, t.a, t.alpha, t.d, t.theta)]
+    return {"format": "kincal-dh", "convention": "modified (Craig): A_i = Rx(alpha_{i-1}) Tx(a_{i-1}) Rz(theta_i + q_i) "
+                                                 "Tz(d_i)" if modified else
+            "standard: A_i = Rz(theta_i + q_i) Tz(d_i) Tx(a_i) Rx(alpha_i)",
+            "chain": "T_world_tool = base @ A_1 ... A_n @ flange @ tool; theta (d for prismatic joints) includes the "
+                     "joint offsets",
+            "arm": a.name, "joints": rows, "base": _matrix(t.base), "flange": _matrix(t.flange),
+            "tool": _matrix(t.tool),
+            "check": {"configurations": CHECK_CONFIGURATIONS,
+                      "max_position_difference_m": float(np.abs(diff[:, :3, 3]).max()),
+                      "max_rotation_difference": float(np.abs(diff[:, :3, :3]).max())}}
+
+
+def controller_document(a: ArmModel) -> dict:
+    """Joint offsets per controller channel: rad at the joint and motor rad (offset x gear ratio)."""
+    channels = []
+    for c, j in enumerate(a.controller_order):
+        o, g = float(a.offsets[j]), float(a.gear_ratios[j])
+        channels.append({"channel": c + 1, "joint": a.joint_names[j], "offset_joint": o, "gear_ratio": g,
+                         "offset_motor": o * g})
+    return {"format": "kincal-controller-offsets", "arm": a.name, "units": {
+        "offset_joint": "rad (m for prismatic joints)", "offset_motor": "motor rad (motor m) = offset x gear ratio"},
+            "sign_convention": SIGN_CONVENTION, "channels": channels}
+
+
+def _matrix(T: np.ndarray) -> list[list[float]]:
+    return [[float(x) for x in row] for row in T]
+
+
+def import_urdf(path, base_link: str, tip_link: str, *, arm: str = "arm", name: str | None = None,
+                model_file: Path | None = None) -> Robot:
+    """A one-arm Robot of the URDF chain, recording the file (relative to ``model_file``'s folder when given)
+    and the chain in the arm's ``meta.urdf`` so ``export --to urdf`` can patch it later."""
+    p = Path(path)
+    model = from_urdf(p, base_link, tip_link, name=arm)
+    rel = os.path.relpath(p.resolve(), model_file.resolve().parent) if model_file is not None else str(p)
+    meta = {"urdf": {"file": rel, "base_link": base_link, "tip_link": tip_link}}
+    return Robot(name or p.stem, {arm: model.replace(meta=meta)})
+
+
+__all__ = ["FORMATS", "controller_document", "dh_document", "export_text", "import_urdf",
+           "write_text"]

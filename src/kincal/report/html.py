@@ -1,0 +1,180 @@
+"""One self-contained HTML report of a calibration (``kincal report``; docs/deploy.md): no external file, plots
+inline as PNG.
+
+Order: what a person needs first. The verdict (status, whether the model can be trusted, what cannot be
+identified, what to measure next), then the estimates, residuals and validation, the singular value spectrum,
+a predicted accuracy map over the workspace, and where it all came from (job, input files with SHA-256,
+kincal version, date).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import math
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from kincal.kinematics import forward_kinematics
+from kincal.report.plots import _prediction, _pyplot, _residuals, _spectrum, _uncertainty
+
+DEG = 180.0 / math.pi
+STATUS_COLOUR = {"converged": "#1a7f37", "misfit": "#b35900", "not converged": "#b35900", "degenerate": "#c62828"}
+_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:2em auto;max-width:1100px;
+color:#1d1d1f;line-height:1.45;padding:0 1em}
+h1{font-size:1.6em;margin-bottom:.2em}h2{font-size:1.2em;border-bottom:1px solid #ddd;padding-bottom:.2em;margin-top:2em}
+.verdict{border-radius:8px;padding:1em 1.2em;color:#fff;font-size:1.1em}
+.verdict b{font-size:1.25em}table{border-collapse:collapse;font-size:.88em;margin:.5em 0}
+td,th{border:1px solid #ddd;padding:.25em .6em;text-align:right}th{background:#f4f4f6}
+td:first-child,th:first-child{text-align:left}img{max-width:100%}.muted{color:#666;font-size:.9em}
+ul{margin:.3em 0}
+"""
+
+
+def report_html(result, *, title: str, workspace: Mapping[str, np.ndarray] | None = None,
+                provenance: Mapping | None = None, next_steps: Sequence[str] = ()) -> str:
+    """The report of ``result``. ``workspace``: per arm, joint configurations for the accuracy map;
+    ``provenance``: job, inputs (file, sha256), version, date; ``next_steps``: what to measure next, in words."""
+    plt = _pyplot()
+    parts = [f"<h1>{_e(title)}</h1>", _verdict(result, next_steps)]
+    parts += ["<h2>Estimates</h2>", _estimates(result), _image(plt, _uncertainty(plt, result))]
+    parts += ["<h2>Residuals before and after</h2>", _residual_table(result), _image(plt, _residuals(plt, result))]
+    if result.validation:
+        parts += ["<h2>Validation on held-out configurations</h2>", _validation(result)]
+        if result.predictions:
+            parts.append(_image(plt, _prediction(plt, result)))
+    parts += ["<h2>Identifiability: singular value spectrum</h2>", _image(plt, _spectrum(plt, result))]
+    if workspace:
+        parts += ["<h2>Predicted accuracy over the workspace</h2>",
+                  "<p>Predicted standard deviation of the calibrated tool position at random configurations "
+                  "within the joint limits (one common rigid motion removed, as a validation with an unknown "
+                  "tracker or fixture sees it). Dark: accurate; bright: less accurate.</p>"]
+        parts += [_image(plt, accuracy_map(plt, result, arm, q)) for arm, q in workspace.items()]
+    parts += ["<h2>Provenance</h2>", _provenance(provenance or {})]
+    body = "\n".join(parts)
+    return (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{_e(title)}</title>"
+            f"<style>{_CSS}</style></head><body>\n{body}\n</body></html>\n")
+
+
+def trusted(result) -> bool:
+    """Converged, and every prediction of the result trusted."""
+    return result.status == "converged" and all(p.trusted for _, p in result.predictions)
+
+
+def _verdict(result, next_steps) -> str:
+    ana = result.identifiability
+    ok = trusted(result)
+    colour = STATUS_COLOUR["converged"] if ok else STATUS_COLOUR.get(result.status, "#555")
+    if result.status == "converged" and not ok:
+        colour = STATUS_COLOUR["misfit"]
+    head = (f'<div class="verdict" style="background:{colour}"><b>{_e(result.status)}</b> &middot; trusted: '
+            f"<b>{'yes' if ok else 'no'}</b> &middot; rank {ana.rank} of {len(ana.names)} free parameters &middot; "
+            f"residual variance factor {result.sigma2:.3g}</div>")
+    words = {d.words for d in ana.directions}
+    general = [m for m in result.messages if m not in words]
+    doubts = [f"{name}, arm '{p.arm}': {m}" for name, p in result.predictions for m in p.messages
+              if "not be trusted" in m or "held at nominal" in m]
+    out = [head, "<h2>Summary</h2>", _list(general + list(dict.fromkeys(doubts)), "No messages.")]
+    directions = [d.words for d in ana.directions]
+    shown, rest = directions[:5], directions[5:]
+    out.append(f"<h3>What cannot be identified ({len(directions)} direction(s))</h3>"
+               + _list(shown, "Every free parameter is identifiable."))
+    if rest:
+        out.append(f"<details><summary>{len(rest)} more</summary>{_list(rest, '')}</details>")
+    steps = list(next_steps) or [m.split("; ", 1)[1] for _, p in result.predictions for m in p.messages
+                                 if m.startswith(_TODO) and "; " in m]
+    out.append("<h3>What to measure next</h3>" + _list(list(dict.fromkeys(steps)), "Nothing the data ask for."))
+    return "\n".join(out)
+
+
+# The prediction's closing advice starts so; what follows the semicolon is what to do.
+_TODO = "the calibrated model should not be trusted at these configurations"
+
+
+def _list(items, empty: str) -> str:
+    return "<ul>" + "".join(f"<li>{_e(x)}</li>" for x in items) + "</ul>" if items else f"<p>{_e(empty)}</p>"
+
+
+def _shown(unit: str, value: float) -> tuple[str, float]:
+    if unit == "rad":
+        return "deg", value * DEG
+    if unit == "m":
+        return "mm", value * 1e3
+    return unit, value
+
+
+def _estimates(result) -> str:
+    rows = ["<tr><th>parameter</th><th>unit</th><th>nominal</th><th>estimate</th><th>change</th><th>std</th></tr>"]
+    for e in result.estimates:
+        unit, value = _shown(e.unit, e.value)
+        _, nominal = _shown(e.unit, e.nominal)
+        _, std = _shown(e.unit, e.std)
+        rows.append(f"<tr><td>{_e(e.name)}</td><td>{unit}</td><td>{nominal:.6g}</td><td>{value:.6g}</td>"
+                    f"<td>{value - nominal:+.4g}</td><td>{_num(std) if e.identifiable else 'not identifiable'}"
+                    "</td></tr>")
+    return "<table>" + "".join(rows) + "</table>"
+
+
+def _residual_table(result) -> str:
+    rows = ["<tr><th>data set</th><th>kind</th><th>samples</th><th>position RMS before (mm)</th>"
+            "<th>after</th><th>orientation RMS before (deg)</th><th>after</th></tr>"]
+    for b, a in zip(result.before, result.after):
+        rows.append(f"<tr><td>{_e(b.experiment)}</td><td>{_e(b.kind)}</td><td>{b.samples}</td>"
+                    f"<td>{_num(b.position_rms, 1e3)}</td><td>{_num(a.position_rms, 1e3)}</td>"
+                    f"<td>{_num(b.orientation_rms, DEG)}</td><td>{_num(a.orientation_rms, DEG)}</td></tr>")
+    return "<table>" + "".join(rows) + "</table>"
+
+
+def _validation(result) -> str:
+    rows = ["<tr><th>held-out set</th><th>samples</th><th>position RMS, nominal model (mm)</th>"
+            "<th>calibrated</th><th>orientation RMS, nominal (deg)</th><th>calibrated</th></tr>"]
+    for v in result.validation:
+        rows.append(f"<tr><td>{_e(v.experiment)}</td><td>{v.after.samples}</td>"
+                    f"<td>{_num(v.before.position_rms, 1e3)}</td><td>{_num(v.after.position_rms, 1e3)}</td>"
+                    f"<td>{_num(v.before.orientation_rms, DEG)}</td><td>{_num(v.after.orientation_rms, DEG)}</td></tr>")
+    return "<table>" + "".join(rows) + "</table>"
+
+
+def accuracy_map(plt, result, arm: str, q: np.ndarray):
+    """Top and side views of the tool positions at configurations q, coloured by the predicted standard
+    deviation of the calibrated tool position (mm)."""
+    pred = result.predict(q, arm)
+    p = forward_kinematics(result.robot[arm], q)[:, :3, 3]
+    std = pred.position_std * 1e3
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.4))
+    for ax, (i, j, label) in zip(axes, ((0, 1, "top view: x, y"), (0, 2, "side view: x, z"))):
+        sc = ax.scatter(p[:, i], p[:, j], c=std, cmap="viridis", s=14)
+        ax.set_xlabel("xyz"[i] + " [m]")
+        ax.set_ylabel("xyz"[j] + " [m]")
+        ax.set_title(label)
+        ax.set_aspect("equal", adjustable="datalim")
+    fig.colorbar(sc, ax=axes, label="predicted tool position std [mm]")
+    fig.suptitle(f"arm '{arm}': predicted accuracy at {len(q)} configurations (RMS {np.sqrt(np.mean(std**2)):.3g} "
+                 f"mm, max {std.max():.3g} mm){'' if pred.trusted else ' - NOT TRUSTED'}")
+    return fig
+
+
+def _provenance(p: Mapping) -> str:
+    rows = [f"<tr><td>{_e(k)}</td><td>{_e(str(v))}</td></tr>" for k, v in p.items() if k != "inputs"]
+    for f in p.get("inputs", ()):
+        rows.append(f"<tr><td>input</td><td>{_e(f['file'])} <span class=\"muted\">sha256 {_e(f['sha256'])}</span>"
+                    "</td></tr>")
+    return "<table>" + "".join(rows) + "</table>" if rows else "<p class=\"muted\">not recorded</p>"
+
+
+def _image(plt, fig) -> str:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
+    plt.close(fig)
+    return f'<p><img alt="plot" src="data:image/png;base64,{base64.b64encode(buf.getvalue()).decode()}"></p>'
+
+
+def _num(x, scale=1.0) -> str:
+    return "-" if x is None or not math.isfinite(x) else f"{x * scale:.4g}"
+
+
+def _e(text) -> str:
+    return html.escape(str(text))

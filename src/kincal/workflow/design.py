@@ -1,0 +1,179 @@
+"""``design``: choose N configurations to measure, from candidates kincal generates itself.
+
+The candidate pool is the experiment's own generator run on the nominal robot without noise
+(``kincal.simulate.GENERATORS``): free tracker poses sampled within the joint limits, one clamp sampled by
+self-motion across IK branches, a plate of fixtures, the dual-arm closed chain. Every candidate is therefore
+reachable, within the limits and satisfies the experiment's constraint. Tracker experiments can be limited to a
+workspace box (tool position in the world frame) and a line-of-sight cone (the tool's z axis within a
+half-angle of the direction to the tracker).
+
+The pool is linearized once at the nominal model (``Problem.linearize``): each candidate's whitened rows on the
+identifiable subspace feed ``kincal.analysis.design.select``. The I and G criteria use the tool position's
+sensitivity over a workspace sample (registered as validation registers).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from kincal.analysis.design import Selection, criterion_value, information, select
+from kincal.analysis.prediction import tool_motion
+from kincal.data import Dataset
+from kincal.errors import DegenerateExperimentError, ModelError
+from kincal.estimation import Problem, SolverOptions
+from kincal.estimation.plan import plan, reach
+from kincal.kinematics import Robot, forward_kinematics
+from kincal.noise import Noise
+from kincal.simulate import GENERATORS, random_configurations
+from kincal.simulate.noise import Noise as SimNoise
+
+RANDOM_DRAWS = 20
+WORKSPACE = 100
+
+
+@dataclass(frozen=True, eq=False)
+class Design:
+    """The chosen configurations (``dataset``: the pool's rows, noise-free nominal measurements), the
+    selection, the criterion of random designs of the same size (``random``: median, and all draws), the
+    identifiable rank and the predicted tool position error (m, RMS and max over the workspace sample) of
+    the designed design and the median over the random ones."""
+
+    dataset: Dataset
+    pool: int
+    selection: Selection
+    rank: int
+    free: int
+    random: float
+    random_values: np.ndarray
+    tool_rms: float
+    tool_max: float
+    random_tool_rms: float
+
+
+@dataclass(frozen=True)
+class Candidates:
+    """Limits on tracker candidates: tool position within ``box`` (world frame, m: (lo (3,), hi (3,))), and the
+    tool z axis within ``cone`` rad of the direction to the tracker's origin."""
+
+    box: tuple[np.ndarray, np.ndarray] | None = None
+    cone: float | None = None
+
+
+def candidate_pool(robot: Robot, kind: str, options: Mapping, pool: int, seed: int,
+                   limits: Candidates = Candidates()) -> Dataset:
+    """``pool`` candidates of experiment ``kind`` (generator ``options`` as in scenario files) on the nominal
+    robot, noise-free, filtered by ``limits``."""
+    if kind not in GENERATORS:
+        raise ModelError(f"experiment kind {kind!r}: expected one of {', '.join(sorted(GENERATORS))}")
+    if pool < 1:
+        raise ModelError(f"candidate pool: expected at least 1 candidate, found {pool}")
+    options = {k: v for k, v in options.items() if k != "n"}  # the pool size decides
+    ds, truth, _ = GENERATORS[kind](robot, n=pool, rng=seed, noise=SimNoise(), n_validation=2, **options)
+    keep = _within(ds, robot, truth, limits)
+    if not keep.any():
+        raise DegenerateExperimentError(f"no candidate of {pool} lies in the workspace box and the line-of-sight "
+                                        "cone: widen the box or the cone, or move the tracker")
+    return ds.subset(np.flatnonzero(keep)) if not keep.all() else ds
+
+
+def _within(ds: Dataset, robot: Robot, truth, limits: Candidates) -> np.ndarray:
+    keep = np.ones(ds.size, bool)
+    if limits.box is None and limits.cone is None:
+        return keep
+    if ds.kind not in ("pose", "markers"):
+        raise ModelError(f"a workspace box or line-of-sight cone applies to tracker experiments (pose, markers), "
+                         f"not to '{ds.kind}'")
+    (arm,) = ds.arms
+    T = forward_kinematics(robot[arm], ds.q[arm])
+    if limits.box is not None:
+        lo, hi = limits.box
+        keep &= np.all((T[:, :3, 3] >= lo) & (T[:, :3, 3] <= hi), axis=1)
+    if limits.cone is not None:
+        tracker = np.asarray(truth.values["T_world_tracker"])[:3, 3]
+        to = tracker - T[:, :3, 3]
+        cos = np.einsum("ni,ni->n", T[:, :3, 2], to) / np.maximum(np.linalg.norm(to, axis=1), 1e-12)
+        keep &= cos >= np.cos(limits.cone)
+    return keep
+
+
+def design(robot: Robot, kind: str, options: Mapping, K: int, *, free="offsets", pool: int = 2000,
+           criterion: str = "D", noise: Noise | None = None, seed: int = 0, limits: Candidates = Candidates(),
+           workspace: int = WORKSPACE, exchange: bool = True) -> Design:
+    """Choose K configurations of experiment ``kind`` for calibrating ``free`` from ``pool`` candidates the
+    experiment's generator draws (module docstring)."""
+    ds = candidate_pool(robot, kind, options, pool, seed, limits)
+    return choose(robot, ds, K, free=free, criterion=criterion, noise=noise, seed=seed, workspace=workspace,
+                  exchange=exchange)
+
+
+def choose(robot: Robot, pool: Dataset, K: int, *, free="offsets", criterion: str = "D", noise: Noise | None = None,
+           seed: int = 0, workspace: int = WORKSPACE, exchange: bool = True) -> Design:
+    """Choose K of the configurations of the data set ``pool`` (any kind; only its configurations and known
+    frames matter, the model is linearized at its nominal values)."""
+    problem = Problem.build(robot, [pool], free, noise=noise)
+    p = plan(problem, SolverOptions())
+    rows = ds_rows(problem)
+    if K * rows < 2 * p.rank:  # what calibrate needs: as many redundant equations as identifiable parameters
+        raise ModelError(f"{K} configurations give {K * rows} equations for {p.rank} identifiable parameters; a "
+                         f"calibration needs twice as many equations (to estimate and to check the fit): choose at "
+                         f"least {-(-2 * p.rank // rows)} configurations, or free fewer parameters")
+    if K > pool.size:
+        raise ModelError(f"cannot choose {K} configurations from a pool of {pool.size}: enlarge the pool")
+    V = identifiable_basis(problem, p)
+    X = _candidate_rows(problem, p, V)
+    W = _workspace_rows(robot, p, V, workspace, seed)
+    sel = select(X, K, criterion, workspace=W, exchange=exchange, seed=seed)
+    rng = np.random.default_rng(seed + 1)
+    draws = [rng.choice(len(X), K, replace=False) for _ in range(RANDOM_DRAWS)]
+    values = np.array([criterion_value(_info(X, d), criterion, W, K) for d in draws])
+    tools = [_tool_error(_info(X, d), W)[0] for d in draws]
+    tool = _tool_error(_info(X, sel.indices), W)
+    return Design(pool.subset(sel.indices), pool.size, sel, p.rank, len(p.identifiability.names),
+                  float(np.median(values)), values, tool[0], tool[1], float(np.median(tools)))
+
+
+def identifiable_basis(problem: Problem, p) -> np.ndarray:
+    """(p, r) basis of the identifiable subspace in natural units whose coordinates are orthonormal with
+    lengths in units of the robot's reach (as the observability indices): spectral criteria compare like with
+    like; D, I and G do not depend on this choice."""
+    scale = np.where(np.array(problem.layout.units)[problem.free_idx] == "m", reach(problem.robot), 1.0)
+    Q = np.linalg.qr(p.identifiability.range_space / scale[:, None])[0]
+    return scale[:, None] * Q
+
+
+def ds_rows(problem: Problem) -> int:
+    """Residual rows per configuration of the problem's one experiment."""
+    (exp,) = problem.experiments
+    return len(exp.components())
+
+
+def _candidate_rows(problem: Problem, p, V: np.ndarray) -> np.ndarray:
+    (exp,) = problem.experiments
+    k = len(exp.components())
+    J = p.result.linearization.J[: exp.size * k]
+    return (J @ V).reshape(exp.size, k, V.shape[1])
+
+
+def _workspace_rows(robot: Robot, p, V: np.ndarray, n: int, seed: int) -> np.ndarray:
+    """(arms * n, 3, r): the registered tool position's sensitivity over a workspace sample of every arm."""
+    rng = np.random.default_rng(seed + 2)
+    out = [tool_motion(p.result, random_configurations(robot[a], n, rng), a, V)[:, :3, :]
+           for a in p.result.state.arms]
+    return np.concatenate(out)
+
+
+def _info(X: np.ndarray, idx: Sequence[int]) -> np.ndarray:
+    return information(X[np.asarray(idx)])
+
+
+def _tool_error(M: np.ndarray, W: np.ndarray) -> tuple[float, float]:
+    """RMS and max over the workspace sample of the predicted tool position std (m) for information M."""
+    try:
+        Minv = np.linalg.inv(M)
+    except np.linalg.LinAlgError:
+        return float("inf"), float("inf")
+    var = np.einsum("wcr,rs,wcs->w", W, Minv, W).clip(0)
+    return float(np.sqrt(var.mean())), float(np.sqrt(var.max()))
