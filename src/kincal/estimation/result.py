@@ -2,19 +2,21 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Mapping
 
 import numpy as np
 
 from kincal.analysis import Identifiability, Linearization
+from kincal.analysis.derived import Derived, derived
+from kincal.analysis.gauge import GaugeView, min_change, weights
 from kincal.analysis.prediction import Prediction, predicted_accuracy
 from kincal.estimation.outliers import Outlier
 from kincal.estimation.problem import Problem
 from kincal.estimation.stats import ResidualStats, ValidationStats
 from kincal.kinematics import Robot
 from kincal.noise import Noise
-from kincal.params import Layout, State
+from kincal.params import Layout, State, displacement
 
 
 @dataclass(frozen=True)
@@ -28,6 +30,12 @@ class Estimate:
     std: float  # nan when unidentifiable
     unit: str
     identifiable: bool
+    # the change from nominal split in the result's gauge (``Result.gauge``, kincal.analysis.gauge): the part the
+    # data determine, its standard deviation (finite for every coordinate), and a move along unidentifiable
+    # directions (changes no residual); nan where there is no gauge view (a degenerate solve)
+    determined: float = float("nan")
+    std_determined: float = float("nan")
+    gauge_move: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -70,6 +78,8 @@ class Result:
     predictions: tuple[tuple[str, Prediction], ...] = ()  # (validation set, prediction) per arm
     weights: np.ndarray | None = None  # robust loss: per whitened residual row, the weight the loss gave it
     outliers: tuple[Outlier, ...] = ()  # configurations left out of the solve (``calibrate(outliers=...)``)
+    gauge: GaugeView | None = None  # the gauge of ``Estimate.determined`` and of ``derived``'s standard deviations
+    derived: tuple[Derived, ...] = ()  # axis geometry and tool pose at the nominal zero (kincal.analysis.derived)
 
     @property
     def success(self) -> bool:
@@ -98,3 +108,20 @@ class Result:
                      f"residual variance factor {self.sigma2:.3g}")
         lines += self.messages
         return "\n".join(lines)
+
+
+def in_gauge(result: Result) -> Result:
+    """``result`` with its estimates split in the ``min-change`` gauge and the derived quantities (axis geometry,
+    tool pose at the nominal zero) with standard deviations in that gauge. A degenerate solve is returned as is."""
+    problem = result.problem
+    if problem is None or result.status == "degenerate" or not len(problem.free_idx):
+        return result
+    free = problem.free_idx
+    disp, D = displacement(result.state, problem.nominal, result.layout)
+    view = min_change(disp[free], D[np.ix_(free, free)], result.identifiability.null_space, result.covariance,
+                      weights(result.layout, free))
+    estimates = tuple(replace(e, determined=float(d), std_determined=float(s), gauge_move=float(g))
+                      for e, d, s, g in zip(result.estimates, view.determined, view.std, view.gauge_move))
+    quantities = derived(result.state, problem.nominal, result.layout, free, view.local_covariance,
+                         result.identifiability.null_space)
+    return replace(result, estimates=estimates, gauge=view, derived=quantities)
