@@ -29,6 +29,9 @@ from kincal.params import Layout, State, retract
 PARALLEL_SIN = 1e-2  # consecutive nominal axes closer to parallel than this (sin of the angle) use the parallel form
 INVARIANT_RTOL = 1e-4  # a quantity moved less than this (relative to its gradient) by a null direction is invariant
 STEP = 1e-6  # central-difference step in natural units (m, rad)
+# Gradient norm (per natural unit) below which no free coordinate moves a quantity (differences of round-off):
+# it is not estimated (e.g. consecutive axis geometry when only offsets are free) and not reported.
+UNMOVED = 1e-7
 
 
 @dataclass(frozen=True)
@@ -219,8 +222,9 @@ def jacobian(state: State, layout: Layout, free: np.ndarray, arms_terms: dict, s
 
 def derived(state: State, nominal: State, layout: Layout, free: np.ndarray, covariance: np.ndarray,
             null: np.ndarray) -> tuple[Derived, ...]:
-    """The derived quantities of every arm with free coordinates, standard deviations from ``covariance`` (free
-    local coordinates, the result's gauge), invariance judged against the null basis ``null`` (p, k)."""
+    """The derived quantities of every arm with free coordinates that the free coordinates move, standard
+    deviations from ``covariance`` (free local coordinates, the result's gauge), invariance judged against the
+    null basis ``null`` (p, k)."""
     arms = [b.arm for b in layout.blocks if b.arm is not None and layout.free[b.start: b.stop].any()]
     arms_terms = {arm: terms(nominal, arm) for arm in dict.fromkeys(arms)}
     if not arms_terms:
@@ -228,8 +232,9 @@ def derived(state: State, nominal: State, layout: Layout, free: np.ndarray, cova
     values, nominals = evaluate(state, arms_terms), evaluate(nominal, arms_terms)
     G = jacobian(state, layout, free, arms_terms)
     std = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", G, covariance, G), 0, None))
+    size = np.linalg.norm(G, axis=1)
     moved = np.linalg.norm(G @ null, axis=1) if null.shape[1] else np.zeros(len(G))
-    invariant = moved <= INVARIANT_RTOL * np.maximum(np.linalg.norm(G, axis=1), 1e-300)
+    invariant = moved <= INVARIANT_RTOL * size
     flat = [t for ts in arms_terms.values() for t in ts]
     return tuple(Derived(t.name, float(v), float(v0), float(s), t.unit, bool(ok), t.words)
-                 for t, v, v0, s, ok in zip(flat, values, nominals, std, invariant))
+                 for t, v, v0, s, ok, g in zip(flat, values, nominals, std, invariant, size) if g > UNMOVED)
