@@ -22,9 +22,10 @@ from typing import Callable
 
 import numpy as np
 
+from kincal.analysis.naming import block_of
 from kincal.kinematics import REVOLUTE, chain
 from kincal.lie import se3, so3
-from kincal.params import Layout, State, retract
+from kincal.params import COMPLIANCE, Layout, State, retract
 
 PARALLEL_SIN = 1e-2  # consecutive nominal axes closer to parallel than this (sin of the angle) use the parallel form
 INVARIANT_RTOL = 1e-4  # a quantity moved less than this (relative to its gradient) by a null direction is invariant
@@ -60,11 +61,14 @@ class _Geometry:
 
 
 @dataclass(frozen=True)
-class _Term:
-    name: str
-    unit: str
-    words: str
-    fn: Callable[[_Geometry], float]
+class _Group:
+    """Quantities computed together (one axis pair, the tool pose in one frame): names, units, words, and the
+    function of an arm's geometry giving their values."""
+
+    names: tuple[str, ...]
+    units: tuple[str, ...]
+    words: tuple[str, ...]
+    fn: Callable[[_Geometry], np.ndarray]
 
 
 def geometry(state: State, arm: str) -> _Geometry:
@@ -81,6 +85,11 @@ def geometry(state: State, arm: str) -> _Geometry:
     return _Geometry(points, dirs, kin.tool)
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product of two 3-vectors (np.cross is slow on single vectors, and Jacobians evaluate many)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
+
+
 def _closest_on(p1, u1, p2, u2) -> np.ndarray:
     """The point of line (p1, u1) closest to line (p2, u2) (not parallel)."""
     w0 = p1 - p2
@@ -89,73 +98,63 @@ def _closest_on(p1, u1, p2, u2) -> np.ndarray:
 
 
 def _unit(x: np.ndarray) -> np.ndarray:
-    return x / np.linalg.norm(x)
+    return x / np.sqrt(x @ x)
 
 
-def _skew_terms(prefix: str, words: str, j: int, k: int, revolute: bool) -> list[_Term]:
-    def distance(g):
-        return float((g.points[k] - g.points[j]) @ _unit(np.cross(g.dirs[j], g.dirs[k])))
+def _skew_pair(prefix: str, words: str, j: int, k: int, revolute: bool) -> _Group:
+    """Axes j, k not parallel: the signed common-normal length (revolute pairs) and the angle between them."""
 
-    def angle(g):
-        return float(np.arctan2(np.linalg.norm(np.cross(g.dirs[j], g.dirs[k])), g.dirs[j] @ g.dirs[k]))
+    def fn(g):
+        c = _cross(g.dirs[j], g.dirs[k])
+        angle = np.arctan2(np.sqrt(c @ c), g.dirs[j] @ g.dirs[k])
+        return np.array([(g.points[k] - g.points[j]) @ _unit(c), angle] if revolute else [angle])
 
-    out = [_Term(f"{prefix}.angle", "rad", f"angle between the axes of {words}", angle)]
-    if revolute:
-        out.insert(0, _Term(f"{prefix}.distance", "m", f"common-normal length between the axes of {words} "
-                                                        "(signed along the cross product of their directions)", distance))
-    return out
+    names, units = (f"{prefix}.distance", f"{prefix}.angle"), ("m", "rad")
+    texts = (f"common-normal length between the axes of {words} (signed along the cross product of their "
+             "directions)", f"angle between the axes of {words}")
+    return _Group(names, units, texts, fn) if revolute else _Group(names[1:], units[1:], texts[1:], fn)
 
 
-def _parallel_terms(prefix: str, words: str, j: int, k: int, anchor: int | None, sign: float) -> list[_Term]:
+def _parallel_pair(prefix: str, words: str, j: int, k: int, anchor: int | None, sign: float) -> _Group:
     """Nearly parallel axes j, k: their distance measured at the point of axis j closest to the nearest axis not
     parallel to it (``anchor``; a common normal is undefined there), and the tilt of axis k in and out of their
     common plane (signed, so smooth through parallel)."""
 
-    def frame(g):
+    def fn(g):
         p1, u1 = g.points[j], g.dirs[j]
         if anchor is not None:
             p1 = _closest_on(p1, u1, g.points[anchor], g.dirs[anchor])
         u2 = sign * g.dirs[k]
-        q2 = g.points[k] + ((p1 - g.points[k]) @ u2) * u2
-        d = q2 - p1
+        d = g.points[k] + ((p1 - g.points[k]) @ u2) * u2 - p1
         d = d - (d @ u1) * u1
         e1 = _unit(d)
-        return d, u1, u2, e1, np.cross(u1, e1)
-
-    def distance(g):
-        return float(np.linalg.norm(frame(g)[0]))
-
-    def tilt(which):
-        def fn(g):
-            _, u1, u2, e1, e2 = frame(g)
-            return float(np.arctan2(u2 @ (e1 if which == 0 else e2), u2 @ u1))
-        return fn
+        e2 = _cross(u1, e1)
+        return np.array([np.sqrt(d @ d), np.arctan2(u2 @ e1, u2 @ u1), np.arctan2(u2 @ e2, u2 @ u1)])
 
     at = "" if anchor is None else f", at the point of the first axis closest to axis {anchor + 1}"
-    return [_Term(f"{prefix}.distance", "m", f"distance between the (nearly parallel) axes of {words}{at}", distance),
-            _Term(f"{prefix}.tilt_in", "rad", f"tilt of the second axis towards the first in their common plane, {words}",
-                  tilt(0)),
-            _Term(f"{prefix}.tilt_out", "rad", f"tilt of the second axis out of their common plane, {words}", tilt(1))]
+    return _Group((f"{prefix}.distance", f"{prefix}.tilt_in", f"{prefix}.tilt_out"), ("m", "rad", "rad"),
+                  (f"distance between the (nearly parallel) axes of {words}{at}",
+                   f"tilt of the second axis towards the first in their common plane, {words}",
+                   f"tilt of the second axis out of their common plane, {words}"), fn)
 
 
-def _pair_terms(arm: str, names, types, g0: _Geometry) -> list[_Term]:
-    n, out = len(names), []
-    sines = [np.linalg.norm(np.cross(g0.dirs[j], g0.dirs[j + 1])) for j in range(n - 1)]
-    for j in range(n - 1):
+def _pair_groups(arm: str, names, types, g0: _Geometry) -> list[_Group]:
+    out = []
+    for j in range(len(names) - 1):
         prefix, words = f"{arm}.{names[j]}-{names[j + 1]}", f"{names[j]} and {names[j + 1]} at the nominal zero"
         revolute = types[j] == REVOLUTE and types[j + 1] == REVOLUTE
-        if sines[j] >= PARALLEL_SIN:
-            out += _skew_terms(prefix, words, j, j + 1, revolute)
+        if np.linalg.norm(_cross(g0.dirs[j], g0.dirs[j + 1])) >= PARALLEL_SIN:
+            out.append(_skew_pair(prefix, words, j, j + 1, revolute))
         elif revolute:
-            out += _parallel_terms(prefix, words, j, j + 1, _anchor(g0, j, types),
-                                   float(np.sign(g0.dirs[j] @ g0.dirs[j + 1])))
+            out.append(_parallel_pair(prefix, words, j, j + 1, _anchor(g0, j, types),
+                                      float(np.sign(g0.dirs[j] @ g0.dirs[j + 1]))))
     return out
 
 
 def _anchor(g0: _Geometry, j: int, types) -> int | None:
     """The revolute axis nearest to j (by index, earlier first) not parallel to it, or None."""
     for k in sorted(range(len(types)), key=lambda k: (abs(k - j), k)):
-        if k != j and types[k] == REVOLUTE and np.linalg.norm(np.cross(g0.dirs[j], g0.dirs[k])) >= PARALLEL_SIN:
+        if k != j and types[k] == REVOLUTE and np.linalg.norm(_cross(g0.dirs[j], g0.dirs[k])) >= PARALLEL_SIN:
             return k
     return None
 
@@ -165,59 +164,72 @@ def _base_frame(g: _Geometry) -> np.ndarray:
     common normal (axis 1 x axis 2)."""
     o = _closest_on(g.points[0], g.dirs[0], g.points[1], g.dirs[1])
     z = g.dirs[0]
-    x = _unit(np.cross(g.dirs[0], g.dirs[1]))
-    return se3.make(np.stack([x, np.cross(z, x), z], axis=1), o)
+    x = _unit(_cross(g.dirs[0], g.dirs[1]))
+    return se3.make(np.stack([x, _cross(z, x), z], axis=1), o)
 
 
-def _tool_terms(arm: str, names, types, g0: _Geometry) -> list[_Term]:
+def _world_frame(g: _Geometry) -> np.ndarray:
+    return np.eye(4)
+
+
+def _tool_groups(arm: str, names, types, g0: _Geometry) -> list[_Group]:
     """The tool pose at the nominal zero in the world frame and, when the first two axes are revolute and not
     parallel, in their frame: position, and rotation from the nominal tool orientation (about the frame's axes)."""
-    frames = [("world", "the world frame", lambda g: np.eye(4))]
+    frames = [("world", "the world frame", _world_frame)]
     if len(names) > 1 and types[0] == REVOLUTE == types[1] and \
-            np.linalg.norm(np.cross(g0.dirs[0], g0.dirs[1])) >= PARALLEL_SIN:
+            np.linalg.norm(_cross(g0.dirs[0], g0.dirs[1])) >= PARALLEL_SIN:
         frames.insert(0, ("axes12", f"the frame of the axes of {names[0]} and {names[1]} (origin on the first at "
                                     "their common normal, z along it, x along the common normal)", _base_frame))
     out = []
     for key, where, F in frames:
         R0 = (se3.inverse(F(g0)) @ g0.tool)[:3, :3]
 
-        def pose(g, F=F):
-            return se3.inverse(F(g)) @ g.tool
+        def fn(g, F=F, R0=R0):
+            T = se3.inverse(F(g)) @ g.tool
+            return np.concatenate([T[:3, 3], so3.log(T[:3, :3] @ R0.T)])
 
-        for i, c in enumerate("xyz"):
-            out.append(_Term(f"{arm}.tool_at_zero.{key}.{c}", "m", f"tool position at the nominal zero, {c} in {where}",
-                             lambda g, i=i, pose=pose: float(pose(g)[i, 3])))
-        for i, c in enumerate("xyz"):
-            out.append(_Term(f"{arm}.tool_at_zero.{key}.rot_{c}", "rad",
-                             f"tool rotation from its nominal orientation at the nominal zero, about {c} of {where}",
-                             lambda g, i=i, pose=pose, R0=R0: float(so3.log(pose(g)[:3, :3] @ R0.T)[i])))
+        out.append(_Group(
+            tuple(f"{arm}.tool_at_zero.{key}.{c}" for c in ("x", "y", "z", "rot_x", "rot_y", "rot_z")),
+            ("m",) * 3 + ("rad",) * 3,
+            tuple(f"tool position at the nominal zero, {c} in {where}" for c in "xyz")
+            + tuple(f"tool rotation from its nominal orientation at the nominal zero, about {c} of {where}"
+                    for c in "xyz"), fn))
     return out
 
 
-def terms(nominal: State, arm: str) -> list[_Term]:
+def groups(nominal: State, arm: str) -> list[_Group]:
     """The derived quantities of ``arm``, their formulas chosen on the ``nominal`` state."""
     a, g0 = nominal.arms[arm], geometry(nominal, arm)
-    return _pair_terms(arm, a.joint_names, a.joint_types, g0) + _tool_terms(arm, a.joint_names, a.joint_types, g0)
+    return _pair_groups(arm, a.joint_names, a.joint_types, g0) + _tool_groups(arm, a.joint_names, a.joint_types, g0)
 
 
-def evaluate(state: State, arms_terms: dict) -> np.ndarray:
-    """The values of ``{arm: terms}`` at ``state``."""
+def names(arms_groups: dict) -> list[str]:
+    """The quantities' names, in the order of ``evaluate``."""
+    return [n for gs in arms_groups.values() for grp in gs for n in grp.names]
+
+
+def evaluate(state: State, arms_groups: dict) -> np.ndarray:
+    """The values of ``{arm: groups}`` at ``state``."""
     out = []
-    for arm, ts in arms_terms.items():
+    for arm, gs in arms_groups.items():
         g = geometry(state, arm)
-        out += [t.fn(g) for t in ts]
-    return np.array(out)
+        out += [grp.fn(g) for grp in gs]
+    return np.concatenate(out) if out else np.zeros(0)
 
 
-def jacobian(state: State, layout: Layout, free: np.ndarray, arms_terms: dict, step: float = STEP) -> np.ndarray:
-    """d values / d free local coordinates (m, p) by central differences through ``retract``."""
-    cols = []
-    for i in free:
+def jacobian(state: State, layout: Layout, free: np.ndarray, arms_groups: dict, step: float = STEP) -> np.ndarray:
+    """d values / d free local coordinates (m, p) by central differences through ``retract``; zero for the
+    coordinates the geometry at zero does not depend on (experiment frames, other arms, compliances: no load)."""
+    G = np.zeros((len(names(arms_groups)), len(free)))
+    for k, i in enumerate(free):
+        b = block_of(layout, int(i))
+        if b.arm not in arms_groups or b.kind is COMPLIANCE:
+            continue
         d = np.zeros(layout.size)
         d[i] = step
-        cols.append((evaluate(retract(state, layout, d), arms_terms)
-                     - evaluate(retract(state, layout, -d), arms_terms)) / (2 * step))
-    return np.stack(cols, axis=1) if cols else np.zeros((0, 0))
+        G[:, k] = (evaluate(retract(state, layout, d), arms_groups)
+                   - evaluate(retract(state, layout, -d), arms_groups)) / (2 * step)
+    return G
 
 
 def derived(state: State, nominal: State, layout: Layout, free: np.ndarray, covariance: np.ndarray,
@@ -226,15 +238,15 @@ def derived(state: State, nominal: State, layout: Layout, free: np.ndarray, cova
     deviations from ``covariance`` (free local coordinates, the result's gauge), invariance judged against the
     null basis ``null`` (p, k)."""
     arms = [b.arm for b in layout.blocks if b.arm is not None and layout.free[b.start: b.stop].any()]
-    arms_terms = {arm: terms(nominal, arm) for arm in dict.fromkeys(arms)}
-    if not arms_terms:
+    arms_groups = {arm: groups(nominal, arm) for arm in dict.fromkeys(arms)}
+    if not arms_groups:
         return ()
-    values, nominals = evaluate(state, arms_terms), evaluate(nominal, arms_terms)
-    G = jacobian(state, layout, free, arms_terms)
+    values, nominals = evaluate(state, arms_groups), evaluate(nominal, arms_groups)
+    G = jacobian(state, layout, free, arms_groups)
     std = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", G, covariance, G), 0, None))
     size = np.linalg.norm(G, axis=1)
     moved = np.linalg.norm(G @ null, axis=1) if null.shape[1] else np.zeros(len(G))
     invariant = moved <= INVARIANT_RTOL * size
-    flat = [t for ts in arms_terms.values() for t in ts]
-    return tuple(Derived(t.name, float(v), float(v0), float(s), t.unit, bool(ok), t.words)
-                 for t, v, v0, s, ok, g in zip(flat, values, nominals, std, invariant, size) if g > UNMOVED)
+    flat = [(n, u, w) for gs in arms_groups.values() for grp in gs for n, u, w in zip(grp.names, grp.units, grp.words)]
+    return tuple(Derived(n, float(v), float(v0), float(s), u, bool(ok), w)
+                 for (n, u, w), v, v0, s, ok, g in zip(flat, values, nominals, std, invariant, size) if g > UNMOVED)

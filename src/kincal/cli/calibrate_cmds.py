@@ -105,8 +105,9 @@ def _print_estimates(console: Console, result) -> None:
     for e in result.estimates:
         unit, v, s = _shown(e)
         k = 1.0 if unit == e.unit else (DEG if e.unit == "rad" else 1e3)
+        det, det_std, move = g.split(e.name) if g is not None else (math.nan,) * 3
         t.add_row(e.name, _num(v, digits=6), _num(s, digits=3) if e.identifiable else "unidentifiable",
-                  _num(e.determined, k, 6), _num(e.std_determined, k, 3), _num(e.gauge_move, k, 4), unit)
+                  _num(det, k, 6), _num(det_std, k, 3), _num(move, k, 4), unit)
     console.print(t)
     if g is not None:
         console.print(f"gauge: {g.description}")

@@ -11,7 +11,7 @@ from kincal.estimation.gauge import gauge_basis
 from kincal.estimation.iterate import Iteration, scale_test_needed
 from kincal.estimation.options import SolverOptions
 from kincal.estimation.problem import Problem
-from kincal.estimation.result import Estimate, Result, TwistEstimate, in_gauge
+from kincal.estimation.result import Estimate, Result, TwistEstimate
 from kincal.params import HOME, TWISTS, displacement, twist_coordinates
 
 # Residual variance factor above which the fit is reported as not explaining the data (RMS 10x the noise).
@@ -46,7 +46,7 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
             f"(residual variance factor {sigma2:.3g}); the estimates absorb what the free parameters cannot model "
             f"and their standard deviations assume a model that fits. {_misfit_advice(problem)}"))
     names = [problem.layout.names[i] for i in problem.free_idx]
-    return in_gauge(Result(  # estimates split in the reported gauge, derived quantities (issue 9, finding 6)
+    return Result(
         robot=run.state.to_robot(problem.robot), nominal_robot=problem.robot, state=run.state,
         layout=problem.layout, estimates=tuple(_estimates(problem, run.state, std, ok)), covariance=cov,
         correlated=tuple(correlated_pairs(cov, names, options.correlation_threshold, ok)),
@@ -55,7 +55,7 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
         iterations=run.iterations, evaluations=run.evaluations, messages=tuple(messages),
         extras=dict(run.state.extras), problem=problem, linearization=lin,
         twists=_twists(problem, run.state, cov), weights=None if options.loss == "linear" else weights,
-    ))
+    )
 
 
 def robust_weights(r: np.ndarray, loss: str, f_scale: float) -> tuple[np.ndarray, np.ndarray]:

@@ -76,8 +76,7 @@ def result_to_dict(result: Result | BaselineResult) -> dict:
         "gauge": _gauge(result),
         "estimates": [
             {"name": e.name, "unit": e.unit, "value": _f(e.value), "nominal": _f(e.nominal), "std": _f(e.std),
-             "identifiable": e.identifiable, "determined": _f(e.determined), "determined_std": _f(e.std_determined),
-             "gauge_move": _f(e.gauge_move)}
+             "identifiable": e.identifiable, **_split(result, e.name)}
             for e in result.estimates
         ],
         "derived": [{"name": d.name, "unit": d.unit, "value": _f(d.value), "nominal": _f(d.nominal), "std": _f(d.std),
@@ -100,6 +99,15 @@ def _gauge(result: Result) -> dict | None:
     """The gauge of the estimates' ``determined`` part and of the derived quantities' standard deviations."""
     g = result.gauge
     return None if g is None else {"name": g.name, "description": g.description}
+
+
+def _split(result: Result, name: str) -> dict:
+    """One estimate's change from nominal split in the gauge: ``determined`` (with ``determined_std``) and
+    ``gauge_move``; empty without a gauge (a degenerate solve)."""
+    if result.gauge is None:
+        return {}
+    d, s, g = result.gauge.split(name)
+    return {"determined": _f(d), "determined_std": _f(s), "gauge_move": _f(g)}
 
 
 def data_warnings(result: Result) -> list[str]:
