@@ -3,6 +3,7 @@ nominal split into what the data determine and a gauge move, and derived quantit
 at the nominal zero) with standard deviations that cover the truth."""
 
 import io
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -233,3 +234,20 @@ def test_determined_values_are_the_min_change_point(case, ur, plate4):
     again = min_change(disp[free], D[np.ix_(free, free)], null, np.eye(len(free)), weights(res.layout, free))
     assert np.max(np.abs(again.gauge_move)) < 1e-8
     np.testing.assert_allclose(again.determined, g.determined, atol=1e-8)
+
+
+def test_robust_loss_keeps_the_first_order_split_and_degenerate_has_none():
+    """With a robust loss the walk (plain Gauss-Newton) would leave the robust optimum: the split is taken at the
+    solved values (``state`` None), still with a standard deviation for every coordinate. A degenerate solve has
+    no gauge view and no derived quantities."""
+    nominal = load("ur10")
+    ds, _, _ = generate_markers(perturb_robot(nominal, "fine", 3), n=60, rng=7, markers=3, noise=NOISE)
+    res = calibrate(nominal, [ds], "kinematic", noise=NOISE, loss="cauchy", outliers="keep")
+    assert res.weights is not None and res.gauge.state is None
+    assert np.all(np.isfinite(res.gauge.std))
+    np.testing.assert_allclose(res.gauge.determined + res.gauge.gauge_move,
+                               [e.value - e.nominal for e in res.estimates], atol=1e-12)
+    assert sum(q.identifiable for q in res.derived) == 12
+    gone = replace(res, status="degenerate")
+    assert gone.gauge is None and gone.derived == ()
+    assert "determined" not in result_to_dict(gone)["estimates"][0]
