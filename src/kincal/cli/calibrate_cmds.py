@@ -93,6 +93,9 @@ def print_summary(console: Console, result, title: str) -> None:
         console.print(f"- strongly correlated: {a} and {b} (rho = {r:+.3f})")
 
 
+HELD_STD = 1e-9  # m or rad: a determined change whose std is below this is held at nominal by the gauge
+
+
 def _print_estimates(console: Console, result) -> None:
     """The estimates, their change from nominal split into what the data determine (in the result's gauge, with
     its standard deviation) and a gauge move (changes no residual), then the derived quantities."""
@@ -106,8 +109,10 @@ def _print_estimates(console: Console, result) -> None:
         unit, v, s = _shown(e)
         k = 1.0 if unit == e.unit else (DEG if e.unit == "rad" else 1e3)
         det, det_std, move = g.split(e.name) if g is not None else (math.nan,) * 3
+        held = e.unit in ("m", "rad") and det_std < HELD_STD  # kept at nominal by the gauge: change is round-off
         t.add_row(e.name, _num(v, digits=6), _num(s, digits=3) if e.identifiable else "unidentifiable",
-                  _num(det, k, 6), _num(det_std, k, 3), _num(move, k, 4), unit)
+                  "0" if held else _num(det, k, 6), "held at nominal" if held else _num(det_std, k, 3),
+                  _num(move, k, 4), unit)
     console.print(t)
     if g is not None:
         console.print(f"gauge: {g.description}")
