@@ -91,17 +91,46 @@ def print_summary(console: Console, result, title: str) -> None:
     _print_outliers(console, result.validation_outliers, "validation ")
     _print_predictions(console, prediction_rows(result))
     _print_cross_validation(console, cross_validation_dict(result.cross_validation))
-    t = Table(title="estimates (offsets and compliances absolute; twist/pose coordinates as change from nominal)")
-    for c in ("parameter", "value", "std", "unit"):
-        t.add_column(c, justify="left" if c == "parameter" else "right")
-    for e in result.estimates:
-        unit, v, s = _shown(e)
-        t.add_row(e.name, _num(v, digits=6), _num(s, digits=3) if e.identifiable else "unidentifiable", unit)
-    console.print(t)
+    _print_estimates(console, result)
     for m in result.messages:
         console.print(f"- {m}")
     for a, b, r in result.correlated[:10]:
         console.print(f"- strongly correlated: {a} and {b} (rho = {r:+.3f})")
+
+
+HELD_STD = 1e-9  # m or rad: a determined change whose std is below this is held at nominal by the gauge
+
+
+def _print_estimates(console: Console, result) -> None:
+    """The estimates, their change from nominal split into what the data determine (in the result's gauge, with
+    its standard deviation) and a gauge move (changes no residual), then the derived quantities."""
+    g = result.gauge
+    gauge = g.name if g is not None else "none"
+    t = Table(title=f"estimates (offsets and compliances absolute; twist/pose coordinates as change from nominal); "
+                    f"change = determined + gauge move, determined in the gauge '{gauge}' (see below)")
+    for c in ("parameter", "value", "std", "determined", "determined std", "gauge move", "unit"):
+        t.add_column(c, justify="left" if c == "parameter" else "right")
+    for e in result.estimates:
+        unit, v, s = _shown(e)
+        k = 1.0 if unit == e.unit else (DEG if e.unit == "rad" else 1e3)
+        det, det_std, move = g.split(e.name) if g is not None else (math.nan,) * 3
+        held = e.unit in ("m", "rad") and det_std < HELD_STD  # kept at nominal by the gauge: change is round-off
+        t.add_row(e.name, _num(v, digits=6), _num(s, digits=3) if e.identifiable else "unidentifiable",
+                  "0" if held else _num(det, k, 6), "held at nominal" if held else _num(det_std, k, 3),
+                  _num(move, k, 4), unit)
+    console.print(t)
+    if g is not None:
+        console.print(f"gauge: {g.description}")
+    if not result.derived:
+        return
+    t = Table(title="derived quantities at the nominal zero (identifiable: the same value and std in every gauge)")
+    for c in ("quantity", "value", "nominal", "change", "std", "identifiable", "unit"):
+        t.add_column(c, justify="left" if c == "quantity" else "right")
+    for d in result.derived:
+        k, unit = (DEG, "deg") if d.unit == "rad" else (1e3, "mm") if d.unit == "m" else (1.0, d.unit)
+        t.add_row(d.name, _num(d.value, k, 6), _num(d.nominal, k, 6), _num(d.value - d.nominal, k, 4),
+                  _num(d.std, k, 3), "yes" if d.identifiable else "no (gauge)", unit)
+    console.print(t)
 
 
 def _print_predictions(console: Console, rows) -> None:

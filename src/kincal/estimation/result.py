@@ -2,20 +2,25 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Mapping
 
 import numpy as np
 
-from kincal.analysis import Identifiability, Linearization
+from kincal.analysis import Identifiability, Linearization, covariance, identify
+from kincal.analysis.derived import Derived, derived
+from kincal.analysis.gauge import GaugeView, min_change, representative, weights
 from kincal.analysis.prediction import Prediction, predicted_accuracy
 from kincal.estimation.crossval import CrossValidation
+from kincal.estimation import steps
+from kincal.estimation.iterate import scale_test_needed
 from kincal.estimation.outliers import Outlier
 from kincal.estimation.problem import Problem
 from kincal.estimation.stats import ResidualStats, ValidationStats
 from kincal.kinematics import Robot
 from kincal.noise import Noise
-from kincal.params import Layout, State
+from kincal.params import Layout, State, displacement
 
 
 @dataclass(frozen=True)
@@ -95,6 +100,23 @@ class Result:
     def values(self) -> dict[str, float]:
         return {e.name: e.value for e in self.estimates}
 
+    @property
+    def gauge(self) -> GaugeView | None:
+        """Every estimate's change from nominal split into what the data determine in the ``min-change`` gauge
+        (with standard deviations for every coordinate) and a gauge move (``GaugeView.split(name)``); None for a
+        degenerate solve. Computed on first use (the walk to the min-change point takes a few linearizations)."""
+        return self._in_gauge[0]
+
+    @property
+    def derived(self) -> tuple[Derived, ...]:
+        """Axis geometry and tool pose at the nominal zero with standard deviations in the gauge of ``gauge``
+        (``kincal.analysis.derived``); computed on first use."""
+        return self._in_gauge[1]
+
+    @cached_property
+    def _in_gauge(self) -> tuple[GaugeView | None, tuple[Derived, ...]]:
+        return in_gauge(self)
+
     def predict(self, q, arm: str, *, register: bool = True, register_tool: bool = False,
                 noise: Noise | None = None) -> Prediction:
         """Predicted accuracy of the calibrated tool pose of ``arm`` at joint readings q (N, n): standard
@@ -109,3 +131,49 @@ class Result:
                      f"residual variance factor {self.sigma2:.3g}")
         lines += self.messages
         return "\n".join(lines)
+
+
+def in_gauge(result: Result) -> tuple[GaugeView | None, tuple[Derived, ...]]:
+    """``result``'s estimates split in the ``min-change`` gauge and the derived quantities (axis geometry, tool
+    pose at the nominal zero) with standard deviations in that gauge, both at the ``min-change`` point of the
+    estimate's orbit (``kincal.analysis.gauge.representative``; with a robust loss, or where walking there would
+    worsen the fit, at the estimate to first order). ``(None, ())`` for a degenerate solve."""
+    problem = result.problem
+    if problem is None or result.status == "degenerate" or not len(problem.free_idx):
+        return None, ()
+    free, layout = problem.free_idx, result.layout
+    w = weights(layout, free)
+    state, null, cov = result.state, result.identifiability.null_space, result.covariance
+    found = _representative(result, w) if null.shape[1] and result.weights is None else None
+    if found is not None:
+        state, lin, ana = found
+        null = ana.null_space
+        cov = covariance(lin.Rf, ana.range_space, result.sigma2 if np.isfinite(result.sigma2) else 1.0)
+    disp, D = displacement(state, problem.nominal, layout)
+    view = min_change(disp[free], D[np.ix_(free, free)], null, cov, w)
+    change = displacement(result.state, problem.nominal, layout)[0][free]
+    view = replace(view, change=change, gauge_move=change - view.determined, state=None if found is None else state,
+                   names=tuple(e.name for e in result.estimates))
+    return view, derived(state, problem.nominal, layout, free, view.local_covariance, null)
+
+
+# Whitened chi^2 the walk to the min-change point may add (relative): exact gauges leave it unchanged; those the
+# residuals lift (held all the same, kincal.analysis.symmetries) change it by the noise's share.
+REPRESENTATIVE_COST_RTOL = 0.05
+
+
+def _representative(result: Result, w: np.ndarray):
+    """``kincal.analysis.gauge.representative`` for ``result``'s problem, or None where it would worsen the fit."""
+    problem, lin0 = result.problem, result.linearization
+    W = None if problem.joint_noise else lin0.W
+    every = scale_test_needed(problem)
+
+    def relinearize(state):
+        lin = steps.linearize(problem, state, W, every)
+        return lin, identify(lin, problem.layout, problem.experiments, rtol=result.identifiability.rtol, report=False)
+
+    found = representative(result.state, problem.nominal, problem.layout, problem.free_idx, w, relinearize)
+    if found is None or found[2].rank != result.identifiability.rank:
+        return None
+    ok = found[1].cost2 <= (1 + REPRESENTATIVE_COST_RTOL) * lin0.cost2 + 1e-12
+    return found if ok else None

@@ -49,7 +49,9 @@ def _validation(v: ValidationStats) -> dict:
 def result_to_dict(result: Result | BaselineResult) -> dict:
     """The report of a kincal ``Result`` or of a thesis baseline's ``BaselineResult``, one schema: ``format``,
     ``version``, ``method``, ``status``, ``iterations``, ``messages``, ``estimates`` (a list of entries with
-    ``name`` and ``value``), ``validation``; kincal adds its identifiability, uncertainty and statistics, the
+    ``name`` and ``value``), ``validation``; kincal adds its identifiability, uncertainty and statistics (the
+    change from nominal split into ``determined`` and ``gauge_move`` in the stated ``gauge``, and the ``derived``
+    quantities: axis geometry and tool pose at the nominal zero, docs/formats.md), the
     baseline the thesis' Eval_error before and after. ``outliers``: the rows left out of the solve,
     ``data_warnings``: impossible rows the loaders found."""
     if isinstance(result, BaselineResult):
@@ -72,11 +74,14 @@ def result_to_dict(result: Result | BaselineResult) -> dict:
         "unidentifiable": [{"pivot": d.pivot, "partners": {n: v for n, v in d.partners}, "words": d.words}
                            for d in ana.directions],
         "scale_unidentifiable": bool(ana.scale_unidentifiable),
+        "gauge": _gauge(result),
         "estimates": [
             {"name": e.name, "unit": e.unit, "value": _f(e.value), "nominal": _f(e.nominal), "std": _f(e.std),
-             "identifiable": e.identifiable}
+             "identifiable": e.identifiable, **_split(result, e.name)}
             for e in result.estimates
         ],
+        "derived": [{"name": d.name, "unit": d.unit, "value": _f(d.value), "nominal": _f(d.nominal), "std": _f(d.std),
+                     "identifiable": d.identifiable, "words": d.words} for d in result.derived],
         "twists": [{"name": t.name, "value": _f(t.value), "std": _f(t.std)} for t in result.twists],
         "correlated": [{"a": a, "b": b, "rho": r} for a, b, r in result.correlated],
         "outliers": [_outlier(o) for o in result.outliers],
@@ -122,6 +127,21 @@ def cross_validation_dict(cv) -> dict | None:
             "overall": figures(cv.pooled),
             "model_error_position_mm": _f(cv.position_model * 1e3),
             "model_error_orientation_deg": _f(cv.orientation_model * DEG)}
+
+
+def _gauge(result: Result) -> dict | None:
+    """The gauge of the estimates' ``determined`` part and of the derived quantities' standard deviations."""
+    g = result.gauge
+    return None if g is None else {"name": g.name, "description": g.description}
+
+
+def _split(result: Result, name: str) -> dict:
+    """One estimate's change from nominal split in the gauge: ``determined`` (with ``determined_std``) and
+    ``gauge_move``; empty without a gauge (a degenerate solve)."""
+    if result.gauge is None:
+        return {}
+    d, s, g = result.gauge.split(name)
+    return {"determined": _f(d), "determined_std": _f(s), "gauge_move": _f(g)}
 
 
 def data_warnings(result: Result) -> list[str]:

@@ -1,5 +1,6 @@
 """Plots of a calibration ``Result`` as PNG files: residuals before and after per data set, the singular value
-spectrum behind the identifiability report, the standard deviations of the estimates, and predicted against
+spectrum behind the identifiability report, the standard deviations of the identifiable estimates and derived
+quantities (axis geometry, tool pose at the nominal zero), and predicted against
 actual accuracy on validation sets. matplotlib (``pip install "kincal[plot]"``) is imported here only, with the
 file-only Agg backend."""
 
@@ -103,26 +104,38 @@ def _spectrum(plt, result):
     return fig
 
 
-def _uncertainty(plt, result, limit: int = 40):
+def _uncertainty_rows(result) -> list[tuple[str, float, str, bool]]:
+    """(name, std in deg or mm, unit, derived) of every identifiable estimate and identifiable (gauge-invariant)
+    derived quantity: what the data determine whatever the gauge."""
     rows = []
-    for e in result.estimates:
-        if e.identifiable and np.isfinite(e.std):
-            scale, unit = {"rad": (DEG, "deg"), "m": (1e3, "mm")}.get(e.unit, (1.0, e.unit))
-            rows.append((e.name, e.std * scale, unit))
+    items = [(e, False) for e in result.estimates] + [(d, True) for d in result.derived]
+    for x, is_derived in items:
+        if x.identifiable and np.isfinite(x.std):
+            scale, unit = {"rad": (DEG, "deg"), "m": (1e3, "mm")}.get(x.unit, (1.0, x.unit))
+            rows.append((x.name, x.std * scale, unit, is_derived))
+    return rows
+
+
+def _uncertainty(plt, result, limit: int = 40):
+    rows = _uncertainty_rows(result)
     fig, axes = plt.subplots(1, 2, figsize=(11, max(3.0, 0.22 * min(len(rows), limit) + 1)))
     for ax, unit in zip(axes, ("deg", "mm")):
-        sel = sorted((r for r in rows if r[2] == unit), key=lambda r: -r[1])[:limit]
-        ax.barh([r[0] for r in sel][::-1], [r[1] for r in sel][::-1])
+        sel = sorted((r for r in rows if r[2] == unit), key=lambda r: -r[1])[:limit][::-1]
+        ax.barh([r[0] for r in sel], [r[1] for r in sel],
+                color=["tab:orange" if r[3] else "tab:blue" for r in sel])
         ax.set_xlabel(f"standard deviation [{unit}]")
         ax.set_title(f"angles ({unit})" if unit == "deg" else f"lengths ({unit})")
         ax.tick_params(axis="y", labelsize=7)
+        ax.tick_params(axis="x", labelrotation=30)
         if not sel:
             ax.set_xticks([])
             ax.set_yticks([])
-            ax.text(0.5, 0.5, "no parameter of this kind is identifiable on its own:\neach trades off against "
-                    "others (identifiability.png,\nresult.yaml); only combinations are determined",
+            ax.text(0.5, 0.5, "no parameter or derived quantity of this kind is identifiable:\neach trades off "
+                    "against others (identifiability.png,\nresult.yaml); only combinations are determined",
                     transform=ax.transAxes, ha="center", va="center", fontsize=8)
-    fig.suptitle("standard deviations of the identifiable estimates (largest first)", y=1.02)
+    fig.suptitle("standard deviations of what the data determine in every gauge (largest first): identifiable "
+                 "estimates (blue),\naxis geometry and tool pose at the nominal zero (orange, result.yaml 'derived')",
+                 y=1.08)
     return fig
 
 
