@@ -33,10 +33,11 @@ import yaml
 
 from kincal.data import Dataset, frames_problem
 from kincal.errors import DataFormatError, KincalError
-from kincal.estimation.plausibility import implausible_units
+from kincal.estimation.plausibility import CELL_FACTOR, implausible_units, past_limits
 from kincal.io import units
+from kincal.io.csvtable import Table, read_table
 from kincal.io.models import _Ctx, _mapping, _matrix, _number, _pose, _vector, load_robot, save_robot
-from kincal.io.yamlfile import read_text, read_yaml
+from kincal.io.yamlfile import clip, read_yaml
 from kincal.kinematics import PRISMATIC, Robot
 from kincal.lie import se3
 from kincal.lie.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix
@@ -103,7 +104,7 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
         raise ctx.fail(*bad)
     noise = units.noise_from_file(top.get("noise") or {}, f"{ctx.file}: noise").as_si()
     csv_path = manifest.parent / str(top["data"])
-    table = _read_csv(csv_path)
+    table = read_table(csv_path, integer={c for f in schema.measured if f.form == "index" for c in f.columns})
     q = {}
     for a in arms:
         model = robot[a]
@@ -111,13 +112,13 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
         q[a] = table.take([f"{a}.{j}" for j in model.joint_names]) * f
     measured = _measured(ctx, schema, table, known)
     meta = {"noise": noise, "manifest": str(manifest), "description": top.get("description", ""),
-            "file": str(csv_path), "lines": np.array([line for line, _ in table.rows], int),  # header = line 1
-            "warnings": _impossible_rows(table, measured)}
+            "file": str(csv_path), "lines": table.lines,  # header = line 1
+            "warnings": _impossible_rows(table, measured) + _limit_warnings(ctx, table, robot, q, u)}
     if "t" in table.header:
         meta["t"] = table.take(["t"])[:, 0]
     extra = [c for c in table.header if c not in table.used]
     if extra:
-        raise DataFormatError(f"{csv_path}: line {table.header_line}, column '{extra[0]}': unexpected column for kind "
+        raise DataFormatError(f"{csv_path}: line {table.header_line}, column '{clip(extra[0])}': unexpected column for kind "
                               f"'{kind}' with arms {arms}; expected only {', '.join(table.used)}")
     name = str(top.get("name") or manifest.stem)
     try:
@@ -128,7 +129,7 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
     return ds
 
 
-def _plausible_units(ctx, table: _Table, robot: Robot, ds: Dataset, u: dict) -> None:
+def _plausible_units(ctx, table: Table, robot: Robot, ds: Dataset, u: dict) -> None:
     """Raise, naming file, line and column, on joint readings or measured lengths whose size does not fit the
     robot: a unit mix-up (``kincal.estimation.plausibility``)."""
     bad = implausible_units(robot, ds)
@@ -136,15 +137,35 @@ def _plausible_units(ctx, table: _Table, robot: Robot, ds: Dataset, u: dict) -> 
         return
     if bad.field == "q":
         raise DataFormatError(
-            f"{table.path}: line {table.rows[bad.sample][0]}, column '{bad.arm}.{robot[bad.arm].joint_names[bad.joint]}':"
+            f"{table.path}: line {table.lines[bad.sample]}, column '{bad.arm}.{robot[bad.arm].joint_names[bad.joint]}':"
             f" expected a joint angle within +-4 pi rad, found {bad.value / ctx.angle:.6g} {u['angle']}: check "
             f"units.angle ('{u['angle']}') in {ctx.file}: are the readings in "
             f"{'degrees' if u['angle'] == 'rad' else 'other units'}?")
     f = SCHEMAS[ds.kind].field(bad.field)
     cols = _columns(f, table)[:3] if f.form == "pose" else _columns(f, table)
+    if bad.column >= 0:
+        raise DataFormatError(
+            f"{table.path}: line {table.lines[bad.sample]}, column '{cols[bad.column]}': expected a length within "
+            f"{bad.spread / ctx.length:.4g} {u['length']} of the column's median ({CELL_FACTOR:g} times the data's "
+            f"size), found {bad.value / ctx.length:.6g} {u['length']}: not a measurement of this robot")
     raise DataFormatError(
         f"{table.path}: columns '{cols[0]}'..'{cols[-1]}': {bad.describe(robot)}: check units.length "
         f"('{u['length']}') in {ctx.file}{_unit_hint(bad.value, ctx.length)}")
+
+
+def _limit_warnings(ctx, table: Table, robot: Robot, q: dict, u: dict) -> tuple[str, ...]:
+    """Warnings (not errors: a robot may be driven past a limit set in software) on joint readings past the
+    model's limits, per joint: the first lines, the first reading and the limit it is past, in file units."""
+    out = []
+    for a, j, rows, limit in past_limits(robot, q):
+        prismatic = robot[a].joint_types[j] == PRISMATIC
+        f, unit = (ctx.length, u["length"]) if prismatic else (ctx.angle, u["angle"])
+        column = f"{a}.{robot[a].joint_names[j]}"
+        lines = ", ".join(str(table.lines[r]) for r in rows[:MAX_ROW_WARNINGS])
+        more = f" and {len(rows) - MAX_ROW_WARNINGS} more" if len(rows) > MAX_ROW_WARNINGS else ""
+        out.append(f"{table.path}: line(s) {lines}{more}, column '{column}': reading {q[a][rows[0], j] / f:.6g} "
+                   f"{unit} is past the joint limit {limit / f:.6g} {unit} of model '{robot.name}'")
+    return tuple(out)
 
 
 def _unit_hint(ratio: float, length: float) -> str:
@@ -161,69 +182,12 @@ def _resolve_model(manifest: Path, ref: str) -> str:
     return ref
 
 
-class _Table:
-    """A parsed CSV: header, values per line, and which columns were used."""
-
-    def __init__(self, path: Path, header: list[str], header_line: int, rows: list[tuple[int, list[str]]]):
-        self.path, self.header, self.header_line, self.rows = path, header, header_line, rows
-        self.col = {c: i for i, c in enumerate(header)}
-        self.used: list[str] = []
-
-    def take(self, columns: list[str], integer: bool = False) -> np.ndarray:
-        for c in columns:
-            if c not in self.col:
-                raise DataFormatError(
-                    f"{self.path}: line {self.header_line}, column '{c}': missing from the header; "
-                    f"found columns: {', '.join(self.header)}"
-                )
-        self.used += [c for c in columns if c not in self.used]
-        out = np.empty((len(self.rows), len(columns)))
-        for r, (line, values) in enumerate(self.rows):
-            for k, c in enumerate(columns):
-                text = values[self.col[c]].strip()
-                x = units.plain_number(text, integer)
-                if x is None:
-                    what = "an integer" if integer else ("a finite number" if units.overflows(text) else "a number")
-                    raise DataFormatError(
-                        f"{self.path}: line {line}, column '{c}': expected {what}, found {text[:40]!r}"
-                    )
-                out[r, k] = x
-        return out
-
-
-def _read_csv(path: Path) -> _Table:
-    lines = read_text(path, "data file").splitlines()
-    header, header_line, rows = None, 0, []
-    for number, fields in ((i + 1, f) for i, f in enumerate(csv.reader(lines))):
-        if not fields or not "".join(fields).strip() or fields[0].lstrip().startswith("#"):
-            continue
-        if header is None:
-            header, header_line = [f.strip() for f in fields], number
-            dup = {c for c in header if header.count(c) > 1}
-            if dup or "" in header:
-                raise DataFormatError(f"{path}: line {number}: header has empty or repeated column names {sorted(dup)}")
-            continue
-        if len(fields) < len(header):
-            raise DataFormatError(f"{path}: line {number}, column '{header[len(fields)]}': row has {len(fields)} "
-                                  f"values, the header has {len(header)} columns")
-        if len(fields) > len(header):
-            raise DataFormatError(
-                f"{path}: line {number}: row has {len(fields)} values, the header has {len(header)} columns"
-            )
-        rows.append((number, fields))
-    if header is None:
-        raise DataFormatError(f"{path}: no header line (expected column names such as 'left.j1')")
-    if not rows:
-        raise DataFormatError(f"{path}: no data rows after the header (line {header_line})")
-    return _Table(path, header, header_line, rows)
-
-
 def _factor(ctx, unit: str) -> float:
     """The SI factor of a file's numbers of this unit kind."""
     return ctx.length if unit == LENGTH else ctx.angle if unit == ANGLE else 1.0
 
 
-def _columns(f: Field, table: _Table | None = None, count: int = 0) -> list[str]:
+def _columns(f: Field, table: Table | None = None, count: int = 0) -> list[str]:
     """The CSV columns of a measured entry (points: as many as ``table``'s header lists, else ``count``)."""
     if f.form == "pose":
         return [f"{f.columns[0]}.{c}" for c in POSE_SUFFIXES]
@@ -234,7 +198,7 @@ def _columns(f: Field, table: _Table | None = None, count: int = 0) -> list[str]
     return list(f.columns)
 
 
-def _measured(ctx, schema: Schema, table: _Table, known: dict) -> dict:
+def _measured(ctx, schema: Schema, table: Table, known: dict) -> dict:
     out = {}
     for f in schema.measured:
         cols = _columns(f, table)
@@ -252,7 +216,7 @@ def _measured(ctx, schema: Schema, table: _Table, known: dict) -> dict:
 MAX_ROW_WARNINGS = 5
 
 
-def _impossible_rows(table: _Table, measured: dict) -> tuple[str, ...]:
+def _impossible_rows(table: Table, measured: dict) -> tuple[str, ...]:
     """Warnings (not errors: the outlier rule leaves such rows out) on rows no instrument gives: a measured
     point or position exactly at the origin (a tracker that lost its target reports zeros), a row repeated
     exactly (a logger that wrote a reading twice)."""
@@ -264,41 +228,37 @@ def _impossible_rows(table: _Table, measured: dict) -> tuple[str, ...]:
             continue
         zero = np.flatnonzero(np.all(pts.reshape(len(pts), -1, 3) == 0, axis=2).any(axis=1))
         out += _row_warning(table, zero, f"'{key}' has a point exactly at the origin (a lost target?)")
-    seen, repeated = {}, []
-    for r, (_, values) in enumerate(table.rows):
-        key = tuple(v.strip() for v in values)
-        if key in seen:
-            repeated.append(r)
-        seen.setdefault(key, r)
-    out += _row_warning(table, np.array(repeated, int), "repeats an earlier row exactly")
+    _, first, inverse = np.unique(table.values, axis=0, return_index=True, return_inverse=True)
+    out += _row_warning(table, np.flatnonzero(first[inverse.ravel()] != np.arange(len(table))),
+                        "repeats an earlier row exactly")
     return tuple(out)
 
 
-def _row_warning(table: _Table, rows: np.ndarray, what: str) -> list[str]:
+def _row_warning(table: Table, rows: np.ndarray, what: str) -> list[str]:
     if not len(rows):
         return []
-    lines = ", ".join(str(table.rows[r][0]) for r in rows[:MAX_ROW_WARNINGS])
+    lines = ", ".join(str(table.lines[r]) for r in rows[:MAX_ROW_WARNINGS])
     more = f" and {len(rows) - MAX_ROW_WARNINGS} more" if len(rows) > MAX_ROW_WARNINGS else ""
     return [f"{table.path}: line(s) {lines}{more}: {what}"]
 
 
-def _read_pose_columns(ctx, f: Field, table: _Table, cols, known) -> np.ndarray:
+def _read_pose_columns(ctx, f: Field, table: Table, cols, known) -> np.ndarray:
     v = table.take(cols)
     norm = np.linalg.norm(v[:, 3:], axis=-1)
     bad = np.flatnonzero(np.abs(norm - 1) > QUAT_TOL)
     if bad.size:
-        line = table.rows[bad[0]][0]
+        line = table.lines[bad[0]]
         raise DataFormatError(f"{table.path}: line {line}, column '{cols[3]}': expected a unit quaternion "
                               f"(norm 1 within {QUAT_TOL:g}), found norm {norm[bad[0]]:.9g}")
     return se3.make(quat_wxyz_to_matrix(v[:, 3:] / norm[:, None]), v[:, :3] * ctx.length)
 
 
-def _read_index_column(ctx, f: Field, table: _Table, cols, known) -> np.ndarray:
-    idx = table.take(cols, integer=True)[:, 0].astype(int)
+def _read_index_column(ctx, f: Field, table: Table, cols, known) -> np.ndarray:
+    idx = table.take(cols)[:, 0].astype(int)
     K = known[f.bound].shape[0]
     bad = np.flatnonzero((idx < 0) | (idx >= K))
     if bad.size:
-        raise DataFormatError(f"{table.path}: line {table.rows[bad[0]][0]}, column '{cols[0]}': expected an index "
+        raise DataFormatError(f"{table.path}: line {table.lines[bad[0]]}, column '{cols[0]}': expected an index "
                               f"0..{K - 1} into known.{f.bound} (which lists {K}), found {idx[bad[0]]}")
     return idx
 
