@@ -135,13 +135,14 @@ def _progress(console: Console, quiet: bool):
 @click.option("--quiet", is_flag=True, help="Print nothing but errors.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
 @click.option("--plots", is_flag=True, help='Also write PNG plots to OUT/plots (needs "kincal[plot]").')
-def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool) -> None:
+@click.option("--confine", is_flag=True, help="Refuse file references outside the job's folder (docs/formats.md).")
+def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool, confine: bool) -> None:
     """Calibrate as described by JOB.yaml (docs/job-format.md) and write the results to OUT.
 
     Exit codes: 0 converged, 1 not converged, 2 bad input, 3 degenerate, 4 misfit (docs/calibration.md)."""
     console = _console()
     _refuse_existing(out, ("model.yaml", "result.yaml") + (("plots",) if plots else ()))
-    j = load_job(job)
+    j = load_job(job, confine=confine)
     if not (quiet or as_json):
         console.print(f"calibrating '{j.name}': {len(j.datasets)} data set(s), free: {j.free}, method: {j.method}")
     result = run_job(j, _progress(console, quiet or as_json))

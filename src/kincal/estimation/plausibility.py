@@ -123,9 +123,9 @@ def _absurd_cell(key: str, arm: str, x: np.ndarray, tool: float) -> Implausible 
     data's size, or None."""
     flat = x.reshape(len(x), -1)
     median = np.median(flat, axis=0)
-    typical = np.median(np.linalg.norm((x - median.reshape(x.shape[1:])).reshape(len(x), -1, 3), axis=-1))
-    bound = CELL_FACTOR * max(tool, float(typical), MIN_SIZE)
-    with np.errstate(over="ignore", invalid="ignore"):
+    with np.errstate(over="ignore", invalid="ignore"):  # the absurd value itself overflows a distance: inf
+        typical = np.median(np.linalg.norm((flat - median).reshape(len(x), -1, 3), axis=-1))
+        bound = CELL_FACTOR * max(tool, float(typical), MIN_SIZE)
         far = ~(np.abs(flat - median) <= bound)
     if not far.any():
         return None

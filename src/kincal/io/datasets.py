@@ -37,7 +37,8 @@ from kincal.estimation.plausibility import CELL_FACTOR, implausible_units, past_
 from kincal.io import units
 from kincal.io.csvtable import Table, read_table
 from kincal.io.models import _Ctx, _mapping, _matrix, _number, _pose, _vector, load_robot, save_robot
-from kincal.io.yamlfile import clip, read_yaml
+from kincal.io.references import model_reference, resolve, same_model
+from kincal.io.yamlfile import clip, quote, read_yaml
 from kincal.kinematics import PRISMATIC, Robot
 from kincal.lie import se3
 from kincal.lie.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix
@@ -61,25 +62,29 @@ def _fmt(x: float) -> str:
 # --------------------------------------------------------------------------------------------- reading
 
 
-def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
+def load_dataset(manifest, robot: Robot | None = None, *, job_model: str | None = None,
+                 root: Path | None = None) -> Dataset:
     """Read and validate a data set from its manifest path.
 
     ``robot``: the model to check joint names (and prismatic units) against; default: the manifest's
-    ``model`` (built-in name or a path relative to the manifest).
+    ``model`` (built-in name or a path relative to the manifest). ``job_model``: the resolved model reference
+    of the job reading the manifest (``references.model_reference``); the manifest's ``model`` must name the
+    same model, or a model of the same robot (same name, arms and joints: e.g. one calibrated before).
+    ``root``: the folder every file reference must lie in (a confined job).
     """
     manifest = Path(manifest)
     data = read_yaml(manifest, "data set manifest")
     ctx = _Ctx(str(manifest))
     top = _mapping(ctx, data, "(top level)", _TOP_KEYS, ("format", "version", "kind", "model", "arms", "data", "units"))
     if top["format"] != FORMAT:
-        raise ctx.fail("format", f"expected {FORMAT!r}, found {top['format']!r}")
+        raise ctx.fail("format", f"expected {quote(FORMAT)}, found {quote(top['format'])}")
     if top["version"] != VERSION or isinstance(top["version"], bool):
-        raise ctx.fail("version", f"expected {VERSION}, found {top['version']!r}")
+        raise ctx.fail("version", f"expected {VERSION}, found {quote(top['version'])}")
     kind = ctx.one_of("kind", top["kind"], SCHEMAS)
     schema = SCHEMAS[kind]
     arms = top["arms"]
     if not isinstance(arms, list) or not all(isinstance(a, str) and a for a in arms) or len(set(arms)) != len(arms):
-        raise ctx.fail("arms", f"expected a list of distinct arm names, found {arms!r}")
+        raise ctx.fail("arms", f"expected a list of distinct arm names, found {quote(arms)}")
     if len(arms) != schema.arms:
         raise ctx.fail("arms", f"kind '{kind}' needs {schema.arms} arm(s), found {arms}")
     u = _mapping(ctx, top["units"], "units", {"angle", "length"}, ("angle", "length"))
@@ -87,23 +92,20 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
     ctx.length = units.factor("length", u["length"], f"{manifest}: units.length")
     model_ref = top["model"]
     if not isinstance(model_ref, str) or not model_ref:
-        raise ctx.fail("model", f"expected a built-in robot name or a model file path, found {model_ref!r}")
-    resolved = _resolve_model(manifest, model_ref)
-    if robot is None:
-        try:
-            robot = load_robot(resolved)
-        except KincalError as exc:
-            raise ctx.fail("model", str(exc)) from None
+        raise ctx.fail("model", f"expected a built-in robot name or a model file path, found {quote(model_ref)}")
+    resolved = model_reference(manifest, model_ref, f"{manifest}: model", root)
+    if robot is None or (job_model is not None and not same_model(resolved, job_model)):
+        robot = _job_robot(ctx, resolved, robot, job_model)
     for a in arms:
         if a not in robot.arms:
-            raise ctx.fail("arms", f"model '{robot.name}' has no arm {a!r}; its arms: {', '.join(robot.arms)}")
+            raise ctx.fail("arms", f"model '{robot.name}' has no arm {quote(a)}; its arms: {', '.join(robot.arms)}")
     known = _known(ctx, schema, top.get("known") or {})
     frames = top.get("frames") or {}
     bad = frames_problem(kind, frames, tuple(robot.arms))
     if bad:
         raise ctx.fail(*bad)
     noise = units.noise_from_file(top.get("noise") or {}, f"{ctx.file}: noise").as_si()
-    csv_path = manifest.parent / str(top["data"])
+    csv_path = resolve(manifest, str(top["data"]), f"{manifest}: data", root)
     table = read_table(csv_path, integer={c for f in schema.measured if f.form == "index" for c in f.columns})
     q = {}
     for a in arms:
@@ -174,12 +176,23 @@ def _unit_hint(ratio: float, length: float) -> str:
     return f": are the columns in '{best}'?" if units.LENGTH[best] != length else ""
 
 
-def _resolve_model(manifest: Path, ref: str) -> str:
-    """A built-in name stays as is; a path is taken relative to the manifest."""
-    p = Path(ref)
-    if p.suffix in (".yaml", ".yml") or "/" in ref or os.sep in ref:
-        return str(p if p.is_absolute() else (manifest.parent / p))
-    return ref
+def _job_robot(ctx, resolved: str, robot: Robot | None, job_model: str | None) -> Robot:
+    """The manifest's own model; with a job's ``robot`` (model ``job_model``), that robot when the manifest's
+    model is another model of the same robot (same name, arms and joint names), else an error naming both."""
+    try:
+        own = load_robot(resolved)
+    except KincalError as exc:
+        if robot is None:
+            raise ctx.fail("model", str(exc)) from None
+        raise ctx.fail("model", f"'{resolved}' is not the job's model '{job_model}', and it cannot be "
+                                f"read to compare: {exc}") from None
+    if robot is None:
+        return own
+    if own.name != robot.name or any(a not in own.arms or own[a].joint_names != robot[a].joint_names
+                                     for a in robot.arms):
+        raise ctx.fail("model", f"'{resolved}' (robot '{own.name}') is not the job's model '{job_model}' "
+                                f"(robot '{robot.name}'): the data were recorded on another robot")
+    return robot
 
 
 def _factor(ctx, unit: str) -> float:
@@ -499,7 +512,7 @@ def _si_key(ctx, key: str, value: Any, path: str) -> tuple[str, float]:
         return f"{base}_m", _number(ctx, value, path) * units.LENGTH[unit]
     if unit in units.ANGLE:
         return f"{base}_rad", _number(ctx, value, path) * units.ANGLE[unit]
-    raise ctx.fail(path, f"key must end in a unit ({', '.join(list(units.LENGTH) + list(units.ANGLE))}), found {key!r}")
+    raise ctx.fail(path, f"key must end in a unit ({', '.join(list(units.LENGTH) + list(units.ANGLE))}), found {quote(key)}")
 
 
 BUILTIN_SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
@@ -526,14 +539,14 @@ def load_scenario(path) -> dict:
     ctx = _Ctx(str(path))
     top = _mapping(ctx, data, "(top level)", _SCENARIO_KEYS, ("format", "version", "model", "experiment"))
     if top["format"] != SCENARIO_FORMAT:
-        raise ctx.fail("format", f"expected {SCENARIO_FORMAT!r}, found {top['format']!r}")
+        raise ctx.fail("format", f"expected {quote(SCENARIO_FORMAT)}, found {quote(top['format'])}")
     if top["version"] != VERSION:
-        raise ctx.fail("version", f"expected {VERSION}, found {top['version']!r}")
+        raise ctx.fail("version", f"expected {VERSION}, found {quote(top['version'])}")
     u = _mapping(ctx, top.get("units", {"length": "m", "angle": "rad"}), "units", {"length", "angle"},
                  ("length", "angle"))
     ctx.length = units.factor("length", u["length"], f"{path}: units.length")
     ctx.angle = units.factor("angle", u["angle"], f"{path}: units.angle")
-    model = _resolve_model(path, str(top["model"]))
+    model = model_reference(path, str(top["model"]), f"{path}: model")
     try:
         robot = load_robot(model)
     except KincalError as exc:
@@ -544,10 +557,10 @@ def load_scenario(path) -> dict:
         units.factor(q, out.get(q, "rad" if q == "angle" else "m"), f"{path}: output.{q}")
     seed = top.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ctx.fail("seed", f"expected a non-negative integer, found {seed!r}")
+        raise ctx.fail("seed", f"expected a non-negative integer, found {quote(seed)}")
     n_val = top.get("validation", 100)
     if isinstance(n_val, bool) or not isinstance(n_val, int) or n_val < 1:
-        raise ctx.fail("validation", f"expected a positive number of configurations, found {n_val!r}")
+        raise ctx.fail("validation", f"expected a positive number of configurations, found {quote(n_val)}")
     return {"name": str(top.get("name") or path.stem), "robot": robot, "model": model, "kind": kind,
             "options": options, "truth": _truth(ctx, top.get("truth") or {}, robot),
             "noise": units.noise_from_file(top.get("noise") or {}, f"{ctx.file}: noise"), "validation": n_val,
@@ -565,13 +578,13 @@ def _truth(ctx, data: Any, robot: Robot) -> dict:
     if COMPLIANCE_KEY in truth:  # joint compliances drawn in [0, value] (rad/(N m); prismatic joints m/N)
         c = _number(ctx, truth[COMPLIANCE_KEY], f"truth.{COMPLIANCE_KEY}")
         if not (np.isfinite(c) and c >= 0):
-            raise ctx.fail(f"truth.{COMPLIANCE_KEY}", f"expected a compliance >= 0, found {c!r}")
+            raise ctx.fail(f"truth.{COMPLIANCE_KEY}", f"expected a compliance >= 0, found {quote(c)}")
         over["compliance"] = c
     level = ctx.one_of("truth.level", truth.get("level", "thesis"), PERTURBATION_LEVELS)
     arms = truth.get("arms")
     if arms is not None and (not isinstance(arms, list) or any(a not in robot.arms for a in arms)):
         raise ctx.fail("truth.arms", f"expected a list of arms of '{robot.name}' ({', '.join(robot.arms)}), "
-                       f"found {arms!r}")
+                       f"found {quote(arms)}")
     return {"level": level, "overrides": over, "arms": arms}
 
 
@@ -593,25 +606,25 @@ def _experiment(ctx, exp: Any, robot: Robot) -> tuple[str, dict]:
 
 def _read_count(ctx, o, value, p, robot):
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ctx.fail(p, f"expected a positive integer, found {value!r}")
+        raise ctx.fail(p, f"expected a positive integer, found {quote(value)}")
     return value
 
 
 def _read_bool(ctx, o, value, p, robot):
     if not isinstance(value, bool):
-        raise ctx.fail(p, f"expected true or false, found {value!r}")
+        raise ctx.fail(p, f"expected true or false, found {quote(value)}")
     return value
 
 
 def _read_arm(ctx, o, value, p, robot):
     if value not in robot.arms:
-        raise ctx.fail(p, f"expected an arm of '{robot.name}' ({', '.join(robot.arms)}), found {value!r}")
+        raise ctx.fail(p, f"expected an arm of '{robot.name}' ({', '.join(robot.arms)}), found {quote(value)}")
     return value
 
 
 def _read_arms(ctx, o, value, p, robot):
     if not isinstance(value, list) or len(value) != 2 or any(a not in robot.arms for a in value):
-        raise ctx.fail(p, f"expected two arms of '{robot.name}' ({', '.join(robot.arms)}), found {value!r}")
+        raise ctx.fail(p, f"expected two arms of '{robot.name}' ({', '.join(robot.arms)}), found {quote(value)}")
     return tuple(value)
 
 
@@ -633,7 +646,7 @@ def _read_wrench(ctx, o, value, p, robot):
         return _vector(ctx, value, p, 6)
     w = _number(ctx, value, p)
     if not (np.isfinite(w) and w > 0):
-        raise ctx.fail(p, f"expected a load magnitude > 0 (N) or [fx, fy, fz, tx, ty, tz], found {value!r}")
+        raise ctx.fail(p, f"expected a load magnitude > 0 (N) or [fx, fy, fz, tx, ty, tz], found {quote(value)}")
     return w
 
 

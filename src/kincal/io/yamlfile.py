@@ -125,6 +125,11 @@ def clip(text: str, limit: int = MAX_QUOTE) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
+def quote(x) -> str:
+    """``repr(x)`` as an error message may quote it (``clip``): never more of a file than a short line."""
+    return clip(repr(x))
+
+
 def _checked(path, what: str) -> Path:
     """``path`` if it names a regular file no larger than ``MAX_TEXT_BYTES``, else a DataFormatError."""
     path = Path(path)
