@@ -12,9 +12,11 @@ import yaml
 
 from kincal.cli import main
 from kincal.errors import DataFormatError
+from kincal.io.csvtable import read_table
 from kincal.io.datasets import load_dataset, write_dataset
 from kincal.io.jobs import load_job, write_job
 from kincal.io.models import save_robot
+from kincal.io.yamlfile import parse_yaml
 from kincal.robots import load
 from kincal.simulate.generators import generate_markers
 from kincal.simulate.perturb import perturb_robot
@@ -162,3 +164,17 @@ def test_joint_readings_past_their_limits_are_warned_and_past_4_pi_refused_unles
     q[3, 2] = 13.0
     back = load_dataset(write_dataset(replace(ds, q={"arm": q}), job.parent / "c.yaml", free, model="ur10"), free)
     assert back.q["arm"][3, 2] == 13.0 and not any("limit" in w for w in back.meta["warnings"])
+
+
+def test_yaml_and_csv_errors_cut_their_quotes_short(tmp_path):
+    long = "k" * 300
+    for text in (f"{long}: 1\n{long}: 2\n", f"x: *{long}\n", f"x: 1\n{long}: [\n"):
+        with pytest.raises(DataFormatError) as e:
+            parse_yaml(text, "f.yaml")
+        assert "k" * 170 not in str(e.value) and "\n" not in str(e.value)
+    csv = tmp_path / "t.csv"
+    for body in (f"{long},{long}\n1,2\n", f"a,b\n1,{long}\n", f"a,{long}\n1,x\n"):
+        csv.write_text(body)
+        with pytest.raises(DataFormatError) as e:
+            read_table(csv)
+        assert "k" * 81 not in str(e.value) and "\n" not in str(e.value)

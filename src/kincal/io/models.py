@@ -23,7 +23,7 @@ import yaml
 from kincal.errors import DataFormatError, KincalError, ModelError
 from kincal.io import units
 from kincal.lie.rotations import quat_wxyz_to_matrix, rpy_to_matrix
-from kincal.io.yamlfile import parse_yaml, quote, read_text
+from kincal.io.yamlfile import clip, parse_yaml, quote, read_text
 from kincal.kinematics.model import PRISMATIC, REVOLUTE, ArmModel, Robot
 from kincal.lie import se3, so3
 
@@ -312,7 +312,7 @@ def _mapping(ctx: _Ctx, data: Any, path: str, allowed: set, required: tuple = ()
 
 def _join(path: str, key: Any) -> str:
     # a key that is not plain text (spaces, line breaks, a number) is shown quoted, so the message stays one line
-    shown = key if isinstance(key, str) and key.isprintable() and key.strip() == key and key else repr(key)
+    shown = clip(key) if isinstance(key, str) and key.isprintable() and key.strip() == key and key else quote(key)
     return shown if path == "(top level)" else f"{path}.{shown}"
 
 

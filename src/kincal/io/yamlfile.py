@@ -64,7 +64,7 @@ class _Loader(yaml.SafeLoader):
                 continue
             if first is not key_node.start_mark:
                 raise yaml.constructor.ConstructorError(
-                    None, None, f"key {key!r} appears twice in one mapping (first on line {first.line + 1})",
+                    None, None, f"key {quote(key)} appears twice in one mapping (first on line {first.line + 1})",
                     key_node.start_mark)
         return super().construct_mapping(node, deep)
 
@@ -99,7 +99,7 @@ def parse_yaml(text: str, file: str):
         mark = getattr(exc, "problem_mark", None)
         where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise DataFormatError(f"{file}: not valid YAML{where}: {problem}") from None
+        raise DataFormatError(f"{file}: not valid YAML{where}: {clip(problem, 2 * MAX_QUOTE)}") from None
     except ValueError as exc:  # PyYAML's scanner lets a few escapes through, e.g. "\U" beyond U+10FFFF
         raise DataFormatError(f"{file}: not valid YAML: {str(exc).splitlines()[0][:100]}") from None
 
