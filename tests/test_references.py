@@ -178,3 +178,11 @@ def test_yaml_and_csv_errors_cut_their_quotes_short(tmp_path):
         with pytest.raises(DataFormatError) as e:
             read_table(csv)
         assert "k" * 81 not in str(e.value) and "\n" not in str(e.value)
+
+
+def test_confine_covers_the_jobs_model_file(job, tmp_path):
+    save_robot(load("ur10"), tmp_path / "outside.yaml")
+    _edit(job, model="../outside.yaml")
+    assert load_job(job).robot.name == "ur10"
+    with pytest.raises(DataFormatError, match=r"job\.yaml: model: '\.\./outside\.yaml' resolves to .* outside"):
+        load_job(job, confine=True)

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from kincal.cli import main
-from kincal.estimation.memory import ENV, PER_ROW, solve_bytes
+from kincal.errors import ResourceError
+from kincal.estimation.memory import ENV, PER_CELL, PER_ROW, memory_limit, solve_bytes
 from kincal.io.datasets import write_dataset
 from kincal.io.jobs import write_job
 from kincal.robots import load
@@ -85,3 +86,16 @@ def test_a_solve_that_fits_stays_within_its_estimate(big_job):
     # the process' peak beyond what it held before the solve (interpreter, libraries, the loaded data)
     assert got["maxrss"] - got["held"] <= got["estimate"], got
     assert resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024 <= got["held"] + got["estimate"]
+
+
+def test_the_limit_is_the_available_memory_unless_overridden(monkeypatch):
+    monkeypatch.delenv(ENV, raising=False)
+    limit, source = memory_limit()
+    assert 0 < limit and ("available RAM" in source or "cgroup" in source)
+    for text, expected in (("1500", 1500), ("64M", 64 * 2**20), ("2.5G", int(2.5 * 2**30)), ("8GiB", 8 * 2**30)):
+        monkeypatch.setenv(ENV, text)
+        assert memory_limit() == (expected, ENV)
+    monkeypatch.setenv(ENV, "lots")
+    with pytest.raises(ResourceError, match=rf"{ENV}='lots': expected a number of bytes"):
+        memory_limit()
+    assert solve_bytes(1000, 10) == 8 * 1000 * (PER_ROW + 10 * PER_CELL)

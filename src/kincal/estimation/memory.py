@@ -1,10 +1,10 @@
 """The memory a solve will need, estimated from the problem's size before anything large is allocated, and the
 refusal when it will not fit.
 
-The estimate is ``8 * rows * (PER_ROW + PER_CELL * free)`` bytes beyond what the process holds already, ``rows`` the residual rows (samples
-times residual components) and ``free`` the free coordinates. The constants were measured (tracemalloc peak
-of ``calibrate`` with outliers rejected, ``Problem.build`` included, above the memory held before; numbers
-are doubles per residual row):
+The estimate is ``8 * rows * (PER_ROW + PER_CELL * free)`` bytes beyond what the process holds already, ``rows``
+the residual rows (samples times residual components) and ``free`` the free coordinates. The constants were
+measured (tracemalloc peak of ``calibrate`` with outliers rejected, ``Problem.build`` included, above the memory
+held before; numbers are doubles per residual row):
 
     kind      robot   free  rows     peak/row   of which per free column
     markers   ur10      21  180000      337      1.5 (Jacobian copies alive at once)
@@ -19,7 +19,7 @@ About 300 doubles per row are the experiments' working arrays (forward kinematic
 Jacobians per parameter block before they are scattered into columns); the rest is the stacked Jacobian and
 the copies the solver keeps of it (whitened, restricted to the identifiable subspace, least_squares' own). The
 resident size also holds what the allocator keeps and BLAS buffers. The constants below bound every case
-measured, with a margin of about 20 %.
+measured, with a margin of at least 20 %.
 
 The limit is the memory available now: ``MemAvailable`` in /proc/meminfo (else the system's available pages),
 and below a cgroup's ``memory.max`` when one is set; ``KINCAL_MEMORY_LIMIT`` (bytes, or with K, M, G, T)
@@ -50,7 +50,7 @@ def memory_limit() -> tuple[int, str]:
     """(bytes the solve may use, where that number comes from)."""
     text = os.environ.get(ENV, "").strip()
     if text:
-        m = re.fullmatch(r"([0-9]+(?:\.[0-9]*)?)\s*([KMGT]?)i?B?", text.upper())
+        m = re.fullmatch(r"([0-9]+(?:\.[0-9]*)?)\s*([KMGT]?)I?B?", text.upper())
         if m is None:
             raise ResourceError(f"{ENV}={text[:40]!r}: expected a number of bytes, optionally with K, M, G or T")
         return int(float(m.group(1)) * _SUFFIX[m.group(2)]), ENV

@@ -120,7 +120,8 @@ def load_dataset(manifest, robot: Robot | None = None, *, job_model: str | None 
         meta["t"] = table.take(["t"])[:, 0]
     extra = [c for c in table.header if c not in table.used]
     if extra:
-        raise DataFormatError(f"{csv_path}: line {table.header_line}, column '{clip(extra[0])}': unexpected column for kind "
+        raise DataFormatError(f"{csv_path}: line {table.header_line}, column '{clip(extra[0])}': unexpected column "
+                              f"for kind "
                               f"'{kind}' with arms {arms}; expected only {', '.join(table.used)}")
     name = str(top.get("name") or manifest.stem)
     try:
@@ -512,7 +513,8 @@ def _si_key(ctx, key: str, value: Any, path: str) -> tuple[str, float]:
         return f"{base}_m", _number(ctx, value, path) * units.LENGTH[unit]
     if unit in units.ANGLE:
         return f"{base}_rad", _number(ctx, value, path) * units.ANGLE[unit]
-    raise ctx.fail(path, f"key must end in a unit ({', '.join(list(units.LENGTH) + list(units.ANGLE))}), found {quote(key)}")
+    raise ctx.fail(path, f"key must end in a unit ({', '.join(list(units.LENGTH) + list(units.ANGLE))}), "
+                         f"found {quote(key)}")
 
 
 BUILTIN_SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"

@@ -84,7 +84,8 @@ def load_job(path, confine: bool = False) -> Job:
     free = top.get("free", "offsets")
     if isinstance(free, str):
         if free not in LEVELS:
-            raise DataFormatError(f"{f}: field 'free' is {quote(free)}; expected {' or '.join(LEVELS)} or a list of names")
+            raise DataFormatError(f"{f}: field 'free' is {quote(free)}; expected {' or '.join(LEVELS)} or a list of "
+                                  "names")
     elif isinstance(free, list) and all(isinstance(x, str) for x in free):
         free = tuple(free)
     else:
@@ -97,12 +98,14 @@ def load_job(path, confine: bool = False) -> Job:
     priors = {k: _prior(f, k, v) for k, v in (top.get("priors") or {}).items()}
     solver = top.get("solver") or {}
     if not isinstance(solver, dict) or set(solver) - _SOLVER:
-        raise DataFormatError(f"{f}: field 'solver' must be a mapping with keys among {sorted(_SOLVER)}, found {quote(solver)}")
+        raise DataFormatError(f"{f}: field 'solver' must be a mapping with keys among {sorted(_SOLVER)}, found "
+                              f"{quote(solver)}")
     method = solver.get("method", "kincal")
     if method not in ("kincal", "thesis"):
         raise DataFormatError(f"{f}: field solver.method is {quote(method)}; expected 'kincal' or 'thesis'")
     if solver.get("loss", "linear") not in _LOSSES:
-        raise DataFormatError(f"{f}: field solver.loss is {quote(solver.get('loss'))}; expected one of {', '.join(_LOSSES)}")
+        raise DataFormatError(f"{f}: field solver.loss is {quote(solver.get('loss'))}; expected one of "
+                              f"{', '.join(_LOSSES)}")
     options = {k: v for k, v in solver.items() if k != "method"}
     for k in ("f_scale", "rank_rtol", "correlation_threshold", "max_outer"):
         if k in options and not (isinstance(options[k], (int, float)) and options[k] > 0):
@@ -209,7 +212,8 @@ def _noise(where, data, ds: Dataset) -> Noise:
 def _prior(f, name, spec) -> Prior:
     where = f"{f}: priors['{name}']"
     if not isinstance(spec, dict) or len([k for k in spec if k.startswith("sigma")]) != 1:
-        raise DataFormatError(f"{where}: expected {{sigma_<unit>: value}} with optional mean_<unit>, found {quote(spec)}")
+        raise DataFormatError(f"{where}: expected {{sigma_<unit>: value}} with optional mean_<unit>, found "
+                              f"{quote(spec)}")
     out = {}
     for k, v in spec.items():
         base, _, unit = k.partition("_")

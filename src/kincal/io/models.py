@@ -105,7 +105,8 @@ def robot_from_dict(data: Any, file: str = "<dict>") -> Robot:
     if top["format"] != FORMAT:
         raise ctx.fail("format", f"expected {quote(FORMAT)}, found {quote(top['format'])}")
     if top["version"] != VERSION or isinstance(top["version"], bool):
-        raise ctx.fail("version", f"expected {VERSION} (the only version this kincal reads), found {quote(top['version'])}")
+        raise ctx.fail("version", f"expected {VERSION} (the only version this kincal reads), found "
+                                  f"{quote(top['version'])}")
     name = _string(ctx, top["name"], "name")
     unit_map = _mapping(ctx, top["units"], "units", {"length", "angle"}, required=("length", "angle"))
     ctx.length = units.factor("length", unit_map["length"], f"{file}: units.length")
