@@ -57,8 +57,8 @@ def test_a_solve_that_will_not_fit_is_refused_before_it_starts(big_job, monkeypa
     assert code == 2 and line.startswith("kincal: error: the solve needs about")
     assert f"{3 * ROWS} residual rows x 0 free parameters" in line and f"but {ENV} is 100 MiB" in line
     assert not out.exists()
-    # refused before the solve allocated anything of its size: the loaded data (8 bytes per cell) and little more
-    assert peak < 8 * 3 * ROWS * PER_ROW / 4
+    # refused before anything of the solve's size was allocated: the loaded data and little more
+    assert peak < solve_bytes(3 * ROWS, 0) / 10
 
 
 _RUN = textwrap.dedent("""
