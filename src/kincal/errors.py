@@ -25,3 +25,7 @@ class DataFormatError(KincalError, ValueError):
 
 class DegenerateExperimentError(KincalError, ValueError):
     """An experiment cannot determine what was asked of it."""
+
+
+class ResourceError(KincalError, ValueError):
+    """A job needs more memory (or other resources) than the machine offers; refused before it starts."""

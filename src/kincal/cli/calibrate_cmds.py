@@ -194,14 +194,16 @@ def _progress(console: Console, quiet: bool):
 @click.option("--cv", type=click.IntRange(2, 1000), default=None, metavar="K",
               help="K-fold cross-validation by configuration (overrides the job's solver.cv); its model error "
                    "goes into the predictions (docs/calibration.md).")
-def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool, cv: int | None) -> None:
+@click.option("--confine", is_flag=True, help="Refuse file references outside the job's folder (docs/formats.md).")
+def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool, cv: int | None,
+                  confine: bool) -> None:
     """Calibrate as described by JOB.yaml (docs/job-format.md) and write the results to OUT.
 
     Exit codes: 0 converged, 1 not converged, 2 bad input, 3 degenerate, 4 misfit, 5 converged but not
     trusted at the validation configurations (docs/calibration.md)."""
     console = _console()
     _refuse_existing(out, ("model.yaml", "result.yaml") + (("plots",) if plots else ()))
-    j = load_job(job)
+    j = load_job(job, confine=confine)
     if cv is not None:
         if j.method == "thesis":
             raise DataFormatError(f"{job}: --cv needs kincal's solver (solver.method 'kincal'), not 'thesis'")

@@ -1,8 +1,9 @@
-"""Units implausible for the robot, found before any solve: degrees declared as radians, metres as mm.
+"""Data implausible for the robot, found before any solve: degrees declared as radians, metres as mm, a single
+absurd measured value (1e300 in one cell); and joint readings past the model's limits (a warning).
 
-A solve on such data grinds towards an arm shrunk or grown 1000 times (or cannot fit at all) and can take
-minutes; the data loaders (``kincal.io.datasets``, naming file, line and column) and ``solve`` (naming the
-data set and field) refuse it first.
+A solve on such data grinds towards an arm shrunk or grown 1000 times (or cannot fit at all, or overflows) and
+can take minutes; the data loaders (``kincal.io.datasets``, naming file, line and column) and ``solve`` (naming
+the data set and field) refuse it first.
 """
 
 from __future__ import annotations
@@ -16,19 +17,27 @@ from kincal.data import Dataset
 from kincal.kinematics import PRISMATIC, Robot, forward_kinematics
 from kincal.schema import LENGTH, SCHEMAS
 
-# A revolute joint reading beyond this (rad) is not an angle in radians; measured points whose spread differs
-# from the nominal tool's at the same readings by more than SPREAD_FACTOR (either way) are not in the stated
-# length unit, judged only where the tool moves at least MIN_TOOL_SPREAD (m).
+# A reading of a revolute joint with limits beyond this (rad) is not an angle in radians (a continuous joint,
+# without limits, may turn any number of times); measured points whose spread differs from the nominal tool's
+# at the same readings by more than SPREAD_FACTOR (either way) are not in the stated length unit, judged only
+# where the tool moves at least MIN_TOOL_SPREAD (m) and on at most SPREAD_ROWS rows spread over the data.
 MAX_JOINT_RAD = 4 * math.pi
 SPREAD_FACTOR = 30.0
 MIN_TOOL_SPREAD = 0.01
+SPREAD_ROWS = 4000
+# One measured coordinate farther than CELL_FACTOR times the data's size (the larger of the tool's spread, the
+# measured points' median distance from their median, and MIN_SIZE m) from its column's median is no
+# measurement: named by its row before it is judged as a spread (it would dominate the RMS) or solved.
+CELL_FACTOR = 100.0
+MIN_SIZE = 1.0
 
 
 @dataclass(frozen=True)
 class Implausible:
-    """What is implausible: a joint reading (``field`` "q": ``arm``, ``sample``, ``joint`` index, ``value`` rad)
-    or a measured entry's spread (``field`` its key, ``value`` the ratio to the nominal tool's, ``spread`` and
-    ``tool`` in m)."""
+    """What is implausible: a joint reading (``field`` "q": ``arm``, ``sample``, ``joint`` index, ``value`` rad),
+    one measured value (``field`` its key, ``sample``, ``column`` its index among the entry's coordinates,
+    ``value`` in m, ``spread`` the largest distance from the median allowed) or a measured entry's spread
+    (``field`` its key, ``value`` the ratio to the nominal tool's, ``spread`` and ``tool`` in m)."""
 
     field: str
     arm: str
@@ -37,37 +46,91 @@ class Implausible:
     joint: int = -1
     spread: float = 0.0
     tool: float = 0.0
+    column: int = -1
 
     def describe(self, robot: Robot) -> str:
         if self.field == "q":
             return (f"joint '{self.arm}.{robot[self.arm].joint_names[self.joint]}' reads {self.value:.6g} rad, "
                     f"beyond +-4 pi: not an angle in radians")
+        if self.column >= 0:
+            return (f"the measured {self.field} of sample {self.sample} reads {self.value:.6g} m, more than "
+                    f"{self.spread:.4g} m from the median of its column ({CELL_FACTOR:g} times the data's size): not "
+                    "a measurement")
         return (f"the measured {self.field} spread over {self.spread * 1e3:.4g} mm RMS where the nominal "
                 f"{robot.name} tool moves {self.tool * 1e3:.4g} mm RMS at these joint readings "
                 f"({self.value:.3g} times): not in the stated length unit")
 
 
 def implausible_units(robot: Robot, ds: Dataset) -> Implausible | None:
-    """The first implausible joint reading or measured spread of ``ds`` for ``robot``, or None."""
+    """The first implausible joint reading, measured value or measured spread of ``ds`` for ``robot``, or None."""
     for a, q in ds.q.items():
-        revolute = np.array([t != PRISMATIC for t in robot[a].joint_types])
-        big = np.abs(q) * revolute > MAX_JOINT_RAD
+        arm = robot[a]
+        limited = np.isfinite(arm.lower) | np.isfinite(arm.upper)
+        checked = np.array([t != PRISMATIC for t in arm.joint_types]) & limited
+        big = np.abs(q) * checked > MAX_JOINT_RAD
         if big.any():
             i, j = np.argwhere(big)[0]
             return Implausible("q", a, float(q[i, j]), int(i), int(j))
-    if len(ds.q) != 1:
-        return None
-    (a, q), = ds.q.items()
-    tool = spread(forward_kinematics(robot[a], q)[:, :3, 3])
+    tool, a = 0.0, next(iter(ds.q))
+    if len(ds.q) == 1:
+        rows = _spread_rows(ds.size)
+        tool = spread(forward_kinematics(robot[a], ds.q[a][rows])[:, :3, 3])
+    lengths = _measured_lengths(ds)
+    for key, x in lengths.items():
+        bad = _absurd_cell(key, a, x, tool)
+        if bad is not None:
+            return bad
     if tool < MIN_TOOL_SPREAD:
         return None
+    for key, x in lengths.items():
+        x = x[_spread_rows(len(x))]
+        ratio = spread(x) / tool
+        if not 1 / SPREAD_FACTOR <= ratio <= SPREAD_FACTOR:
+            return Implausible(key, a, ratio, spread=spread(x), tool=tool)
+    return None
+
+
+def past_limits(robot: Robot, q_by_arm: dict) -> list[tuple[str, int, np.ndarray, float]]:
+    """Joint readings (arm -> (N, dof)) past the model's limits: per arm and joint with any, (arm, joint index,
+    the samples, the limit the first of them is past)."""
+    out = []
+    for a, q in q_by_arm.items():
+        arm = robot[a]
+        for j in range(arm.dof):
+            rows = np.flatnonzero((q[:, j] < arm.lower[j]) | (q[:, j] > arm.upper[j]))
+            if len(rows):
+                first = q[rows[0], j]
+                out.append((a, j, rows, float(arm.lower[j] if first < arm.lower[j] else arm.upper[j])))
+    return out
+
+
+def _spread_rows(n: int) -> np.ndarray:
+    """At most SPREAD_ROWS row indices spread evenly over ``n`` rows (a spread needs no more)."""
+    return np.unique(np.linspace(0, n - 1, min(n, SPREAD_ROWS)).astype(int))
+
+
+def _measured_lengths(ds: Dataset) -> dict[str, np.ndarray]:
+    """The measured positions of ``ds`` (m), (N, ..., 3): pose translations and points in a length unit."""
+    out = {}
     for f in SCHEMAS[ds.kind].measured:
         if f.key in ds.measured and (f.form == "pose" or (f.form == "points" and f.unit == LENGTH)):
-            x = ds.measured[f.key][:, :3, 3] if f.form == "pose" else ds.measured[f.key]
-            ratio = spread(x) / tool
-            if not 1 / SPREAD_FACTOR <= ratio <= SPREAD_FACTOR:
-                return Implausible(f.key, a, ratio, spread=spread(x), tool=tool)
-    return None
+            out[f.key] = ds.measured[f.key][:, :3, 3] if f.form == "pose" else ds.measured[f.key]
+    return out
+
+
+def _absurd_cell(key: str, arm: str, x: np.ndarray, tool: float) -> Implausible | None:
+    """The first coordinate of ``x`` (N, ..., 3) farther from its column's median than CELL_FACTOR times the
+    data's size, or None."""
+    flat = x.reshape(len(x), -1)
+    median = np.median(flat, axis=0)
+    with np.errstate(over="ignore", invalid="ignore"):  # the absurd value itself overflows a distance: inf
+        typical = np.median(np.linalg.norm((flat - median).reshape(len(x), -1, 3), axis=-1))
+        bound = CELL_FACTOR * max(tool, float(typical), MIN_SIZE)
+        far = ~(np.abs(flat - median) <= bound)
+    if not far.any():
+        return None
+    i, c = np.argwhere(far)[0]
+    return Implausible(key, arm, float(flat[i, c]), sample=int(i), spread=bound, column=int(c))
 
 
 def spread(x: np.ndarray) -> float:

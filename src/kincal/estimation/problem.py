@@ -19,6 +19,7 @@ from kincal.analysis.columns import scatter_columns
 from kincal.data import Dataset
 from kincal.errors import ModelError
 from kincal.estimation.constraints import FrameDistance, constraint_rows
+from kincal.estimation.memory import require_memory
 from kincal.estimation.start import starting_state
 from kincal.estimation.stats import ResidualStats, residual_norms
 from kincal.experiments import Experiment, build as build_experiments, frame_kinds
@@ -79,11 +80,13 @@ class Problem:
         """The problem of calibrating ``robot`` from ``datasets`` (arguments as ``calibrate``'s): experiments,
         frames shared between data sets, the layout of the free and fixed parameters, stated noise per data
         set and the starting state."""
+        require_memory(datasets)  # before frames are guessed from the data (forward kinematics of every sample)
         nominal_arms = State.from_robot(robot)
         exps, extras, unknown = build_experiments(datasets, nominal_arms)
         arms = [a for a in robot.arms if any(a in e.arms for e in exps)]
         nominal = State({a: nominal_arms.arms[a] for a in arms}, extras, frame_kinds(exps))
         layout = build_layout(nominal, free, fixed=fixed, priors=priors, free_extras=unknown, arms=arms)
+        require_memory(datasets, int(layout.free.sum()))  # before the solve allocates anything of the data's size
         for name in unknown:
             b = layout.block(name)
             if not layout.free[b.start: b.stop].all():

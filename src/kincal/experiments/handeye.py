@@ -20,11 +20,7 @@ _USABLE = (0.1, 2.8)  # relative rotation angles (rad) whose axis is well define
 def hand_eye(F: np.ndarray, M: np.ndarray) -> np.ndarray | None:
     """X (4, 4) with ``F_i X ~ W M_i`` for some W; None when the motions do not determine it (fewer than two
     usable relative rotations about different axes)."""
-    n = len(F)
-    i, j = np.triu_indices(n, 1)
-    if len(i) > 4000:  # plenty of pairs: a fixed subset keeps this cheap
-        keep = np.random.default_rng(0).choice(len(i), 4000, replace=False)
-        i, j = i[keep], j[keep]
+    i, j = _pairs(len(F))
     A = se3.inverse(F[i]) @ F[j]
     B = se3.inverse(M[i]) @ M[j]
     a, b = so3.log(A[:, :3, :3]), so3.log(B[:, :3, :3])
@@ -42,3 +38,22 @@ def hand_eye(F: np.ndarray, M: np.ndarray) -> np.ndarray | None:
     rhs = ((R @ B[use, :3, 3, None])[..., 0] - A[use, :3, 3]).reshape(-1)
     t = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
     return se3.make(R, t)
+
+
+PAIRS = 4000  # relative motions used at most: plenty, and cheap
+_ENUMERATED = 2000  # up to this many configurations the subset is drawn from every pair
+
+
+def _pairs(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs i < j of ``n`` configurations, at most PAIRS of them (a fixed random subset); drawn directly
+    for large ``n``, whose list of every pair would take memory quadratic in ``n``."""
+    rng = np.random.default_rng(0)
+    if n <= _ENUMERATED:
+        i, j = np.triu_indices(n, 1)
+        if len(i) > PAIRS:
+            keep = rng.choice(len(i), PAIRS, replace=False)
+            i, j = i[keep], j[keep]
+        return i, j
+    a, b = rng.integers(0, n, (2, 2 * PAIRS))
+    pairs = np.unique(np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)[a != b], axis=0)[:PAIRS]
+    return pairs[:, 0], pairs[:, 1]

@@ -33,10 +33,12 @@ import yaml
 
 from kincal.data import Dataset, frames_problem
 from kincal.errors import DataFormatError, KincalError
-from kincal.estimation.plausibility import implausible_units
+from kincal.estimation.plausibility import CELL_FACTOR, implausible_units, past_limits
 from kincal.io import units
+from kincal.io.csvtable import Table, read_table
 from kincal.io.models import _Ctx, _mapping, _matrix, _number, _pose, _vector, load_robot, save_robot
-from kincal.io.yamlfile import read_text, read_yaml
+from kincal.io.references import model_reference, resolve, same_model
+from kincal.io.yamlfile import clip, quote, read_yaml
 from kincal.kinematics import PRISMATIC, Robot
 from kincal.lie import se3
 from kincal.lie.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix
@@ -60,25 +62,29 @@ def _fmt(x: float) -> str:
 # --------------------------------------------------------------------------------------------- reading
 
 
-def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
+def load_dataset(manifest, robot: Robot | None = None, *, job_model: str | None = None,
+                 root: Path | None = None) -> Dataset:
     """Read and validate a data set from its manifest path.
 
     ``robot``: the model to check joint names (and prismatic units) against; default: the manifest's
-    ``model`` (built-in name or a path relative to the manifest).
+    ``model`` (built-in name or a path relative to the manifest). ``job_model``: the resolved model reference
+    of the job reading the manifest (``references.model_reference``); the manifest's ``model`` must name the
+    same model, or a model of the same robot (same name, arms and joints: e.g. one calibrated before).
+    ``root``: the folder every file reference must lie in (a confined job).
     """
     manifest = Path(manifest)
     data = read_yaml(manifest, "data set manifest")
     ctx = _Ctx(str(manifest))
     top = _mapping(ctx, data, "(top level)", _TOP_KEYS, ("format", "version", "kind", "model", "arms", "data", "units"))
     if top["format"] != FORMAT:
-        raise ctx.fail("format", f"expected {FORMAT!r}, found {top['format']!r}")
+        raise ctx.fail("format", f"expected {quote(FORMAT)}, found {quote(top['format'])}")
     if top["version"] != VERSION or isinstance(top["version"], bool):
-        raise ctx.fail("version", f"expected {VERSION}, found {top['version']!r}")
+        raise ctx.fail("version", f"expected {VERSION}, found {quote(top['version'])}")
     kind = ctx.one_of("kind", top["kind"], SCHEMAS)
     schema = SCHEMAS[kind]
     arms = top["arms"]
     if not isinstance(arms, list) or not all(isinstance(a, str) and a for a in arms) or len(set(arms)) != len(arms):
-        raise ctx.fail("arms", f"expected a list of distinct arm names, found {arms!r}")
+        raise ctx.fail("arms", f"expected a list of distinct arm names, found {quote(arms)}")
     if len(arms) != schema.arms:
         raise ctx.fail("arms", f"kind '{kind}' needs {schema.arms} arm(s), found {arms}")
     u = _mapping(ctx, top["units"], "units", {"angle", "length"}, ("angle", "length"))
@@ -86,24 +92,21 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
     ctx.length = units.factor("length", u["length"], f"{manifest}: units.length")
     model_ref = top["model"]
     if not isinstance(model_ref, str) or not model_ref:
-        raise ctx.fail("model", f"expected a built-in robot name or a model file path, found {model_ref!r}")
-    resolved = _resolve_model(manifest, model_ref)
-    if robot is None:
-        try:
-            robot = load_robot(resolved)
-        except KincalError as exc:
-            raise ctx.fail("model", str(exc)) from None
+        raise ctx.fail("model", f"expected a built-in robot name or a model file path, found {quote(model_ref)}")
+    resolved = model_reference(manifest, model_ref, f"{manifest}: model", root)
+    if robot is None or (job_model is not None and not same_model(resolved, job_model)):
+        robot = _job_robot(ctx, resolved, robot, job_model)
     for a in arms:
         if a not in robot.arms:
-            raise ctx.fail("arms", f"model '{robot.name}' has no arm {a!r}; its arms: {', '.join(robot.arms)}")
+            raise ctx.fail("arms", f"model '{robot.name}' has no arm {quote(a)}; its arms: {', '.join(robot.arms)}")
     known = _known(ctx, schema, top.get("known") or {})
     frames = top.get("frames") or {}
     bad = frames_problem(kind, frames, tuple(robot.arms))
     if bad:
         raise ctx.fail(*bad)
     noise = units.noise_from_file(top.get("noise") or {}, f"{ctx.file}: noise").as_si()
-    csv_path = manifest.parent / str(top["data"])
-    table = _read_csv(csv_path)
+    csv_path = resolve(manifest, str(top["data"]), f"{manifest}: data", root)
+    table = read_table(csv_path, integer={c for f in schema.measured if f.form == "index" for c in f.columns})
     q = {}
     for a in arms:
         model = robot[a]
@@ -111,13 +114,14 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
         q[a] = table.take([f"{a}.{j}" for j in model.joint_names]) * f
     measured = _measured(ctx, schema, table, known)
     meta = {"noise": noise, "manifest": str(manifest), "description": top.get("description", ""),
-            "file": str(csv_path), "lines": np.array([line for line, _ in table.rows], int),  # header = line 1
-            "warnings": _impossible_rows(table, measured)}
+            "file": str(csv_path), "lines": table.lines,  # header = line 1
+            "warnings": _impossible_rows(table, measured) + _limit_warnings(ctx, table, robot, q, u)}
     if "t" in table.header:
         meta["t"] = table.take(["t"])[:, 0]
     extra = [c for c in table.header if c not in table.used]
     if extra:
-        raise DataFormatError(f"{csv_path}: line {table.header_line}, column '{extra[0]}': unexpected column for kind "
+        raise DataFormatError(f"{csv_path}: line {table.header_line}, column '{clip(extra[0])}': unexpected column "
+                              f"for kind "
                               f"'{kind}' with arms {arms}; expected only {', '.join(table.used)}")
     name = str(top.get("name") or manifest.stem)
     try:
@@ -128,7 +132,7 @@ def load_dataset(manifest, robot: Robot | None = None) -> Dataset:
     return ds
 
 
-def _plausible_units(ctx, table: _Table, robot: Robot, ds: Dataset, u: dict) -> None:
+def _plausible_units(ctx, table: Table, robot: Robot, ds: Dataset, u: dict) -> None:
     """Raise, naming file, line and column, on joint readings or measured lengths whose size does not fit the
     robot: a unit mix-up (``kincal.estimation.plausibility``)."""
     bad = implausible_units(robot, ds)
@@ -136,15 +140,35 @@ def _plausible_units(ctx, table: _Table, robot: Robot, ds: Dataset, u: dict) -> 
         return
     if bad.field == "q":
         raise DataFormatError(
-            f"{table.path}: line {table.rows[bad.sample][0]}, column '{bad.arm}.{robot[bad.arm].joint_names[bad.joint]}':"
+            f"{table.path}: line {table.lines[bad.sample]}, column '{bad.arm}.{robot[bad.arm].joint_names[bad.joint]}':"
             f" expected a joint angle within +-4 pi rad, found {bad.value / ctx.angle:.6g} {u['angle']}: check "
             f"units.angle ('{u['angle']}') in {ctx.file}: are the readings in "
             f"{'degrees' if u['angle'] == 'rad' else 'other units'}?")
     f = SCHEMAS[ds.kind].field(bad.field)
     cols = _columns(f, table)[:3] if f.form == "pose" else _columns(f, table)
+    if bad.column >= 0:
+        raise DataFormatError(
+            f"{table.path}: line {table.lines[bad.sample]}, column '{cols[bad.column]}': expected a length within "
+            f"{bad.spread / ctx.length:.4g} {u['length']} of the column's median ({CELL_FACTOR:g} times the data's "
+            f"size), found {bad.value / ctx.length:.6g} {u['length']}: not a measurement of this robot")
     raise DataFormatError(
         f"{table.path}: columns '{cols[0]}'..'{cols[-1]}': {bad.describe(robot)}: check units.length "
         f"('{u['length']}') in {ctx.file}{_unit_hint(bad.value, ctx.length)}")
+
+
+def _limit_warnings(ctx, table: Table, robot: Robot, q: dict, u: dict) -> tuple[str, ...]:
+    """Warnings (not errors: a robot may be driven past a limit set in software) on joint readings past the
+    model's limits, per joint: the first lines, the first reading and the limit it is past, in file units."""
+    out = []
+    for a, j, rows, limit in past_limits(robot, q):
+        prismatic = robot[a].joint_types[j] == PRISMATIC
+        f, unit = (ctx.length, u["length"]) if prismatic else (ctx.angle, u["angle"])
+        column = f"{a}.{robot[a].joint_names[j]}"
+        lines = ", ".join(str(table.lines[r]) for r in rows[:MAX_ROW_WARNINGS])
+        more = f" and {len(rows) - MAX_ROW_WARNINGS} more" if len(rows) > MAX_ROW_WARNINGS else ""
+        out.append(f"{table.path}: line(s) {lines}{more}, column '{column}': reading {q[a][rows[0], j] / f:.6g} "
+                   f"{unit} is past the joint limit {limit / f:.6g} {unit} of model '{robot.name}'")
+    return tuple(out)
 
 
 def _unit_hint(ratio: float, length: float) -> str:
@@ -153,69 +177,23 @@ def _unit_hint(ratio: float, length: float) -> str:
     return f": are the columns in '{best}'?" if units.LENGTH[best] != length else ""
 
 
-def _resolve_model(manifest: Path, ref: str) -> str:
-    """A built-in name stays as is; a path is taken relative to the manifest."""
-    p = Path(ref)
-    if p.suffix in (".yaml", ".yml") or "/" in ref or os.sep in ref:
-        return str(p if p.is_absolute() else (manifest.parent / p))
-    return ref
-
-
-class _Table:
-    """A parsed CSV: header, values per line, and which columns were used."""
-
-    def __init__(self, path: Path, header: list[str], header_line: int, rows: list[tuple[int, list[str]]]):
-        self.path, self.header, self.header_line, self.rows = path, header, header_line, rows
-        self.col = {c: i for i, c in enumerate(header)}
-        self.used: list[str] = []
-
-    def take(self, columns: list[str], integer: bool = False) -> np.ndarray:
-        for c in columns:
-            if c not in self.col:
-                raise DataFormatError(
-                    f"{self.path}: line {self.header_line}, column '{c}': missing from the header; "
-                    f"found columns: {', '.join(self.header)}"
-                )
-        self.used += [c for c in columns if c not in self.used]
-        out = np.empty((len(self.rows), len(columns)))
-        for r, (line, values) in enumerate(self.rows):
-            for k, c in enumerate(columns):
-                text = values[self.col[c]].strip()
-                x = units.plain_number(text, integer)
-                if x is None:
-                    what = "an integer" if integer else ("a finite number" if units.overflows(text) else "a number")
-                    raise DataFormatError(
-                        f"{self.path}: line {line}, column '{c}': expected {what}, found {text[:40]!r}"
-                    )
-                out[r, k] = x
-        return out
-
-
-def _read_csv(path: Path) -> _Table:
-    lines = read_text(path, "data file").splitlines()
-    header, header_line, rows = None, 0, []
-    for number, fields in ((i + 1, f) for i, f in enumerate(csv.reader(lines))):
-        if not fields or not "".join(fields).strip() or fields[0].lstrip().startswith("#"):
-            continue
-        if header is None:
-            header, header_line = [f.strip() for f in fields], number
-            dup = {c for c in header if header.count(c) > 1}
-            if dup or "" in header:
-                raise DataFormatError(f"{path}: line {number}: header has empty or repeated column names {sorted(dup)}")
-            continue
-        if len(fields) < len(header):
-            raise DataFormatError(f"{path}: line {number}, column '{header[len(fields)]}': row has {len(fields)} "
-                                  f"values, the header has {len(header)} columns")
-        if len(fields) > len(header):
-            raise DataFormatError(
-                f"{path}: line {number}: row has {len(fields)} values, the header has {len(header)} columns"
-            )
-        rows.append((number, fields))
-    if header is None:
-        raise DataFormatError(f"{path}: no header line (expected column names such as 'left.j1')")
-    if not rows:
-        raise DataFormatError(f"{path}: no data rows after the header (line {header_line})")
-    return _Table(path, header, header_line, rows)
+def _job_robot(ctx, resolved: str, robot: Robot | None, job_model: str | None) -> Robot:
+    """The manifest's own model; with a job's ``robot`` (model ``job_model``), that robot when the manifest's
+    model is another model of the same robot (same name, arms and joint names), else an error naming both."""
+    try:
+        own = load_robot(resolved)
+    except KincalError as exc:
+        if robot is None:
+            raise ctx.fail("model", str(exc)) from None
+        raise ctx.fail("model", f"'{resolved}' is not the job's model '{job_model}', and it cannot be "
+                                f"read to compare: {exc}") from None
+    if robot is None:
+        return own
+    if own.name != robot.name or any(a not in own.arms or own[a].joint_names != robot[a].joint_names
+                                     for a in robot.arms):
+        raise ctx.fail("model", f"'{resolved}' (robot '{own.name}') is not the job's model '{job_model}' "
+                                f"(robot '{robot.name}'): the data were recorded on another robot")
+    return robot
 
 
 def _factor(ctx, unit: str) -> float:
@@ -223,7 +201,7 @@ def _factor(ctx, unit: str) -> float:
     return ctx.length if unit == LENGTH else ctx.angle if unit == ANGLE else 1.0
 
 
-def _columns(f: Field, table: _Table | None = None, count: int = 0) -> list[str]:
+def _columns(f: Field, table: Table | None = None, count: int = 0) -> list[str]:
     """The CSV columns of a measured entry (points: as many as ``table``'s header lists, else ``count``)."""
     if f.form == "pose":
         return [f"{f.columns[0]}.{c}" for c in POSE_SUFFIXES]
@@ -234,7 +212,7 @@ def _columns(f: Field, table: _Table | None = None, count: int = 0) -> list[str]
     return list(f.columns)
 
 
-def _measured(ctx, schema: Schema, table: _Table, known: dict) -> dict:
+def _measured(ctx, schema: Schema, table: Table, known: dict) -> dict:
     out = {}
     for f in schema.measured:
         cols = _columns(f, table)
@@ -252,7 +230,7 @@ def _measured(ctx, schema: Schema, table: _Table, known: dict) -> dict:
 MAX_ROW_WARNINGS = 5
 
 
-def _impossible_rows(table: _Table, measured: dict) -> tuple[str, ...]:
+def _impossible_rows(table: Table, measured: dict) -> tuple[str, ...]:
     """Warnings (not errors: the outlier rule leaves such rows out) on rows no instrument gives: a measured
     point or position exactly at the origin (a tracker that lost its target reports zeros), a row repeated
     exactly (a logger that wrote a reading twice)."""
@@ -264,41 +242,37 @@ def _impossible_rows(table: _Table, measured: dict) -> tuple[str, ...]:
             continue
         zero = np.flatnonzero(np.all(pts.reshape(len(pts), -1, 3) == 0, axis=2).any(axis=1))
         out += _row_warning(table, zero, f"'{key}' has a point exactly at the origin (a lost target?)")
-    seen, repeated = {}, []
-    for r, (_, values) in enumerate(table.rows):
-        key = tuple(v.strip() for v in values)
-        if key in seen:
-            repeated.append(r)
-        seen.setdefault(key, r)
-    out += _row_warning(table, np.array(repeated, int), "repeats an earlier row exactly")
+    _, first, inverse = np.unique(table.values, axis=0, return_index=True, return_inverse=True)
+    out += _row_warning(table, np.flatnonzero(first[inverse.ravel()] != np.arange(len(table))),
+                        "repeats an earlier row exactly")
     return tuple(out)
 
 
-def _row_warning(table: _Table, rows: np.ndarray, what: str) -> list[str]:
+def _row_warning(table: Table, rows: np.ndarray, what: str) -> list[str]:
     if not len(rows):
         return []
-    lines = ", ".join(str(table.rows[r][0]) for r in rows[:MAX_ROW_WARNINGS])
+    lines = ", ".join(str(table.lines[r]) for r in rows[:MAX_ROW_WARNINGS])
     more = f" and {len(rows) - MAX_ROW_WARNINGS} more" if len(rows) > MAX_ROW_WARNINGS else ""
     return [f"{table.path}: line(s) {lines}{more}: {what}"]
 
 
-def _read_pose_columns(ctx, f: Field, table: _Table, cols, known) -> np.ndarray:
+def _read_pose_columns(ctx, f: Field, table: Table, cols, known) -> np.ndarray:
     v = table.take(cols)
     norm = np.linalg.norm(v[:, 3:], axis=-1)
     bad = np.flatnonzero(np.abs(norm - 1) > QUAT_TOL)
     if bad.size:
-        line = table.rows[bad[0]][0]
+        line = table.lines[bad[0]]
         raise DataFormatError(f"{table.path}: line {line}, column '{cols[3]}': expected a unit quaternion "
                               f"(norm 1 within {QUAT_TOL:g}), found norm {norm[bad[0]]:.9g}")
     return se3.make(quat_wxyz_to_matrix(v[:, 3:] / norm[:, None]), v[:, :3] * ctx.length)
 
 
-def _read_index_column(ctx, f: Field, table: _Table, cols, known) -> np.ndarray:
-    idx = table.take(cols, integer=True)[:, 0].astype(int)
+def _read_index_column(ctx, f: Field, table: Table, cols, known) -> np.ndarray:
+    idx = table.take(cols)[:, 0].astype(int)
     K = known[f.bound].shape[0]
     bad = np.flatnonzero((idx < 0) | (idx >= K))
     if bad.size:
-        raise DataFormatError(f"{table.path}: line {table.rows[bad[0]][0]}, column '{cols[0]}': expected an index "
+        raise DataFormatError(f"{table.path}: line {table.lines[bad[0]]}, column '{cols[0]}': expected an index "
                               f"0..{K - 1} into known.{f.bound} (which lists {K}), found {idx[bad[0]]}")
     return idx
 
@@ -539,7 +513,8 @@ def _si_key(ctx, key: str, value: Any, path: str) -> tuple[str, float]:
         return f"{base}_m", _number(ctx, value, path) * units.LENGTH[unit]
     if unit in units.ANGLE:
         return f"{base}_rad", _number(ctx, value, path) * units.ANGLE[unit]
-    raise ctx.fail(path, f"key must end in a unit ({', '.join(list(units.LENGTH) + list(units.ANGLE))}), found {key!r}")
+    raise ctx.fail(path, f"key must end in a unit ({', '.join(list(units.LENGTH) + list(units.ANGLE))}), "
+                         f"found {quote(key)}")
 
 
 BUILTIN_SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
@@ -566,14 +541,14 @@ def load_scenario(path) -> dict:
     ctx = _Ctx(str(path))
     top = _mapping(ctx, data, "(top level)", _SCENARIO_KEYS, ("format", "version", "model", "experiment"))
     if top["format"] != SCENARIO_FORMAT:
-        raise ctx.fail("format", f"expected {SCENARIO_FORMAT!r}, found {top['format']!r}")
+        raise ctx.fail("format", f"expected {quote(SCENARIO_FORMAT)}, found {quote(top['format'])}")
     if top["version"] != VERSION:
-        raise ctx.fail("version", f"expected {VERSION}, found {top['version']!r}")
+        raise ctx.fail("version", f"expected {VERSION}, found {quote(top['version'])}")
     u = _mapping(ctx, top.get("units", {"length": "m", "angle": "rad"}), "units", {"length", "angle"},
                  ("length", "angle"))
     ctx.length = units.factor("length", u["length"], f"{path}: units.length")
     ctx.angle = units.factor("angle", u["angle"], f"{path}: units.angle")
-    model = _resolve_model(path, str(top["model"]))
+    model = model_reference(path, str(top["model"]), f"{path}: model")
     try:
         robot = load_robot(model)
     except KincalError as exc:
@@ -584,10 +559,10 @@ def load_scenario(path) -> dict:
         units.factor(q, out.get(q, "rad" if q == "angle" else "m"), f"{path}: output.{q}")
     seed = top.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ctx.fail("seed", f"expected a non-negative integer, found {seed!r}")
+        raise ctx.fail("seed", f"expected a non-negative integer, found {quote(seed)}")
     n_val = top.get("validation", 100)
     if isinstance(n_val, bool) or not isinstance(n_val, int) or n_val < 1:
-        raise ctx.fail("validation", f"expected a positive number of configurations, found {n_val!r}")
+        raise ctx.fail("validation", f"expected a positive number of configurations, found {quote(n_val)}")
     return {"name": str(top.get("name") or path.stem), "robot": robot, "model": model, "kind": kind,
             "options": options, "truth": _truth(ctx, top.get("truth") or {}, robot),
             "noise": units.noise_from_file(top.get("noise") or {}, f"{ctx.file}: noise"), "validation": n_val,
@@ -605,13 +580,13 @@ def _truth(ctx, data: Any, robot: Robot) -> dict:
     if COMPLIANCE_KEY in truth:  # joint compliances drawn in [0, value] (rad/(N m); prismatic joints m/N)
         c = _number(ctx, truth[COMPLIANCE_KEY], f"truth.{COMPLIANCE_KEY}")
         if not (np.isfinite(c) and c >= 0):
-            raise ctx.fail(f"truth.{COMPLIANCE_KEY}", f"expected a compliance >= 0, found {c!r}")
+            raise ctx.fail(f"truth.{COMPLIANCE_KEY}", f"expected a compliance >= 0, found {quote(c)}")
         over["compliance"] = c
     level = ctx.one_of("truth.level", truth.get("level", "thesis"), PERTURBATION_LEVELS)
     arms = truth.get("arms")
     if arms is not None and (not isinstance(arms, list) or any(a not in robot.arms for a in arms)):
         raise ctx.fail("truth.arms", f"expected a list of arms of '{robot.name}' ({', '.join(robot.arms)}), "
-                       f"found {arms!r}")
+                       f"found {quote(arms)}")
     return {"level": level, "overrides": over, "arms": arms}
 
 
@@ -633,25 +608,25 @@ def _experiment(ctx, exp: Any, robot: Robot) -> tuple[str, dict]:
 
 def _read_count(ctx, o, value, p, robot):
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ctx.fail(p, f"expected a positive integer, found {value!r}")
+        raise ctx.fail(p, f"expected a positive integer, found {quote(value)}")
     return value
 
 
 def _read_bool(ctx, o, value, p, robot):
     if not isinstance(value, bool):
-        raise ctx.fail(p, f"expected true or false, found {value!r}")
+        raise ctx.fail(p, f"expected true or false, found {quote(value)}")
     return value
 
 
 def _read_arm(ctx, o, value, p, robot):
     if value not in robot.arms:
-        raise ctx.fail(p, f"expected an arm of '{robot.name}' ({', '.join(robot.arms)}), found {value!r}")
+        raise ctx.fail(p, f"expected an arm of '{robot.name}' ({', '.join(robot.arms)}), found {quote(value)}")
     return value
 
 
 def _read_arms(ctx, o, value, p, robot):
     if not isinstance(value, list) or len(value) != 2 or any(a not in robot.arms for a in value):
-        raise ctx.fail(p, f"expected two arms of '{robot.name}' ({', '.join(robot.arms)}), found {value!r}")
+        raise ctx.fail(p, f"expected two arms of '{robot.name}' ({', '.join(robot.arms)}), found {quote(value)}")
     return tuple(value)
 
 
@@ -673,7 +648,7 @@ def _read_wrench(ctx, o, value, p, robot):
         return _vector(ctx, value, p, 6)
     w = _number(ctx, value, p)
     if not (np.isfinite(w) and w > 0):
-        raise ctx.fail(p, f"expected a load magnitude > 0 (N) or [fx, fy, fz, tx, ty, tz], found {value!r}")
+        raise ctx.fail(p, f"expected a load magnitude > 0 (N) or [fx, fy, fz, tx, ty, tz], found {quote(value)}")
     return w
 
 

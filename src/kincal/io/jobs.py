@@ -2,13 +2,16 @@
 
 Reading only: ``kincal.workflow.run_job`` runs a Job.
 
-Paths in a job are relative to the job file. Units appear only here, in suffixed keys
+Paths in a job are relative to the job file (``kincal.io.references``); with ``confine`` (the job's key or
+``load_job(confine=True)``, ``kincal calibrate --confine``) every file the job and its manifests name must lie
+in the job's folder. Units appear only here, in suffixed keys
 (``sigma_deg``, ``position_mm``); everything is converted to SI on reading.
 """
 
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping
@@ -23,12 +26,13 @@ from kincal.io import units
 from kincal.io.datasets import load_dataset
 from kincal.io.jobschema import check_job_types
 from kincal.io.models import load_robot
-from kincal.io.yamlfile import read_yaml
+from kincal.io.references import model_reference, resolve
+from kincal.io.yamlfile import quote, read_yaml
 from kincal.kinematics import Robot
 from kincal.params import LEVELS, Prior
 
 _TOP = {"format", "version", "name", "model", "data", "validation", "free", "fixed", "priors", "gauge", "solver",
-        "description", "constraints", "outliers"}
+        "description", "constraints", "outliers", "confine"}
 _SOLVER = {"method", "loss", "f_scale", "max_outer", "rank_rtol", "correlation_threshold", "cv"}
 _LOSSES = ("linear", "huber", "soft_l1", "cauchy", "arctan")
 
@@ -53,7 +57,9 @@ class Job:
     outliers: str | float = "reject"  # reject | keep | a tail probability (``calibrate(outliers=...)``)
 
 
-def load_job(path) -> Job:
+def load_job(path, confine: bool = False) -> Job:
+    """Read a job file; ``confine``: refuse file references outside the job's folder (as the job's own
+    ``confine: true``)."""
     path = Path(path)
     top = read_yaml(path, "job file")
     f = str(path)
@@ -64,45 +70,49 @@ def load_job(path) -> Job:
     if unknown:
         raise DataFormatError(f"{f}: unknown field(s) {sorted(unknown)}; expected some of {sorted(_TOP)}")
     if top.get("format", "kincal-job") != "kincal-job":
-        raise DataFormatError(f"{f}: field 'format' must be 'kincal-job', found {top.get('format')!r}")
+        raise DataFormatError(f"{f}: field 'format' must be 'kincal-job', found {quote(top.get('format'))}")
     if top.get("version", 1) != 1:
-        raise DataFormatError(f"{f}: field 'version' must be 1, found {top.get('version')!r}")
+        raise DataFormatError(f"{f}: field 'version' must be 1, found {quote(top.get('version'))}")
     if "model" not in top:
         raise DataFormatError(f"{f}: field 'model' is required (a built-in robot name or a model file path)")
-    model = str(top["model"])
-    local = path.parent / model
-    robot = load_robot(local if local.exists() else model)
-    datasets, noise = _data(f, path.parent, top.get("data"), "data", robot, required=True)
-    validation, _ = _data(f, path.parent, top.get("validation") or [], "validation", robot, required=False)
+    root = Path(os.path.realpath(path.parent)) if confine or top.get("confine", False) else None
+    model = model_reference(path, str(top["model"]), f"{f}: model", root)
+    robot = load_robot(model)
+    refs = (path, model, root)
+    datasets, noise = _data(f, refs, top.get("data"), "data", robot, required=True)
+    validation, _ = _data(f, refs, top.get("validation") or [], "validation", robot, required=False)
     free = top.get("free", "offsets")
     if isinstance(free, str):
         if free not in LEVELS:
-            raise DataFormatError(f"{f}: field 'free' is {free!r}; expected {' or '.join(LEVELS)} or a list of names")
+            raise DataFormatError(f"{f}: field 'free' is {quote(free)}; expected {' or '.join(LEVELS)} or a list of "
+                                  "names")
     elif isinstance(free, list) and all(isinstance(x, str) for x in free):
         free = tuple(free)
     else:
-        raise DataFormatError(f"{f}: field 'free' must be a level word or a list of names/globs, found {free!r}")
+        raise DataFormatError(f"{f}: field 'free' must be a level word or a list of names/globs, found {quote(free)}")
     fixed = _strings(f, top.get("fixed") or [], "fixed")
     gauge = top.get("gauge", "min-change")
     if not (gauge == "min-change" or isinstance(gauge, list)):
-        raise DataFormatError(f"{f}: field 'gauge' must be 'min-change' or a list of globs, found {gauge!r}")
+        raise DataFormatError(f"{f}: field 'gauge' must be 'min-change' or a list of globs, found {quote(gauge)}")
     gauge = gauge if isinstance(gauge, str) else _strings(f, gauge, "gauge")
     priors = {k: _prior(f, k, v) for k, v in (top.get("priors") or {}).items()}
     solver = top.get("solver") or {}
     if not isinstance(solver, dict) or set(solver) - _SOLVER:
-        raise DataFormatError(f"{f}: field 'solver' must be a mapping with keys among {sorted(_SOLVER)}, found {solver!r}")
+        raise DataFormatError(f"{f}: field 'solver' must be a mapping with keys among {sorted(_SOLVER)}, found "
+                              f"{quote(solver)}")
     method = solver.get("method", "kincal")
     if method not in ("kincal", "thesis"):
-        raise DataFormatError(f"{f}: field solver.method is {method!r}; expected 'kincal' or 'thesis'")
+        raise DataFormatError(f"{f}: field solver.method is {quote(method)}; expected 'kincal' or 'thesis'")
     if solver.get("loss", "linear") not in _LOSSES:
-        raise DataFormatError(f"{f}: field solver.loss is {solver.get('loss')!r}; expected one of {', '.join(_LOSSES)}")
+        raise DataFormatError(f"{f}: field solver.loss is {quote(solver.get('loss'))}; expected one of "
+                              f"{', '.join(_LOSSES)}")
     options = {k: v for k, v in solver.items() if k != "method"}
     for k in ("f_scale", "rank_rtol", "correlation_threshold", "max_outer"):
         if k in options and not (isinstance(options[k], (int, float)) and options[k] > 0):
-            raise DataFormatError(f"{f}: field solver.{k} must be a positive number, found {options[k]!r}")
+            raise DataFormatError(f"{f}: field solver.{k} must be a positive number, found {quote(options[k])}")
     constraints = top.get("constraints") or []
     if not isinstance(constraints, list):
-        raise DataFormatError(f"{f}: field 'constraints' must be a list, found {constraints!r}")
+        raise DataFormatError(f"{f}: field 'constraints' must be a list, found {quote(constraints)}")
     constraints = tuple(_constraint(f"{f}: constraints[{i}]", c) for i, c in enumerate(constraints))
     return Job(path, str(top.get("name", path.stem)), robot, datasets, validation, free, fixed, priors, noise, gauge,
                method, options, constraints, _outliers(f, top.get("outliers", "reject")))
@@ -131,26 +141,26 @@ def _outliers(f: str, spec) -> str | float:
         if isinstance(p, (int, float)) and not isinstance(p, bool) and 0 < p < 1:
             return float(p)
     raise DataFormatError(f"{f}: field 'outliers' must be 'reject', 'keep' or {{threshold: p}} with p a tail "
-                          f"probability in (0, 1) (e.g. 1e-6), found {spec!r}")
+                          f"probability in (0, 1) (e.g. 1e-6), found {quote(spec)}")
 
 
 def _constraint(where, spec):
     """``{distance: [frame_a, frame_b], value_<unit>: d, sigma_<unit>: s}`` -> FrameDistance (SI)."""
     if not isinstance(spec, dict) or "distance" not in spec:
         raise DataFormatError(f"{where}: expected {{distance: [frame_a, frame_b], value_mm: ..., sigma_mm: ...}}, "
-                              f"found {spec!r}")
+                              f"found {quote(spec)}")
     frames = spec["distance"]
     if not (isinstance(frames, list) and len(frames) == 2 and all(isinstance(x, str) for x in frames)):
-        raise DataFormatError(f"{where}: field distance must name two frames, found {frames!r}")
+        raise DataFormatError(f"{where}: field distance must name two frames, found {quote(frames)}")
     out = {}
     for k, v in spec.items():
         if k == "distance":
             continue
         base, _, unit = k.partition("_")
         if base not in ("value", "sigma") or base in out:
-            raise DataFormatError(f"{where}: unknown key {k!r}; expected value_<unit> and sigma_<unit>")
+            raise DataFormatError(f"{where}: unknown key {quote(k)}; expected value_<unit> and sigma_<unit>")
         if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0):
-            raise DataFormatError(f"{where}: {k} must be a positive number, found {v!r}")
+            raise DataFormatError(f"{where}: {k} must be a positive number, found {quote(v)}")
         out[base] = float(v) * units.factor("length", unit, f"{where}: {k}")
     if set(out) != {"value", "sigma"}:
         raise DataFormatError(f"{where}: expected value_<unit> and sigma_<unit>, found {sorted(spec)}")
@@ -159,11 +169,13 @@ def _constraint(where, spec):
 
 def _strings(f, x, key) -> tuple[str, ...]:
     if not isinstance(x, list) or not all(isinstance(s, str) for s in x):
-        raise DataFormatError(f"{f}: field '{key}' must be a list of strings, found {x!r}")
+        raise DataFormatError(f"{f}: field '{key}' must be a list of strings, found {quote(x)}")
     return tuple(x)
 
 
-def _data(f, base: Path, entries, key, robot, required):
+def _data(f, refs: tuple, entries, key, robot, required):
+    """The data sets of ``entries``; ``refs``: (job file, its resolved model reference, confining folder)."""
+    job, model, root = refs
     if not isinstance(entries, list) or (required and not entries):
         raise DataFormatError(f"{f}: field '{key}' must be a non-empty list of data sets ({{manifest: path}})")
     datasets, noise = [], {}
@@ -173,8 +185,9 @@ def _data(f, base: Path, entries, key, robot, required):
             e = {"manifest": e}
         if not isinstance(e, dict) or "manifest" not in e or set(e) - {"manifest", "noise", "frames"}:
             raise DataFormatError(f"{where}: expected a manifest path or {{manifest: path, noise: {{...}}, "
-                                  f"frames: {{...}}}}, found {e!r}")
-        ds = load_dataset(base / str(e["manifest"]), robot)
+                                  f"frames: {{...}}}}, found {quote(e)}")
+        manifest = resolve(job, str(e["manifest"]), f"{where}.manifest", root)
+        ds = load_dataset(manifest, robot, job_model=model, root=root)
         if e.get("frames") is not None:
             ds = _frames(where, e["frames"], ds, robot)
         datasets.append(ds)
@@ -199,15 +212,16 @@ def _noise(where, data, ds: Dataset) -> Noise:
 def _prior(f, name, spec) -> Prior:
     where = f"{f}: priors['{name}']"
     if not isinstance(spec, dict) or len([k for k in spec if k.startswith("sigma")]) != 1:
-        raise DataFormatError(f"{where}: expected {{sigma_<unit>: value}} with optional mean_<unit>, found {spec!r}")
+        raise DataFormatError(f"{where}: expected {{sigma_<unit>: value}} with optional mean_<unit>, found "
+                              f"{quote(spec)}")
     out = {}
     for k, v in spec.items():
         base, _, unit = k.partition("_")
         if base not in ("sigma", "mean"):
-            raise DataFormatError(f"{where}: unknown key {k!r}; expected sigma_<unit> and optional mean_<unit>")
+            raise DataFormatError(f"{where}: unknown key {quote(k)}; expected sigma_<unit> and optional mean_<unit>")
         kind = "angle" if unit in units.ANGLE else "length"
         if not (isinstance(v, (int, float)) and math.isfinite(v)):
-            raise DataFormatError(f"{where}: {k} must be a finite number, found {v!r}")
+            raise DataFormatError(f"{where}: {k} must be a finite number, found {quote(v)}")
         out[base] = float(v) * units.factor(kind, unit, f"{where}: {k}")
     if out["sigma"] <= 0:
         raise DataFormatError(f"{where}: sigma must be positive, found {spec}")

@@ -26,6 +26,7 @@ JOB_SCHEMA = {
         "version": {"type": "integer", "enum": [1]},
         "name": {"type": "string"},
         "description": {"type": "string"},
+        "confine": {"type": "boolean"},
         "model": {"type": "string"},
         "data": {"items": _ENTRY},
         "validation": {"items": _ENTRY},

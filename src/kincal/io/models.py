@@ -23,7 +23,7 @@ import yaml
 from kincal.errors import DataFormatError, KincalError, ModelError
 from kincal.io import units
 from kincal.lie.rotations import quat_wxyz_to_matrix, rpy_to_matrix
-from kincal.io.yamlfile import parse_yaml, read_text
+from kincal.io.yamlfile import clip, parse_yaml, quote, read_text
 from kincal.kinematics.model import PRISMATIC, REVOLUTE, ArmModel, Robot
 from kincal.lie import se3, so3
 
@@ -55,7 +55,7 @@ class _Ctx:
     def one_of(self, path: str, value: Any, allowed) -> str:
         """``value`` if it is one of the names ``allowed`` (text only: a list or mapping is never a name)."""
         if not isinstance(value, str) or value not in allowed:
-            raise self.fail(path, f"expected one of {', '.join(allowed)}, found {value!r}")
+            raise self.fail(path, f"expected one of {', '.join(allowed)}, found {quote(value)}")
         return value
 
 
@@ -85,7 +85,7 @@ def builtin_names() -> list[str]:
 def load_builtin(name: str) -> Robot:
     """The built-in robot ``name`` (e.g. ``"frida"``); DataFormatError lists the names if unknown."""
     if name not in builtin_names():
-        raise DataFormatError(f"unknown built-in robot {name!r}; built-in robots: {', '.join(builtin_names())}")
+        raise DataFormatError(f"unknown built-in robot {quote(name)}; built-in robots: {', '.join(builtin_names())}")
     return parse_robot((_BUILTIN / f"{name}.yaml").read_text(encoding="utf-8"), f"{name}.yaml (built-in)")
 
 
@@ -104,9 +104,10 @@ def robot_from_dict(data: Any, file: str = "<dict>") -> Robot:
     ctx = _Ctx(file)
     top = _mapping(ctx, data, "(top level)", _TOP_KEYS, required=("format", "version", "name", "units", "arms"))
     if top["format"] != FORMAT:
-        raise ctx.fail("format", f"expected {FORMAT!r}, found {top['format']!r}")
+        raise ctx.fail("format", f"expected {quote(FORMAT)}, found {quote(top['format'])}")
     if top["version"] != VERSION or isinstance(top["version"], bool):
-        raise ctx.fail("version", f"expected {VERSION} (the only version this kincal reads), found {top['version']!r}")
+        raise ctx.fail("version", f"expected {VERSION} (the only version this kincal reads), found "
+                                  f"{quote(top['version'])}")
     name = _string(ctx, top["name"], "name")
     unit_map = _mapping(ctx, top["units"], "units", {"length", "angle"}, required=("length", "angle"))
     ctx.length = units.factor("length", unit_map["length"], f"{file}: units.length")
@@ -131,7 +132,7 @@ def _arm(ctx: _Ctx, name: str, data: Any, path: str) -> ArmModel:
     names = [p["name"] for p in parsed]
     for i, n in enumerate(names):
         if n in names[:i]:
-            raise ctx.fail(f"{path}.joints[{i}].name", f"duplicate joint name {n!r}")
+            raise ctx.fail(f"{path}.joints[{i}].name", f"duplicate joint name {quote(n)}")
     order = None
     if "controller_order" in d:
         order = _controller_order(ctx, d["controller_order"], names, f"{path}.controller_order")
@@ -163,7 +164,7 @@ def _joint(ctx: _Ctx, data: Any, path: str, index: int) -> dict:
     name = _string(ctx, d.get("name", f"j{index + 1}"), f"{path}.name")
     kind = d.get("type", REVOLUTE)
     if kind not in (REVOLUTE, PRISMATIC):
-        raise ctx.fail(f"{path}.type", f"expected 'revolute' or 'prismatic', found {kind!r}")
+        raise ctx.fail(f"{path}.type", f"expected 'revolute' or 'prismatic', found {quote(kind)}")
     has_twist, has_axis = "twist" in d, "axis" in d
     if has_twist == has_axis:
         raise ctx.fail(path, "give the joint screw either as 'axis' (+ 'point' for revolute joints) or as 'twist', not "
@@ -194,18 +195,18 @@ def _joint(ctx: _Ctx, data: Any, path: str, index: int) -> dict:
     if "limits" in d:
         lim = d["limits"]
         if not isinstance(lim, list) or len(lim) != 2:
-            raise ctx.fail(f"{path}.limits", f"expected [lower, upper], found {lim!r}")
+            raise ctx.fail(f"{path}.limits", f"expected [lower, upper], found {quote(lim)}")
         lower = -math.inf if lim[0] is None else _number(ctx, lim[0], f"{path}.limits[0]", finite=False) * scale
         upper = math.inf if lim[1] is None else _number(ctx, lim[1], f"{path}.limits[1]", finite=False) * scale
         if not lower < upper:
-            raise ctx.fail(f"{path}.limits", f"expected lower < upper, found {lim!r}")
+            raise ctx.fail(f"{path}.limits", f"expected lower < upper, found {quote(lim)}")
     ratio = _number(ctx, d.get("gear_ratio", 1.0), f"{path}.gear_ratio")
     if ratio == 0:
         raise ctx.fail(f"{path}.gear_ratio", "expected a non-zero gear ratio, found 0")
     compliance = _number(ctx, d.get("compliance", 0.0), f"{path}.compliance")
     if compliance < 0:
         unit = "angle unit/(N m)" if kind == REVOLUTE else "length unit/N"
-        raise ctx.fail(f"{path}.compliance", f"expected a compliance >= 0 ({unit}), found {compliance!r}")
+        raise ctx.fail(f"{path}.compliance", f"expected a compliance >= 0 ({unit}), found {quote(compliance)}")
     return {"name": name, "type": kind, "twist": twist, "offset": offset, "lower": lower, "upper": upper,
             "gear_ratio": ratio, "compliance": compliance * scale}
 
@@ -232,7 +233,7 @@ def _pose(ctx: _Ctx, data: Any, path: str) -> np.ndarray:
     d = _mapping(ctx, data, path, _POSE_KEYS)
     fix = d.get("orthonormalize", False)
     if not isinstance(fix, bool):
-        raise ctx.fail(f"{path}.orthonormalize", f"expected true or false, found {fix!r}")
+        raise ctx.fail(f"{path}.orthonormalize", f"expected true or false, found {quote(fix)}")
     forms = [k for k in ("matrix", "rpy", "quaternion_wxyz", "rotation") if k in d]
     if len(forms) > 1:
         raise ctx.fail(path, f"give the rotation one way only; found {', '.join(forms)}")
@@ -279,13 +280,13 @@ def _pose(ctx: _Ctx, data: Any, path: str) -> np.ndarray:
 def _controller_order(ctx: _Ctx, value: Any, names: list[str], path: str) -> tuple[int, ...]:
     if not isinstance(value, list) or len(value) != len(names):
         raise ctx.fail(path, f"expected a list of the {len(names)} joint names in controller channel order, "
-                       f"found {value!r}")
+                       f"found {quote(value)}")
     order = []
     for i, n in enumerate(value):
         if n not in names:
-            raise ctx.fail(f"{path}[{i}]", f"unknown joint {n!r}; joints: {', '.join(names)}")
+            raise ctx.fail(f"{path}[{i}]", f"unknown joint {quote(n)}; joints: {', '.join(names)}")
         if names.index(n) in order:
-            raise ctx.fail(f"{path}[{i}]", f"joint {n!r} appears twice")
+            raise ctx.fail(f"{path}[{i}]", f"joint {quote(n)} appears twice")
         order.append(names.index(n))
     return tuple(order)
 
@@ -296,7 +297,7 @@ def _controller_order(ctx: _Ctx, value: Any, names: list[str], path: str) -> tup
 def _kind(x: Any) -> str:
     if x is None:
         return "nothing"
-    return type(x).__name__ if isinstance(x, (dict, list)) else f"{type(x).__name__} {x!r}"
+    return type(x).__name__ if isinstance(x, (dict, list)) else f"{type(x).__name__} {quote(x)}"
 
 
 def _mapping(ctx: _Ctx, data: Any, path: str, allowed: set, required: tuple = ()) -> dict:
@@ -304,16 +305,16 @@ def _mapping(ctx: _Ctx, data: Any, path: str, allowed: set, required: tuple = ()
         raise ctx.fail(path, f"expected a mapping, found {_kind(data)}")
     for key in data:
         if key not in allowed:
-            raise ctx.fail(_join(path, key), f"unknown key {key!r}; allowed keys: {', '.join(sorted(allowed))}")
+            raise ctx.fail(_join(path, key), f"unknown key {quote(key)}; allowed keys: {', '.join(sorted(allowed))}")
     for key in required:
         if key not in data:
-            raise ctx.fail(path, f"missing key {key!r}")
+            raise ctx.fail(path, f"missing key {quote(key)}")
     return data
 
 
 def _join(path: str, key: Any) -> str:
     # a key that is not plain text (spaces, line breaks, a number) is shown quoted, so the message stays one line
-    shown = key if isinstance(key, str) and key.isprintable() and key.strip() == key and key else repr(key)
+    shown = clip(key) if isinstance(key, str) and key.isprintable() and key.strip() == key and key else quote(key)
     return shown if path == "(top level)" else f"{path}.{shown}"
 
 
@@ -327,7 +328,7 @@ def _number(ctx: _Ctx, x: Any, path: str, finite: bool = True) -> float:
     if isinstance(x, bool) or not isinstance(x, (int, float)):
         raise ctx.fail(path, f"expected a number, found {_kind(x)}")
     if finite and not math.isfinite(x):
-        raise ctx.fail(path, f"expected a finite number, found {x!r}")
+        raise ctx.fail(path, f"expected a finite number, found {quote(x)}")
     if math.isnan(x):
         raise ctx.fail(path, "expected a number, found NaN")
     return float(x)

@@ -6,6 +6,7 @@ import math
 import re
 
 from kincal.errors import DataFormatError
+from kincal.io.yamlfile import quote
 from kincal.noise import Noise
 
 LENGTH = {"m": 1.0, "mm": 1e-3}
@@ -19,7 +20,7 @@ def factor(kind: str, name: str, where: str) -> float:
         return table[name]
     except (KeyError, TypeError):
         raise DataFormatError(
-            f"{where}: unknown {kind} unit {name!r}; expected one of {', '.join(repr(k) for k in table)}"
+            f"{where}: unknown {kind} unit {quote(name)}; expected one of {', '.join(repr(k) for k in table)}"
         ) from None
 
 
@@ -40,7 +41,7 @@ def noise_from_file(data, where: str):
             keys = ", ".join(f"{q}_<unit>" for q in NOISE_UNITS)
             raise DataFormatError(f"{where}.{key}: unknown key; expected one of {keys}")
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-            raise DataFormatError(f"{where}.{key}: expected a finite number >= 0, found {value!r}")
+            raise DataFormatError(f"{where}.{key}: expected a finite number >= 0, found {quote(value)}")
         from_keys[quantity] = float(value) * _noise_factor(quantity, unit, f"{where}.{key}")
     named = {k: from_keys.pop(k) for k in ("position", "orientation", "joint", "backlash") if k in from_keys}
     return Noise(**named, other=from_keys)
@@ -56,7 +57,7 @@ def _noise_factor(quantity: str, unit: str, where: str) -> float:
     kind = NOISE_UNITS[quantity]
     if kind == "pixel":
         if unit not in PIXEL:
-            raise DataFormatError(f"{where}: unknown pixel unit {unit!r}; expected 'px'")
+            raise DataFormatError(f"{where}: unknown pixel unit {quote(unit)}; expected 'px'")
         return 1.0
     return factor(kind, unit, where)
 

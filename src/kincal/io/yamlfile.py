@@ -14,6 +14,8 @@ reads them as strings).
 from __future__ import annotations
 
 import codecs
+import contextlib
+import io
 import re
 import stat
 from pathlib import Path
@@ -24,6 +26,7 @@ from kincal.errors import DataFormatError
 
 MAX_TEXT_BYTES = 512 * 2**20  # a text file larger than this is refused before it is read
 MAX_YAML_NODES = 1_000_000  # values in one YAML document with every alias written out
+MAX_QUOTE = 80  # characters of a file's content an error message quotes at most
 
 
 class _Loader(yaml.SafeLoader):
@@ -61,7 +64,7 @@ class _Loader(yaml.SafeLoader):
                 continue
             if first is not key_node.start_mark:
                 raise yaml.constructor.ConstructorError(
-                    None, None, f"key {key!r} appears twice in one mapping (first on line {first.line + 1})",
+                    None, None, f"key {quote(key)} appears twice in one mapping (first on line {first.line + 1})",
                     key_node.start_mark)
         return super().construct_mapping(node, deep)
 
@@ -96,7 +99,7 @@ def parse_yaml(text: str, file: str):
         mark = getattr(exc, "problem_mark", None)
         where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise DataFormatError(f"{file}: not valid YAML{where}: {problem}") from None
+        raise DataFormatError(f"{file}: not valid YAML{where}: {clip(problem, 2 * MAX_QUOTE)}") from None
     except ValueError as exc:  # PyYAML's scanner lets a few escapes through, e.g. "\U" beyond U+10FFFF
         raise DataFormatError(f"{file}: not valid YAML: {str(exc).splitlines()[0][:100]}") from None
 
@@ -116,22 +119,61 @@ def decode(raw: bytes, file: str) -> str:
         ) from None
 
 
-def read_text(path, what: str) -> str:
-    """The text of ``path``; ``what`` says which kind of file it should be (for the error)."""
+def clip(text: str, limit: int = MAX_QUOTE) -> str:
+    """``text`` as an error message may quote it: one line, at most ``limit`` characters."""
+    text = str(text).replace("\r", " ").replace("\n", " ")
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def quote(x) -> str:
+    """``repr(x)`` as an error message may quote it (``clip``): never more of a file than a short line."""
+    return clip(repr(x))
+
+
+def _checked(path, what: str) -> Path:
+    """``path`` if it names a regular file no larger than ``MAX_TEXT_BYTES``, else a DataFormatError."""
     path = Path(path)
     if "\0" in str(path):
         raise DataFormatError(f"{str(path)!r}: cannot read {what}: the file name contains a NUL character")
     try:
         info = path.stat()
-        if not stat.S_ISREG(info.st_mode):
-            raise DataFormatError(f"{path}: cannot read {what}: not a regular file")
-        if info.st_size > MAX_TEXT_BYTES:
-            raise DataFormatError(f"{path}: cannot read {what}: {info.st_size} bytes, more than the limit of "
-                                  f"{MAX_TEXT_BYTES} bytes")
+    except OSError as exc:
+        raise DataFormatError(f"{path}: cannot read {what}: {exc.strerror or exc}") from None
+    if not stat.S_ISREG(info.st_mode):
+        raise DataFormatError(f"{path}: cannot read {what}: not a regular file")
+    if info.st_size > MAX_TEXT_BYTES:
+        raise DataFormatError(f"{path}: cannot read {what}: {info.st_size} bytes, more than the limit of "
+                              f"{MAX_TEXT_BYTES} bytes")
+    return path
+
+
+def read_text(path, what: str) -> str:
+    """The text of ``path``; ``what`` says which kind of file it should be (for the error)."""
+    path = _checked(path, what)
+    try:
         raw = path.read_bytes()
     except OSError as exc:
         raise DataFormatError(f"{path}: cannot read {what}: {exc.strerror or exc}") from None
     return decode(raw, str(path))
+
+
+@contextlib.contextmanager
+def text_lines(path, what: str):
+    """The lines of ``path`` (a regular file, decoded as ``read_text`` does) one at a time, numbered from 1, without
+    reading the whole file into memory; line ends are ``\\n``, ``\\r\\n`` or ``\\r``, and are dropped."""
+    path = _checked(path, what)
+    try:
+        with open(path, "rb") as raw:
+            utf16 = raw.read(2) in (codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)
+            raw.seek(0)
+            text = io.TextIOWrapper(raw, encoding="utf-16" if utf16 else "utf-8-sig", newline=None)
+            try:
+                yield ((i, line.rstrip("\n")) for i, line in enumerate(text, 1))
+            except UnicodeDecodeError:
+                read_text(path, what)  # reads the whole file again for the error naming the byte offset
+                raise DataFormatError(f"{path}: cannot read {what}: not UTF-8 or UTF-16 text") from None
+    except OSError as exc:
+        raise DataFormatError(f"{path}: cannot read {what}: {exc.strerror or exc}") from None
 
 
 def read_yaml(path, what: str):
