@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import signal
 import sys
+import threading
 
 import click
 
@@ -21,8 +23,23 @@ for _module in (model_cmds, simulate_cmds, calibrate_cmds):  # each defines ``re
     _module.register(cli)
 
 
+def _terminated(signum, frame):
+    """SIGTERM unwinds like an error (exit 143), so the output being written is removed (kincal.io.atomic)."""
+    raise SystemExit(128 + signum)
+
+
 def main(argv=None) -> int:
     """Console entry point: kincal errors become one clear line and exit code 2, never a traceback."""
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminated) if in_main else None
+    try:
+        return _run(argv)
+    finally:
+        if in_main:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
+
+
+def _run(argv) -> int:
     try:
         cli.main(args=argv, prog_name="kincal", standalone_mode=False)
     except KincalError as exc:

@@ -41,6 +41,7 @@ class Staging:
     path: Path
     target: Path
     created: list[Path] = field(default_factory=list)  # what the move added to an existing folder (for undo)
+    keep: bool = False  # a failed move could not be undone: the temporary holds the previous output
 
     def final(self, p) -> Path:
         return self.target / Path(p).relative_to(self.path)
@@ -179,7 +180,8 @@ def output_directory(target, *, names=(), overwrite: bool = False, last: str | N
             _commit(stage, names, overwrite, last)
     except BaseException:
         with _held_signals():
-            _remove(stage.path)
+            if not stage.keep:
+                _remove(stage.path)
             _remove_empty(made)
         raise
 
@@ -242,12 +244,25 @@ def _move_in(stage: Staging, old: list[str], new: list[str]) -> None:
             done.append((stage.target / n, stage.path / n))
             stage.created.append(stage.target / n)
     except OSError as exc:
-        for moved, origin in reversed(done):
-            os.rename(moved, origin)
         stage.created.clear()
+        if not _put_back(done):  # never delete the previous output: leave it where it is, and say where
+            stage.keep = True
+            raise DataFormatError(f"{stage.target}: cannot move the output into place: {exc.strerror or exc}; "
+                                  f"the previous output is in {backup}") from None
         raise DataFormatError(f"{stage.target}: cannot move the output into place: {exc.strerror or exc}") from None
     _fsync(stage.target)
     _remove(stage.path)
+
+
+def _put_back(done: list[tuple[Path, Path]]) -> bool:
+    """Undo the moves done, last first; False if one of them failed too."""
+    ok = True
+    for moved, origin in reversed(done):
+        try:
+            os.rename(moved, origin)
+        except OSError:
+            ok = False
+    return ok
 
 
 @contextmanager

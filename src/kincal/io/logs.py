@@ -137,7 +137,8 @@ def _read_log(path, robot: Robot, arms: tuple[str, ...], header: bool, period_s:
 
 def convert_log(path, robot: Robot, arms: tuple[str, ...], *, every: int = 1, still_rad_s: float | None = None,
                 window: int = 25, per_stop: bool = False, header: bool = True,
-                period_s: float = EXTCTRL_PERIOD_S, model: str | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+                period_s: float = EXTCTRL_PERIOD_S,
+                model: str | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Read a motor log and return (t, {arm: joint readings in model order}).
 
     ``still_rad_s`` keeps only samples where every joint of every arm moves slower than that over
@@ -218,7 +219,7 @@ def _check_finite(path, q: dict[str, np.ndarray], robot: Robot, lines: list[int]
 
 def write_joint_csv(path, t: np.ndarray, q: dict[str, np.ndarray], robot: Robot, *, overwrite: bool = False) -> Path:
     """CSV with ``t`` and ``<arm>.<joint>`` columns (rad, model order): the joint part of a data set file.
-    Written all or nothing (``kincal.io.atomic``): an interrupted run leaves no cut-off file, nor a half-replaced one."""
+    Written all or nothing (``kincal.io.atomic``): an interrupted run leaves no cut-off or half-replaced file."""
     path = Path(path)
     with output_file(path, overwrite=overwrite) as temp, open(temp, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh, lineterminator="\n")
