@@ -58,6 +58,17 @@ def test_a_new_folder_appears_whole(tmp_path):
     assert stage.final(stage.path / "sub" / "b.csv") == target / "sub" / "b.csv"
 
 
+def test_an_output_folder_that_is_a_file_is_refused(tmp_path):
+    (tmp_path / "out").write_text("a file")
+    with pytest.raises(DataFormatError, match=r"out: exists and is not a directory; expected an output directory"):
+        with output_directory(tmp_path / "out"):
+            pytest.fail("must not get here")
+    with pytest.raises(DataFormatError, match=r"out: exists and is not a directory; expected a folder"):
+        with output_directory(tmp_path / "out" / "deeper"):
+            pytest.fail("must not get here")
+    assert os.listdir(tmp_path) == ["out"]
+
+
 def test_existing_entries_are_refused_before_anything_is_written(tmp_path):
     _write(tmp_path, "out/a.yaml", "old")
     with pytest.raises(DataFormatError, match=r"out/a\.yaml: file exists; not overwritten"):
@@ -182,6 +193,9 @@ def test_a_single_file_is_replaced_only_when_complete(tmp_path):
         temp.write_text("new")
         assert target.read_text() == "old"
     assert target.read_text() == "new" and os.listdir(tmp_path) == ["q.csv"]
+    with pytest.raises(DataFormatError, match="is a directory; expected an output file"):
+        with output_file(tmp_path, overwrite=True):
+            pytest.fail("must not get here")
 
 
 # ------------------------------------------------------------------------------------------ the commands

@@ -24,7 +24,6 @@ import secrets
 import shutil
 import signal
 from contextlib import contextmanager
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from kincal.errors import DataFormatError
@@ -33,15 +32,15 @@ TAG = ".kincal-tmp-"
 _HELD = {signal.SIGINT, signal.SIGTERM}
 
 
-@dataclass
 class Staging:
     """Where to write (``path``) and where it will be (``target``); ``final(p)`` maps a written path to its
-    place after the move."""
+    place after the move. A handle with state, not a value: ``created`` lists what the move added (for
+    ``undo``), ``keep`` says a failed move could not be undone and the temporary holds the previous output."""
 
-    path: Path
-    target: Path
-    created: list[Path] = field(default_factory=list)  # what the move added to an existing folder (for undo)
-    keep: bool = False  # a failed move could not be undone: the temporary holds the previous output
+    def __init__(self, path: Path, target: Path):
+        self.path, self.target = path, target
+        self.created: list[Path] = []
+        self.keep = False
 
     def final(self, p) -> Path:
         return self.target / Path(p).relative_to(self.path)
@@ -269,10 +268,10 @@ def _put_back(done: list[tuple[Path, Path]]) -> bool:
 def output_file(target, *, overwrite: bool = False):
     """Stage one output file: yields the temporary path to write; it replaces ``target`` at the end."""
     target = Path(target)
-    if not overwrite and os.path.lexists(target):
-        raise DataFormatError(f"{target}: exists; refusing to overwrite it (pass --overwrite)")
     if target.is_dir():
         raise DataFormatError(f"{target}: is a directory; expected an output file")
+    if not overwrite and os.path.lexists(target):
+        raise DataFormatError(f"{target}: exists; refusing to overwrite it (pass --overwrite)")
     made = _make_parents(target.parent)
     prefix = f".{target.name}"
     clean_stale(target.parent, prefix)
