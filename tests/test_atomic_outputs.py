@@ -15,7 +15,7 @@ import yaml
 
 import kincal.io.atomic as atomic
 from kincal.cli import calibrate_cmds, main
-from kincal.errors import DataFormatError, KincalError
+from kincal.errors import DataFormatError
 from kincal.io.atomic import output_directory, output_file
 from kincal.io.models import load_robot
 
