@@ -47,6 +47,41 @@ def test_an_exception_inside_leaves_nothing(tmp_path, error):
     assert list(tmp_path.iterdir()) == []  # the folders it made for the target are gone too
 
 
+def test_an_interrupt_held_back_while_the_temporary_is_made_still_removes_it(tmp_path, monkeypatch):
+    """SIGINT while the temporary folder is being made waits until it exists, and then must not strand it."""
+    real = atomic._new_stage
+
+    def interrupted(target, inside_ok):
+        stage = real(target, inside_ok)
+        os.kill(os.getpid(), signal.SIGINT)  # held back: arrives when the signals are released
+        return stage
+
+    monkeypatch.setattr(atomic, "_new_stage", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        with output_directory(tmp_path / "out"):
+            pytest.fail("the interrupt must come before the body")
+    assert os.listdir(tmp_path) == []
+
+
+def _interrupt_during_the_move(monkeypatch):
+    real = atomic._commit
+
+    def commit_interrupted(*args, **kw):
+        os.kill(os.getpid(), signal.SIGINT)  # held back until the move is done
+        real(*args, **kw)
+
+    monkeypatch.setattr(atomic, "_commit", commit_interrupted)
+
+
+def test_an_interrupt_during_the_move_waits_for_it(tmp_path, monkeypatch):
+    _interrupt_during_the_move(monkeypatch)
+    with pytest.raises(KeyboardInterrupt):
+        with output_directory(tmp_path / "out", names=("a.yaml", "b.yaml")) as stage:
+            _write(stage.path, "a.yaml", "a")
+            _write(stage.path, "b.yaml", "b")
+    assert os.listdir(tmp_path) == ["out"] and sorted(os.listdir(tmp_path / "out")) == ["a.yaml", "b.yaml"]
+
+
 def test_a_new_folder_appears_whole(tmp_path):
     target = tmp_path / "out"
     with output_directory(target, names=("a.yaml", "sub"), last="a.yaml") as stage:
@@ -282,6 +317,12 @@ def test_simulate_interrupted_leaves_nothing_and_overwrite_keeps_the_old(tmp_pat
     assert main(argv + ["--overwrite", "--seed", "7"]) == 130
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
     assert os.listdir(tmp_path) == ["sim"]
+
+
+def test_demo_interrupted_while_its_simulation_moves_into_place_leaves_nothing(tmp_path, monkeypatch):
+    _interrupt_during_the_move(monkeypatch)
+    assert main(["demo", "-o", str(tmp_path / "demo"), "-n", "40", "--quiet"]) == 130
+    assert os.listdir(tmp_path) == []
 
 
 def test_demo_interrupted_during_the_calibration_leaves_nothing(tmp_path, monkeypatch):

@@ -241,8 +241,8 @@ def demo_cmd(out: Path | None, samples: int, quiet: bool, as_json: bool) -> None
     true, ds, truth, validation = run(scenario)
     written = write_demo_input(out, ds, truth, validation, scenario.robot, model=scenario.model,
                                job_name="frida-dual-offsets", free="offsets")
-    say(f"calibrating joint offsets of both arms (job {out / 'job.yaml'}) ...")
     try:  # an interrupted or failed calibration takes the simulation with it: all or nothing
+        say(f"calibrating joint offsets of both arms (job {out / 'job.yaml'}) ...")
         j = load_job(out / "job.yaml")
         result = run_job(j, _progress(console, quiet or as_json))
         paths = write_calibration(result, out)

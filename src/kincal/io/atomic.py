@@ -166,20 +166,16 @@ def output_directory(target, *, names=(), overwrite: bool = False, last: str | N
         raise DataFormatError(f"{target}: exists and is not a directory; expected an output directory")
     if not overwrite:
         _refuse(target, names)
-    made = _make_parents(target.parent)
-    with _held_signals():
-        try:
-            stage = _new_stage(target, inside_ok)
-        except BaseException:
-            _remove_empty(made)
-            raise
+    made, stage = _make_parents(target.parent), None
     try:
+        with _held_signals():  # an interrupt held back here arrives when released, inside this ``try``
+            stage = _new_stage(target, inside_ok)
         yield stage
         with _held_signals():
             _commit(stage, names, overwrite, last)
     except BaseException:
         with _held_signals():
-            if not stage.keep:
+            if stage is not None and not stage.keep:
                 _remove(stage.path)
             _remove_empty(made)
         raise

@@ -49,8 +49,14 @@ def write_simulation_output(out, dataset, truth, validation, robot, *, overwrite
 def write_demo_input(out, dataset, truth, validation, robot, *, model: str, job_name: str, free: str) -> Staging:
     """The demo's simulation and the job that calibrates it (``job.yaml``), all or nothing. Returns the
     ``Staging``, whose ``undo()`` removes them again if the calibration that follows fails or is interrupted."""
-    with output_directory(out, names=DEMO_ENTRIES, last="job.yaml", inside_ok=False) as stage:
-        write_simulation(stage.path, dataset, truth, validation, robot, model=model)
-        write_job(stage.path / "job.yaml", name=job_name, model=model, data=["data.yaml"],
-                  validation=[f"validation/{a}.yaml" for a in validation], free=free)
+    stage = None
+    try:
+        with output_directory(out, names=DEMO_ENTRIES, last="job.yaml", inside_ok=False) as stage:
+            write_simulation(stage.path, dataset, truth, validation, robot, model=model)
+            write_job(stage.path / "job.yaml", name=job_name, model=model, data=["data.yaml"],
+                      validation=[f"validation/{a}.yaml" for a in validation], free=free)
+    except BaseException:  # an interrupt held back during the move arrives after it: take the move back
+        if stage is not None:
+            stage.undo()
+        raise
     return stage
