@@ -38,3 +38,16 @@ def test_convert_log_period_zero_is_refused_not_replaced(tmp_path, capsys):
     code = main(["convert-log", str(_log(tmp_path)), "-m", "ur10", "-o", str(tmp_path / "q.csv"), "--period-s", "0"])
     assert code == 2 and "--period-s: expected a finite number > 0" in capsys.readouterr().err
     assert not os.path.exists(tmp_path / "q.csv")
+
+
+def test_output_into_the_current_folder(tmp_path, monkeypatch):
+    """``-o .`` has no name of its own: the temporary goes beside the folder under its real name, and nothing
+    but the output is left, in the folder or above it."""
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    assert main(["simulate", "ur10_tracker_markers", "-o", ".", "--quiet"]) == 0
+    assert sorted(os.listdir(work)) == ["data.csv", "data.yaml", "truth", "validation"]
+    assert os.listdir(tmp_path) == ["work"]
+    assert main(["convert-log", str(_log(tmp_path)), "-m", "ur10", "-o", "q.csv"]) == 0
+    assert sorted(os.listdir(work)) == ["data.csv", "data.yaml", "q.csv", "truth", "validation"]

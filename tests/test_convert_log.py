@@ -13,6 +13,7 @@ from kincal.io.logs import (
     standstill,
     stops,
 )
+from kincal.io.models import load_robot, save_robot
 from kincal.robots import load
 
 
@@ -99,3 +100,106 @@ def test_headerless_log_and_errors(tmp_path, frida):
     (tmp_path / "bad.txt").write_text("1 2 3\n")
     with pytest.raises(DataFormatError, match="line 1: expected 7 values, found 3"):
         convert_log(tmp_path / "bad.txt", frida, ("right",), header=False)
+
+
+# ------------------------------------------------------------------ issue #10: silent wrong results of convert-log
+
+
+def test_repeated_timestamps_are_refused_naming_the_line(tmp_path, frida, capsys):
+    """A log whose clock repeats every time (each time written twice) divided by zero and found one stop
+    instead of ten: it is refused with the first repeated time's line, by the library and by the CLI."""
+    t, q, _ = trajectory(n_stops=10, move=40, hold=40)
+    t = np.repeat(t[::2], 2)[:len(t)]  # 0, 0, 2p, 2p, ...
+    write_log(tmp_path / "log.csv", t, q, frida)
+    with pytest.raises(DataFormatError, match=r"log\.csv: line 3, column 't': expected a time after 0\.0 s "
+                                              r"\(line 2\), found 0\.0 s; times must increase strictly"):
+        convert_log(tmp_path / "log.csv", frida, ("left", "right"), still_rad_s=1e-3, per_stop=True)
+    out = tmp_path / "q.csv"
+    assert main(["convert-log", str(tmp_path / "log.csv"), "-m", "frida", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "line 3, column 't'" in err and not out.exists()
+
+
+def test_a_time_going_back_is_refused_after_comments(tmp_path, frida):
+    t, q, _ = trajectory(n_stops=1, move=20, hold=5)
+    t[7] = t[3]
+    write_log(tmp_path / "log.csv", t, q, frida)
+    text = (tmp_path / "log.csv").read_text().splitlines()
+    (tmp_path / "log.csv").write_text("\n".join(["# exported by ExtCtrl", *text]) + "\n")  # line numbers shift by 1
+    with pytest.raises(DataFormatError, match=r"line 10, column 't': expected a time after .* \(line 9\)"):
+        convert_log(tmp_path / "log.csv", frida, ("left", "right"))
+
+
+def test_ten_distinct_stops_are_found_when_times_increase(tmp_path, frida):
+    """The counterpart of the repeated-times case: the same log with a clean clock yields its ten stops."""
+    t, q, stop_poses = trajectory(n_stops=10, move=40, hold=40)
+    write_log(tmp_path / "log.csv", t, q, frida)
+    _, out = convert_log(tmp_path / "log.csv", frida, ("left", "right"), still_rad_s=1e-3, per_stop=True)
+    assert len(out["left"]) == 10
+    np.testing.assert_allclose(out["left"], stop_poses[:, :7], atol=1e-12)
+
+
+def _model_with_ratio(tmp_path, ratio):
+    ur = load("ur10")
+    arm = ur["arm"]
+    ratios = np.array(arm.gear_ratios, dtype=float)
+    ratios[2] = ratio
+    return save_robot(ur.replace_arm("arm", arm.replace(gear_ratios=ratios)), tmp_path / "ur_ratio.yaml")
+
+
+def _ur_log(tmp_path):
+    log = tmp_path / "ur_log.csv"
+    log.write_text("t," + ",".join(f"arm.c{i + 1}" for i in range(6)) + "\n"
+                   + "\n".join(f"{0.004 * k}," + ",".join(f"{0.01 * k * (i + 1)}" for i in range(6))
+                               for k in range(1, 30)) + "\n")
+    return log
+
+
+@pytest.mark.parametrize("ratio", [1e-320, 1e-9, 1e12])
+def test_an_implausible_gear_ratio_is_refused_naming_the_model_field(tmp_path, capsys, ratio):
+    """A gear ratio of 1e-320 wrote 'inf' joint readings: refused, naming the model and the joint's field."""
+    model = _model_with_ratio(tmp_path, ratio)
+    out = tmp_path / "q.csv"
+    assert main(["convert-log", str(_ur_log(tmp_path)), "-m", str(model), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(model) in err and "arms.arm.joints[2].gear_ratio" in err
+    assert f"found {ratio!r}" in err and "expected a magnitude between 0.001 and 100000" in err
+    assert not out.exists()
+
+
+def test_a_reading_that_overflows_is_refused_not_written_as_inf(tmp_path):
+    model = load_robot(str(_model_with_ratio(tmp_path, 1e-3)))
+    log = _ur_log(tmp_path)
+    lines = log.read_text().splitlines()
+    cells = lines[5].split(",")
+    cells[3] = "1e307"  # channel 3 carries the joint of ratio 1e-3 (UR: controller order is the model's)
+    lines[5] = ",".join(cells)
+    log.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DataFormatError, match=r"ur_log\.csv: line 6, arm 'arm', joint '.*': the motor angle divided "
+                                              r"by the gear ratio 0\.001 is not a finite number"):
+        convert_log(log, model, ("arm",))
+
+
+def test_convert_log_never_leaves_a_partial_file(tmp_path, frida, monkeypatch):
+    """The CSV is written to a temporary beside it and renamed at the end: a failure while writing leaves
+    nothing new, and --overwrite keeps the old file until the new one is complete."""
+    import kincal.io.logs as logs
+
+    t, q, _ = trajectory(n_stops=1, move=20, hold=5)
+    write_log(tmp_path / "log.csv", t, q, frida)
+    out = tmp_path / "joints.csv"
+    out.write_text("old\n")
+    real = logs.csv.writer
+
+    def failing_writer(fh, **kw):
+        w = real(fh, **kw)
+        w.writerow(["partial"])
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(logs.csv, "writer", failing_writer)
+    assert main(["convert-log", str(tmp_path / "log.csv"), "-m", "frida", "-o", str(out), "--overwrite"]) == 130
+    assert out.read_text() == "old\n" and sorted(p.name for p in tmp_path.iterdir()) == ["joints.csv", "log.csv"]
+    monkeypatch.setattr(logs.csv, "writer", real)
+    assert main(["convert-log", str(tmp_path / "log.csv"), "-m", "frida", "-o", str(out), "--overwrite"]) == 0
+    assert out.read_text().startswith("t,right.j1,")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["joints.csv", "log.csv"]

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import sys
+import threading
 
 import click
 from threadpoolctl import threadpool_limits
@@ -61,13 +63,24 @@ def blas_threads():
     return threadpool_limits(limits=limit, user_api="blas")
 
 
+def _terminated(signum, frame):
+    """SIGTERM unwinds like an error (exit 143), so the output being written is removed (kincal.io.atomic)."""
+    raise SystemExit(128 + signum)
+
+
 def main(argv=None) -> int:
     """Console entry point: kincal errors become one clear line and exit code 2, never a traceback."""
-    with blas_threads():
-        return _main(argv)
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _terminated) if in_main else None
+    try:
+        with blas_threads():
+            return _run(argv)
+    finally:
+        if in_main:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
 
 
-def _main(argv) -> int:
+def _run(argv) -> int:
     try:
         cli.main(args=argv, prog_name="kincal", standalone_mode=False)
     except KincalError as exc:

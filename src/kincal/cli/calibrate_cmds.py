@@ -14,14 +14,13 @@ from rich.table import Table
 
 from kincal.errors import DataFormatError
 from kincal.estimation import validation_stats
-from kincal.io.datasets import load_scenario, write_simulation
-from kincal.io.jobs import load_job, write_job
-from kincal.io.results import (cross_validation_dict, data_warnings, prediction_rows, result_to_dict,
-                               write_results)
-from kincal.report import write_plots
+from kincal.io.datasets import load_scenario
+from kincal.io.jobs import load_job
+from kincal.io.results import cross_validation_dict, data_warnings, prediction_rows, result_to_dict
 from kincal.simulate.perturb import perturbation
 from kincal.simulate.scenario import build_scenario, run
 from kincal.workflow import run_job
+from kincal.workflow.outputs import DEMO_ENTRIES, require_plots, write_calibration, write_demo_input
 
 DEG = 180.0 / math.pi
 DEMO_SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "frida_dual_bracket.yaml"
@@ -203,6 +202,8 @@ def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool,
     trusted at the validation configurations (docs/calibration.md)."""
     console = _console()
     _refuse_existing(out, ("model.yaml", "result.yaml") + (("plots",) if plots else ()))
+    if plots:
+        require_plots()
     j = load_job(job, confine=confine)
     if cv is not None:
         if j.method == "thesis":
@@ -215,10 +216,8 @@ def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool,
         _write_thesis(result, j, out, console, quiet or as_json, as_json)
         _exit("converged" if result.converged else "not converged")
         return
-    paths = write_results(result, out)
-    figures = []
-    if plots:
-        figures = write_plots(result, out / "plots")
+    paths = write_calibration(result, out, plots=plots)  # all or nothing (docs/formats.md "Outputs")
+    figures = paths["plots"]
     if as_json:
         click.echo(json.dumps(result_to_dict(result)))
     elif not quiet:
@@ -247,7 +246,7 @@ def _write_thesis(res, job, out: Path, console, quiet, as_json) -> None:
     robot = res.calibrated(job.robot)
     if job.validation:
         res = replace(res, validation=validation_stats(job.robot, robot, job.validation))
-    write_results(res, out, robot=robot)
+    write_calibration(res, out, robot=robot)
     report = result_to_dict(res)
     if as_json:
         click.echo(json.dumps(report))
@@ -301,7 +300,7 @@ def demo_cmd(out: Path | None, samples: int, quiet: bool, as_json: bool) -> None
     console = _console()
     say = (lambda msg: None) if (quiet or as_json) else (lambda msg: console.print(msg))
     out = _free_directory(Path("kincal-demo-out")) if out is None else out
-    _refuse_existing(out, ("data.yaml", "job.yaml", "model.yaml", "result.yaml", "truth", "validation"))
+    _refuse_existing(out, DEMO_ENTRIES + ("model.yaml", "result.yaml"))
     t0 = time.perf_counter()
     scenario = build_scenario(load_scenario(DEMO_SCENARIO))
     # thesis Table 4.5: nominal geometry, joint offsets of thesis size (up to 0.07 rad)
@@ -309,13 +308,16 @@ def demo_cmd(out: Path | None, samples: int, quiet: bool, as_json: bool) -> None
                        perturbation=perturbation("thesis", twist_m=0.0, twist_rad=0.0, home_m=0.0, home_rad=0.0))
     say(f"simulating {samples} configurations of Frida's clamped arms (true robot: joint offsets up to 0.07 rad) ...")
     true, ds, truth, validation = run(scenario)
-    write_simulation(out, ds, truth, validation, scenario.robot, model=scenario.model)
-    write_job(out / "job.yaml", name="frida-dual-offsets", model=scenario.model, data=["data.yaml"],
-              validation=[f"validation/{a}.yaml" for a in validation], free="offsets")
-    say(f"calibrating joint offsets of both arms (job {out / 'job.yaml'}) ...")
-    j = load_job(out / "job.yaml")
-    result = run_job(j, _progress(console, quiet or as_json))
-    paths = write_results(result, out)
+    written = write_demo_input(out, ds, truth, validation, scenario.robot, model=scenario.model,
+                               job_name="frida-dual-offsets", free="offsets")
+    try:  # an interrupted or failed calibration takes the simulation with it: all or nothing
+        say(f"calibrating joint offsets of both arms (job {out / 'job.yaml'}) ...")
+        j = load_job(out / "job.yaml")
+        result = run_job(j, _progress(console, quiet or as_json))
+        paths = write_calibration(result, out)
+    except BaseException:
+        written.undo()
+        raise
     if as_json:
         click.echo(json.dumps(result_to_dict(result)))
     else:

@@ -11,11 +11,12 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
 from kincal.errors import DataFormatError
-from kincal.io.datasets import load_scenario, write_simulation
+from kincal.io.datasets import load_scenario
 from kincal.io.logs import EXTCTRL_PERIOD_S, convert_log as convert, write_joint_csv
 from kincal.io.models import load_robot
 from kincal.simulate.generators import dataset_spread
 from kincal.simulate.scenario import build_scenario, run
+from kincal.workflow.outputs import SIMULATION_ENTRIES, write_simulation_output
 
 
 def register(group: click.Group) -> None:
@@ -33,8 +34,9 @@ def register(group: click.Group) -> None:
 def simulate(scenario: str, output: Path, seed: int | None, overwrite: bool, quiet: bool) -> None:
     """Simulate the experiment of SCENARIO.yaml (examples: kincal/scenarios/*.yaml)."""
     sc = build_scenario(load_scenario(scenario))
-    if not overwrite and (output / "data.yaml").exists():
-        raise DataFormatError(f"{output / 'data.yaml'}: exists; refusing to overwrite it (pass --overwrite)")
+    existing = [str(output / n) for n in SIMULATION_ENTRIES if (output / n).exists()]
+    if existing and not overwrite:
+        raise DataFormatError(f"{', '.join(existing)}: exists; refusing to overwrite it (pass --overwrite)")
     if seed is not None:
         sc = replace(sc, seed=seed)
     console = Console(stderr=True, quiet=quiet)
@@ -46,8 +48,8 @@ def simulate(scenario: str, output: Path, seed: int | None, overwrite: bool, qui
             bar.update(task, completed=done, total=total)
 
         true, ds, truth, validation = run(sc, progress)
-    paths = write_simulation(output, ds, truth, validation, sc.robot, model=sc.model, angle=sc.angle_unit,
-                             length=sc.length_unit, overwrite=overwrite)
+    paths = write_simulation_output(output, ds, truth, validation, sc.robot, model=sc.model, angle=sc.angle_unit,
+                                    length=sc.length_unit, overwrite=overwrite)  # all or nothing
     if quiet:
         return
     out = Console()
@@ -98,6 +100,6 @@ def convert_log(log: Path, model: str, arms: tuple[str, ...], output: Path, ever
     for a in arms:
         robot[a]
     t, q = convert(log, robot, arms, every=every, still_rad_s=still_rad_s, window=window, per_stop=per_stop,
-                   header=not no_header, period_s=EXTCTRL_PERIOD_S if period_s is None else period_s)
+                   header=not no_header, period_s=EXTCTRL_PERIOD_S if period_s is None else period_s, model=model)
     write_joint_csv(output, t, q, robot, overwrite=overwrite)
     click.echo(f"{log} -> {output}: {len(t)} samples, arms {', '.join(arms)}")

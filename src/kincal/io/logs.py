@@ -20,6 +20,7 @@ import numpy as np
 
 from kincal.errors import DataFormatError, ShapeError
 from kincal.io import units
+from kincal.io.atomic import output_file
 from kincal.io.yamlfile import read_text
 from kincal.kinematics import ArmModel, Robot
 
@@ -77,6 +78,11 @@ def downsample(n: int, every: int) -> np.ndarray:
 def read_motor_log(path, robot: Robot, arms: tuple[str, ...], *, header: bool = True,
                    period_s: float = EXTCTRL_PERIOD_S) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Read a motor-radian log: (t (N,), {arm: motor (N, n) in controller channel order})."""
+    return _read_log(path, robot, arms, header, period_s)[:2]
+
+
+def _read_log(path, robot: Robot, arms: tuple[str, ...], header: bool, period_s: float):
+    """``read_motor_log`` and the file's line number of each sample."""
     path = Path(path)
     lines = read_text(path, "log").splitlines()
     sizes = [robot[a].dof for a in arms]
@@ -119,26 +125,33 @@ def read_motor_log(path, robot: Robot, arms: tuple[str, ...], *, header: bool = 
         raise DataFormatError(f"{path}: no samples")
     if cols[0] == "t":
         t, data = data[:, 0], data[:, 1:]
+        _check_times(path, t, [number for number, _ in rows])
     else:
         t = np.arange(len(rows)) * period_s
     out, k = {}, 0
     for a, n in zip(arms, sizes):
         out[a] = data[:, k:k + n]
         k += n
-    return t, out
+    return t, out, [number for number, _ in rows]
 
 
 def convert_log(path, robot: Robot, arms: tuple[str, ...], *, every: int = 1, still_rad_s: float | None = None,
                 window: int = 25, per_stop: bool = False, header: bool = True,
-                period_s: float = EXTCTRL_PERIOD_S) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+                period_s: float = EXTCTRL_PERIOD_S,
+                model: str | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Read a motor log and return (t, {arm: joint readings in model order}).
 
     ``still_rad_s`` keeps only samples where every joint of every arm moves slower than that over
     ``window`` samples; ``per_stop`` then reduces each stop to its mean. ``every`` downsamples what is left.
+    ``model``: where ``robot`` was read from, for messages (default its name). Times must increase strictly;
+    gear ratios must have a plausible size (``GEAR_RATIO_RANGE``); a joint reading that overflows is refused.
     """
     _check_options(path, still_rad_s, window, every, period_s)
-    t, motor = read_motor_log(path, robot, arms, header=header, period_s=period_s)
-    q = {a: motor_to_joint(m, robot[a]) for a, m in motor.items()}
+    _check_gear_ratios(robot, arms, model)
+    t, motor, lines = _read_log(path, robot, arms, header, period_s)
+    with np.errstate(over="ignore", invalid="ignore"):  # refused just below, with the line
+        q = {a: motor_to_joint(m, robot[a]) for a, m in motor.items()}
+    _check_finite(path, q, robot, lines)
     if still_rad_s is not None:
         mask = standstill(t, np.concatenate([q[a] for a in arms], axis=1), still_rad_s, window)
         if not mask.any():
@@ -167,13 +180,48 @@ def _check_options(path, still_rad_s, window, every, period_s) -> None:
             raise DataFormatError(f"{path}: option {name}: expected an integer >= 1, found {value!r}")
 
 
+# Magnitudes of a gear ratio (motor turns per joint turn) that a real drive can have: direct drives are 1,
+# harmonic and cycloidal gears reach a few hundred, belt stages on top a few thousand.
+GEAR_RATIO_RANGE = (1e-3, 1e5)
+
+
+def _check_gear_ratios(robot: Robot, arms, model: str | None) -> None:
+    """A ratio like 1e-320 divides the motor angles into infinity: refuse it, naming the model field."""
+    low, high = GEAR_RATIO_RANGE
+    for a in arms:
+        arm = robot[a]
+        for j, ratio in enumerate(arm.gear_ratios):
+            if not (np.isfinite(ratio) and low <= abs(ratio) <= high):
+                raise DataFormatError(
+                    f"model {model or robot.name!r}: arms.{a}.joints[{j}].gear_ratio (joint '{arm.joint_names[j]}'):"
+                    f" expected a magnitude between {low:g} and {high:g}, found {float(ratio)!r}")
+
+
+def _check_times(path, t: np.ndarray, lines: list[int]) -> None:
+    """Times of a log increase strictly: a repeated time made the joint speed infinite and merged stops."""
+    bad = np.flatnonzero(np.diff(t) <= 0)
+    if len(bad):
+        i = int(bad[0]) + 1
+        raise DataFormatError(f"{path}: line {lines[i]}, column 't': expected a time after {float(t[i - 1])!r} s "
+                              f"(line {lines[i - 1]}), found {float(t[i])!r} s; times must increase strictly")
+
+
+def _check_finite(path, q: dict[str, np.ndarray], robot: Robot, lines: list[int]) -> None:
+    """A huge motor angle over a small gear ratio overflows: refuse it rather than write ``inf``."""
+    for a, v in q.items():
+        bad = np.argwhere(~np.isfinite(v))
+        if len(bad):
+            i, j = (int(x) for x in bad[0])
+            ratio = float(robot[a].gear_ratios[j])
+            raise DataFormatError(f"{path}: line {lines[i]}, arm '{a}', joint '{robot[a].joint_names[j]}': the motor "
+                                  f"angle divided by the gear ratio {ratio!r} is not a finite number")
+
+
 def write_joint_csv(path, t: np.ndarray, q: dict[str, np.ndarray], robot: Robot, *, overwrite: bool = False) -> Path:
-    """CSV with ``t`` and ``<arm>.<joint>`` columns (rad, model order): the joint part of a data set file."""
+    """CSV with ``t`` and ``<arm>.<joint>`` columns (rad, model order): the joint part of a data set file.
+    Written all or nothing (``kincal.io.atomic``): an interrupted run leaves no cut-off or half-replaced file."""
     path = Path(path)
-    if path.exists() and not overwrite:
-        raise DataFormatError(f"{path}: exists; refusing to overwrite it (pass --overwrite)")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="", encoding="utf-8") as fh:
+    with output_file(path, overwrite=overwrite) as temp, open(temp, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(["t"] + [f"{a}.{j}" for a in q for j in robot[a].joint_names])
         for i in range(len(t)):
