@@ -183,7 +183,7 @@ def test_cli_import_calibrate_export_round_trip(tmp_path, capsys):
     assert main(["export", str(cal_file), "--to", "urdf", "-o", str(out)]) == 0
     _fk_check(out.read_text(), cal["arm"], "base_link", "tool0")
     assert main(["export", str(cal_file), "--to", "urdf", "-o", str(out)]) == 2  # no overwrite
-    assert "not overwritten" in capsys.readouterr().err
+    assert "refusing to overwrite" in capsys.readouterr().err
     assert main(["export", str(cal_file), "--to", "urdf", "-o", str(out), "--overwrite"]) == 0
     for fmt in ("mdh", "controller", "json"):
         assert main(["export", str(cal_file), "--to", fmt, "-o", str(tmp_path / f"x.{fmt}")]) == 0
@@ -208,7 +208,7 @@ def test_cli_bad_input_is_one_line(tmp_path, capsys):
               "nowhere"),
              (["export", "frida", "--to", "dh", "-o", str(tmp_path / "f.yaml")], "several arms"),
              (["export", "ur10", "--arm", "left", "--to", "dh", "-o", str(tmp_path / "g.yaml")], "left"),
-             (["export", "ur10", "--to", "urdf", "-o", str(tmp_path)], "folder"))
+             (["export", "ur10", "--to", "urdf", "-o", str(tmp_path)], "is a directory"))
     for args, words in cases:
         assert main(args) == 2
         err = capsys.readouterr().err

@@ -17,13 +17,13 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import yaml
 
 from kincal.errors import DataFormatError
+from kincal.io.atomic import output_file
 from kincal.io.models import robot_to_dict
 from kincal.io.urdf import from_urdf, to_urdf
 from kincal.io.urdf_patch import patch_urdf
@@ -53,22 +53,10 @@ def export_text(robot: Robot, arm: str, fmt: str, model_file: Path | None = None
 
 
 def write_text(path, text: str, overwrite: bool = False) -> Path:
-    """Write ``text`` to ``path`` through a temporary file in the same folder (renamed at the end)."""
+    """Write ``text`` to ``path`` all or nothing (``kincal.io.atomic.output_file``)."""
     p = Path(path)
-    if p.is_dir():
-        raise DataFormatError(f"{p}: is a folder; expected a file name")
-    if p.exists() and not overwrite:
-        raise DataFormatError(f"{p}: exists; not overwritten (--overwrite replaces it)")
-    try:
-        p.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.kincal-tmp-", dir=p.parent)
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, p)
-    except OSError as exc:
-        raise DataFormatError(f"{p}: cannot write: {exc.strerror or exc}") from None
+    with output_file(p, overwrite=overwrite) as tmp:
+        tmp.write_text(text, encoding="utf-8")
     return p
 
 

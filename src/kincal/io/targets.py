@@ -8,15 +8,13 @@ A folder with three files:
   channel order, motor rad via the gear ratios (``motor = q * gear_ratio``, thesis Table 3.1);
 - ``design.yaml``: what was chosen and why (criterion, values against random designs, predicted accuracy).
 
-The folder is written beside the target under a temporary name and renamed into place at the end, so an
-interrupted run leaves no partial folder; an existing folder is never overwritten.
+The folder is written beside the target under a temporary name and renamed into place at the end
+(``kincal.io.atomic``), so an interrupted run leaves no partial folder; an existing folder is never overwritten.
 """
 
 from __future__ import annotations
 
 import os
-import shutil
-import tempfile
 from pathlib import Path
 from typing import Mapping
 
@@ -24,29 +22,21 @@ import numpy as np
 import yaml
 
 from kincal.errors import DataFormatError
+from kincal.io.atomic import output_directory
 from kincal.io.logs import joint_to_motor
 from kincal.kinematics import Robot
 
 
 def write_targets(directory, robot: Robot, q: Mapping[str, np.ndarray], summary: Mapping) -> dict[str, Path]:
-    """Write ``targets.csv``, ``controller.csv`` and ``design.yaml`` into the new folder ``directory``."""
+    """Write ``targets.csv``, ``controller.csv`` and ``design.yaml`` into the new folder ``directory``, all or
+    nothing (``kincal.io.atomic.output_directory``)."""
     d = Path(directory)
+    names = ("targets.csv", "controller.csv", "design.yaml")
     if d.exists():
         raise DataFormatError(f"{d}: exists; not overwritten (choose another output folder)")
-    try:
-        d.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{d.name}.kincal-tmp-", dir=d.parent))
-    except OSError as exc:
-        raise DataFormatError(f"{d}: cannot create the output folder: {exc.strerror or exc}") from None
-    try:
-        _write(tmp, robot, q, summary)
-        os.rename(tmp, d)
-    except OSError as exc:
-        raise DataFormatError(f"{d}: cannot write: {exc.strerror or exc}") from None
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
-    return {name: d / name for name in ("targets.csv", "controller.csv", "design.yaml")}
+    with output_directory(d, names=names, last="design.yaml") as stage:
+        _write(stage.path, robot, q, summary)
+    return {name: d / name for name in names}
 
 
 def _write(folder: Path, robot: Robot, q: Mapping[str, np.ndarray], summary: Mapping) -> None:
