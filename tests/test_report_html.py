@@ -10,6 +10,7 @@ from html.parser import HTMLParser
 
 import numpy as np
 import pytest
+import yaml
 
 from kincal import robots
 from kincal.estimation import Noise, calibrate
@@ -90,3 +91,30 @@ def test_report_renders_in_headless_chromium(report, tmp_path):
     dom = subprocess.run([chromium, *flags, "--dump-dom", page.as_uri()], check=True, capture_output=True,
                          text=True, timeout=120).stdout
     assert "UR10 tracker" in dom and "trusted" in dom and "What cannot be identified" in dom
+
+
+def test_cli_report_and_plot_recompute_from_the_recorded_job(tmp_path, monkeypatch, capsys):
+    from kincal.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    assert main(["simulate", "ur10_tracker_markers", "-o", "sim", "--quiet"]) == 0
+    (tmp_path / "job.yaml").write_text("format: kincal-job\nversion: 1\nmodel: ur10\ndata: [sim/data.yaml]\n"
+                                       "validation: [sim/validation/arm.yaml]\nfree: offsets\n")
+    main(["calibrate", "job.yaml", "-o", "res", "--quiet"])
+    prov = yaml.safe_load((tmp_path / "res" / "result.yaml").read_text())["provenance"]
+    assert prov["job"] == str(tmp_path / "job.yaml") and len(prov["inputs"]) >= 3
+    monkeypatch.chdir(tmp_path / "sim")  # absolute paths: reported from anywhere
+    assert main(["report", str(tmp_path / "res"), "--workspace", "50"]) == 0
+    p = _Parsed()
+    p.feed((tmp_path / "res" / "report.html").read_text())
+    assert "Provenance" in p.headings and str(tmp_path / "job.yaml") in "".join(p.text)
+    assert main(["report", str(tmp_path / "res")]) == 2  # no overwrite
+    assert main(["plot", str(tmp_path / "res")]) == 0
+    assert sorted(f.name for f in (tmp_path / "res" / "plots").iterdir()) == [
+        "identifiability.png", "prediction.png", "residuals.png", "uncertainty.png"]
+    capsys.readouterr()
+    (tmp_path / "sim" / "data.csv").write_text((tmp_path / "sim" / "data.csv").read_text() + "\n")
+    assert main(["report", str(tmp_path / "res"), "-o", str(tmp_path / "r2.html")]) == 2
+    err = capsys.readouterr().err
+    assert "changed since this result was computed" in err and err.count("\n") == 1
+    assert not (tmp_path / "r2.html").exists()

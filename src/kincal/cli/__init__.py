@@ -12,7 +12,8 @@ import click
 from threadpoolctl import threadpool_limits
 
 from kincal import __version__
-from kincal.cli import analyze_cmds, calibrate_cmds, design_cmds, export_cmds, list_cmds, model_cmds, simulate_cmds
+from kincal.cli import (analyze_cmds, calibrate_cmds, design_cmds, export_cmds, list_cmds, model_cmds, report_cmds,
+                        simulate_cmds)
 from kincal.errors import KincalError
 
 
@@ -22,7 +23,8 @@ def cli() -> None:
     """kincal: kinematic calibration of robot arms."""
 
 
-for _module in (model_cmds, list_cmds, simulate_cmds, calibrate_cmds, analyze_cmds, design_cmds, export_cmds):  # each defines ``register(group)``
+for _module in (model_cmds, list_cmds, simulate_cmds, calibrate_cmds, analyze_cmds, design_cmds, export_cmds,
+                report_cmds):  # each defines ``register(group)``
     _module.register(cli)
 
 # One whole phrase per command in ``kincal --help`` (click would cut the docstring's first line mid-phrase).
@@ -36,6 +38,8 @@ SHORT_HELP = {
     "fk": "Tool pose for one joint configuration.",
     "import": "Read a URDF chain into a kincal model file.",
     "model": "Inspect robot models (built-in names or files).",
+    "plot": "PNG plots of a calibration already written.",
+    "report": "One self-contained HTML report of a calibration.",
     "robots": "List the built-in robots.",
     "scenarios": "List the built-in simulation scenarios.",
     "simulate": "Simulate a scenario: data set, truth, validation.",

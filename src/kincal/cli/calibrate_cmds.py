@@ -21,6 +21,7 @@ from kincal.simulate.perturb import perturbation
 from kincal.simulate.scenario import build_scenario, run
 from kincal.workflow import run_job
 from kincal.workflow.outputs import DEMO_ENTRIES, require_plots, write_calibration, write_demo_input
+from kincal.workflow.provenance import provenance
 
 DEG = 180.0 / math.pi
 DEMO_SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "frida_dual_bracket.yaml"
@@ -216,7 +217,7 @@ def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool,
         _write_thesis(result, j, out, console, quiet or as_json, as_json)
         _exit("converged" if result.converged else "not converged")
         return
-    paths = write_calibration(result, out, plots=plots)  # all or nothing (docs/formats.md "Outputs")
+    paths = write_calibration(result, out, plots=plots, provenance=provenance(j))  # all or nothing (docs/formats.md)
     figures = paths["plots"]
     if as_json:
         click.echo(json.dumps(result_to_dict(result)))
@@ -246,7 +247,7 @@ def _write_thesis(res, job, out: Path, console, quiet, as_json) -> None:
     robot = res.calibrated(job.robot)
     if job.validation:
         res = replace(res, validation=validation_stats(job.robot, robot, job.validation))
-    write_calibration(res, out, robot=robot)
+    write_calibration(res, out, robot=robot, provenance=provenance(job))
     report = result_to_dict(res)
     if as_json:
         click.echo(json.dumps(report))
@@ -314,7 +315,7 @@ def demo_cmd(out: Path | None, samples: int, quiet: bool, as_json: bool) -> None
         say(f"calibrating joint offsets of both arms (job {out / 'job.yaml'}) ...")
         j = load_job(out / "job.yaml")
         result = run_job(j, _progress(console, quiet or as_json))
-        paths = write_calibration(result, out)
+        paths = write_calibration(result, out, provenance=provenance(j))
     except BaseException:
         written.undo()
         raise

@@ -203,9 +203,11 @@ def prediction_rows(result: Result) -> list[dict]:
     return rows
 
 
-def write_results(result: Result | BaselineResult, directory, robot: Robot | None = None) -> dict[str, Path]:
+def write_results(result: Result | BaselineResult, directory, robot: Robot | None = None,
+                  provenance: dict | None = None) -> dict[str, Path]:
     """``model.yaml`` (calibrated robot) and ``result.yaml`` (``result_to_dict``) in ``directory`` (created if
     needed). ``robot``: the calibrated robot of a baseline (``BaselineResult.calibrated``); a ``Result`` has its own.
+    ``provenance``: job, input files with SHA-256, versions and date (``kincal.workflow.provenance``).
 
     Refuses to run if either file exists, before writing anything.
     """
@@ -221,7 +223,8 @@ def write_results(result: Result | BaselineResult, directory, robot: Robot | Non
     save_robot(result.robot if robot is None else robot, paths["model"])
     try:
         with open(paths["result"], "x", encoding="utf-8") as fh:
-            yaml.safe_dump(result_to_dict(result), fh, sort_keys=False)
+            yaml.safe_dump({**result_to_dict(result), **({"provenance": provenance} if provenance else {})}, fh,
+                           sort_keys=False)
     except OSError as exc:
         raise DataFormatError(f"{paths['result']}: cannot write: {exc.strerror or exc}") from None
     return paths
