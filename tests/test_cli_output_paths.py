@@ -51,3 +51,23 @@ def test_output_into_the_current_folder(tmp_path, monkeypatch):
     assert os.listdir(tmp_path) == ["work"]
     assert main(["convert-log", str(_log(tmp_path)), "-m", "ur10", "-o", "q.csv"]) == 0
     assert sorted(os.listdir(work)) == ["data.csv", "data.yaml", "q.csv", "truth", "validation"]
+
+
+def test_a_path_of_the_wrong_kind_is_one_line_for_every_command(tmp_path, capsys):
+    """A folder where a file is expected and the reverse: kincal's own one-line error (click's multi-line usage
+    error before), exit 2, nothing written, never a traceback."""
+    f = tmp_path / "afile"
+    f.write_text("")
+    d = tmp_path / "adir"
+    d.mkdir()
+    cases = [["calibrate", str(d), "-o", str(tmp_path / "x")], ["simulate", "frida_clamp_one", "-o", str(f)],
+             ["convert-log", str(d), "-m", "frida", "-o", str(tmp_path / "x.csv")],
+             ["report", str(f)], ["plot", str(d)], ["design", str(f), "--next", "3", "-o", str(tmp_path / "y")],
+             ["design", str(d), "-n", "3", "-o", str(tmp_path / "y")], ["analyze", str(d)],
+             ["import", str(d), "--base-link", "a", "--tip-link", "b", "-o", str(tmp_path / "m.yaml")],
+             ["export", "ur10", "--to", "urdf", "-o", str(d)]]
+    for args in cases:
+        assert main(args) == 2, args
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("kincal: error: ") and "\n" not in err, (args, err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["adir", "afile"]

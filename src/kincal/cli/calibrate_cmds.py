@@ -185,8 +185,8 @@ def _progress(console: Console, quiet: bool):
 
 
 @click.command("calibrate")
-@click.argument("job", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("-o", "--output", "out", required=True, type=click.Path(file_okay=False, path_type=Path),
+@click.argument("job", type=click.Path(path_type=Path))
+@click.option("-o", "--output", "out", required=True, type=click.Path(path_type=Path),
               help="Directory for model.yaml and result.yaml (existing files are never replaced).")
 @click.option("--quiet", is_flag=True, help="Print nothing but errors.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
@@ -285,7 +285,7 @@ def _refuse_existing(out: Path, names) -> None:
 
 
 @click.command("demo")
-@click.option("-o", "--output", "out", default=None, type=click.Path(file_okay=False, path_type=Path),
+@click.option("-o", "--output", "out", default=None, type=click.Path(path_type=Path),
               help="Output directory (must not hold results). Default: the first free of ./kincal-demo-out, "
                    "./kincal-demo-out-2, ...")
 @click.option("-n", "--samples", default=200, show_default=True, type=click.IntRange(20, 5000),

@@ -51,7 +51,7 @@ def _limits(box: str | None, cone: float | None) -> Candidates:
 @click.option("-n", "count", type=click.IntRange(1, None), default=None, help="Configurations to choose.")
 @click.option("--next", "next_count", type=click.IntRange(1, None), default=None,
               help="Choose this many configurations to add to the calibration of SOURCE (a job file).")
-@click.option("--result", type=click.Path(file_okay=False, path_type=Path), default=None,
+@click.option("--result", type=click.Path(path_type=Path), default=None,
               help="With --next: a calibrate output folder of the job (its model.yaml); default: calibrate the job.")
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True, help="Output folder (new).")
 @click.option("--free", default=None, help="What the calibration will free (default: the job's, or 'offsets').")
@@ -94,7 +94,8 @@ def _design(source, K, free, criterion, pool, seed, limits, console):
 
 
 def _next(source, K, result, free, pool, seed, console):
-    if read_yaml(Path(source), "job file").get("format") != "kincal-job":
+    top = read_yaml(Path(source), "job file")
+    if not isinstance(top, dict) or top.get("format") != "kincal-job":
         raise DataFormatError(f"{source}: --next needs a job file (format: kincal-job)")
     job = load_job(source)
     if result is None:  # the information counts at the calibrated model: calibrate first

@@ -13,7 +13,7 @@ from kincal.io.models import dump_robot, load_robot, select_arm
 
 
 @click.command("import")
-@click.argument("urdf", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("urdf", type=click.Path(path_type=Path))
 @click.option("--base-link", required=True, help="First link of the chain (the arm's base).")
 @click.option("--tip-link", required=True, help="Last link of the chain (the flange).")
 @click.option("--arm", default="arm", show_default=True, help="Name of the arm in the model.")

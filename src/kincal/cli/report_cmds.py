@@ -20,7 +20,7 @@ WORKSPACE = 300
 
 
 @click.command("report")
-@click.argument("result_dir", type=click.Path(file_okay=False, path_type=Path))
+@click.argument("result_dir", type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=None,
               help="HTML file to write (default: RESULT_DIR/report.html).")
 @click.option("--workspace", type=click.IntRange(10, 100_000), default=WORKSPACE, show_default=True,
@@ -43,7 +43,7 @@ def report_cmd(result_dir: Path, output, workspace: int, seed: int, overwrite: b
 
 
 @click.command("plot")
-@click.argument("result_dir", type=click.Path(file_okay=False, path_type=Path))
+@click.argument("result_dir", type=click.Path(path_type=Path))
 @click.option("--overwrite", is_flag=True, help="Replace existing plots.")
 def plot_cmd(result_dir: Path, overwrite: bool) -> None:
     """Write the PNG plots of the calibration in RESULT_DIR into RESULT_DIR/plots."""

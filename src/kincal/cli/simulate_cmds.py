@@ -26,7 +26,7 @@ def register(group: click.Group) -> None:
 
 @click.command()
 @click.argument("scenario")
-@click.option("-o", "--output", "output", required=True, type=click.Path(file_okay=False, path_type=Path),
+@click.option("-o", "--output", "output", required=True, type=click.Path(path_type=Path),
               help="Directory for data.yaml/data.csv, truth/ and validation/.")
 @click.option("--seed", type=int, default=None, help="Override the scenario's seed.")
 @click.option("--overwrite", is_flag=True, help="Replace files already in the output directory.")
@@ -34,6 +34,8 @@ def register(group: click.Group) -> None:
 def simulate(scenario: str, output: Path, seed: int | None, overwrite: bool, quiet: bool) -> None:
     """Simulate the experiment of SCENARIO.yaml (examples: kincal/scenarios/*.yaml)."""
     sc = build_scenario(load_scenario(scenario))
+    if output.exists() and not output.is_dir():  # said before simulating, not after
+        raise DataFormatError(f"{output}: exists and is not a directory; expected an output directory")
     existing = [str(output / n) for n in SIMULATION_ENTRIES if (output / n).exists()]
     if existing and not overwrite:
         raise DataFormatError(f"{', '.join(existing)}: exists; refusing to overwrite it (pass --overwrite)")
@@ -42,7 +44,7 @@ def simulate(scenario: str, output: Path, seed: int | None, overwrite: bool, qui
     console = Console(stderr=True, quiet=quiet)
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
                   TimeElapsedColumn(), console=console, transient=True, disable=quiet) as bar:
-        task = bar.add_task(f"{sc.name}: self-motion", total=None)
+        task = bar.add_task(f"{sc.name}: configurations", total=sc.options.get("n"))
 
         def progress(done: int, total: int) -> None:
             bar.update(task, completed=done, total=total)
@@ -58,7 +60,7 @@ def simulate(scenario: str, output: Path, seed: int | None, overwrite: bool, qui
         out.print(f"  {key}: {p}")
     stats = {k: v for k, v in truth.meta.items() if k != "generator"}
     if stats:
-        out.print(f"  generator: {stats}")
+        out.print("  generator: " + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in stats.items()))
     # how much of each joint's range the data cover, whatever the kind: identifiability rests on it
     for arm, sp in dataset_spread(ds, sc.robot, truth).items():
         t = Table(title=f"joint spread, arm {arm}")
@@ -76,10 +78,10 @@ def simulate(scenario: str, output: Path, seed: int | None, overwrite: bool, qui
 
 
 @click.command("convert-log")
-@click.argument("log", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("log", type=click.Path(path_type=Path))
 @click.option("-m", "--model", required=True, help="Built-in robot name or model file.")
 @click.option("-a", "--arm", "arms", multiple=True, help="Arm(s) in the log, in column order (default: all).")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
+@click.option("-o", "--output", required=True, type=click.Path(path_type=Path),
               help="CSV of joint readings (rad, model order).")
 @click.option("--every", type=int, default=1, show_default=True, help="Keep every k-th sample.")
 @click.option("--still-rad-s", type=float, default=None,
