@@ -174,7 +174,7 @@ def test_cli_import_calibrate_export_round_trip(tmp_path, capsys):
     model = tmp_path / "models" / "arm.yaml"
     assert main(["import", str(urdf), "--base-link", "base_link", "--tip-link", "tool0", "-o", str(model)]) == 0
     robot = load_robot(model)
-    assert robot["arm"].meta["urdf"]["file"] == "../arm.urdf"
+    assert robot["arm"].meta["urdf"]["file"] == str(urdf.resolve())  # absolute: carried into calibrations
     cal = Robot(robot.name, {"arm": _calibrated(robot["arm"]).replace(meta=robot["arm"].meta)})
     cal_file = tmp_path / "models" / "cal.yaml"
     from kincal.io.models import save_robot
@@ -214,7 +214,7 @@ def test_cli_bad_input_is_one_line(tmp_path, capsys):
         err = capsys.readouterr().err
         assert words in err and err.count("\n") == 1, err
     moved = tmp_path / "moved.yaml"
-    robot = import_urdf(urdf, "base_link", "tool0", model_file=moved)
+    robot = import_urdf(urdf, "base_link", "tool0")
     from kincal.io.models import save_robot
     save_robot(robot, moved)
     urdf.unlink()

@@ -12,8 +12,8 @@ import click
 from threadpoolctl import threadpool_limits
 
 from kincal import __version__
-from kincal.cli import (analyze_cmds, calibrate_cmds, design_cmds, export_cmds, list_cmds, model_cmds, report_cmds,
-                        simulate_cmds)
+from kincal.cli import (analyze_cmds, calibrate_cmds, compensate_cmds, design_cmds, export_cmds, list_cmds, model_cmds,
+                        report_cmds, simulate_cmds)
 from kincal.errors import KincalError
 
 
@@ -24,13 +24,14 @@ def cli() -> None:
 
 
 for _module in (model_cmds, list_cmds, simulate_cmds, calibrate_cmds, analyze_cmds, design_cmds, export_cmds,
-                report_cmds):  # each defines ``register(group)``
+                report_cmds, compensate_cmds):  # each defines ``register(group)``
     _module.register(cli)
 
 # One whole phrase per command in ``kincal --help`` (click would cut the docstring's first line mid-phrase).
 SHORT_HELP = {
     "analyze": "Before measuring: what an experiment identifies, how well.",
     "calibrate": "Calibrate as a job file describes; write model and result.",
+    "compensate": "Joint targets the calibrated robot needs for a program.",
     "convert-log": "Controller motor log -> joint readings at standstills.",
     "demo": "Calibrate Frida's clamped arms from built-in data.",
     "design": "Choose the configurations to measure (or to add).",

@@ -23,7 +23,7 @@ from kincal.io.models import dump_robot, load_robot, select_arm
 def import_cmd(urdf: Path, base_link: str, tip_link: str, arm: str, name, output: Path, overwrite: bool) -> None:
     """Read the chain BASE_LINK -> TIP_LINK of URDF into a kincal model file; the URDF is recorded so that
     `kincal export --to urdf` can write a calibration back into it."""
-    robot = import_urdf(urdf, base_link, tip_link, arm=arm, name=name, model_file=output)
+    robot = import_urdf(urdf, base_link, tip_link, arm=arm, name=name)
     write_text(output, dump_robot(robot), overwrite)
     _console().print(f"wrote {output}: arm '{arm}' with {robot[arm].dof} joints ({', '.join(robot[arm].joint_names)})")
 

@@ -110,16 +110,11 @@ def _matrix(T: np.ndarray) -> list[list[float]]:
     return [[float(x) for x in row] for row in T]
 
 
-def import_urdf(path, base_link: str, tip_link: str, *, arm: str = "arm", name: str | None = None,
-                model_file: Path | None = None) -> Robot:
-    """A one-arm Robot of the URDF chain, recording the file (relative to ``model_file``'s folder when given)
-    and the chain in the arm's ``meta.urdf`` so ``export --to urdf`` can patch it later."""
+def import_urdf(path, base_link: str, tip_link: str, *, arm: str = "arm", name: str | None = None) -> Robot:
+    """A one-arm Robot of the URDF chain, recording the file (absolute: a calibration's model.yaml is written
+    elsewhere and carries it along) and the chain in the arm's ``meta.urdf`` so ``export --to urdf`` can patch
+    it later."""
     p = Path(path)
     model = from_urdf(p, base_link, tip_link, name=arm)
-    rel = os.path.relpath(p.resolve(), model_file.resolve().parent) if model_file is not None else str(p)
-    meta = {"urdf": {"file": rel, "base_link": base_link, "tip_link": tip_link}}
+    meta = {"urdf": {"file": str(p.resolve()), "base_link": base_link, "tip_link": tip_link}}
     return Robot(name or p.stem, {arm: model.replace(meta=meta)})
-
-
-__all__ = ["FORMATS", "controller_document", "dh_document", "export_text", "import_urdf",
-           "write_text"]

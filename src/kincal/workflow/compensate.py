@@ -5,7 +5,8 @@ A program taught or computed on the nominal model intends, at each row, the tool
 other joint values: inverse kinematics on the calibrated model (``kincal.simulate.solve_ik``, damped least
 squares, batched), started from the program's own joint values (or a nominal IK solution), so the branch is
 kept, and for a redundant arm the minimum-norm steps keep the arm angle close to the program's. Every row gets
-its remaining position and rotation error; rows that cannot reach their pose within the limits are named.
+its remaining position and rotation error; rows that cannot reach their pose within the limits are named. An arm
+with fewer than six joints is compensated for its tool point (its orientation follows from the position).
 """
 
 from __future__ import annotations
@@ -17,7 +18,8 @@ import numpy as np
 
 from kincal.errors import ShapeError
 from kincal.kinematics import ArmModel, Robot, forward_kinematics
-from kincal.simulate import solve_ik
+from kincal.lie import so3
+from kincal.simulate import PositionConstraint, solve, solve_ik
 
 # A row is compensated when the calibrated tool reaches the intended pose within these (m, rad).
 TOL_M = 1e-9
@@ -82,16 +84,20 @@ def _joints(model: ArmModel, q, arm: str) -> np.ndarray:
 
 
 def _solve(model: ArmModel, T: np.ndarray, seed: np.ndarray, limits: ArmModel):
-    ik = solve_ik(model, T, seed, tol_m=TOL_M, tol_rad=TOL_RAD, max_iter=MAX_ITER)
+    if model.dof < 6:  # fewer than six joints place the tool point; its orientation follows
+        ik = solve(PositionConstraint(model, T[:, :3, 3]), seed, tol_m=TOL_M, tol_rad=np.inf, max_iter=MAX_ITER)
+    else:
+        ik = solve_ik(model, T, seed, tol_m=TOL_M, tol_rad=TOL_RAD, max_iter=MAX_ITER)
     q = ik.last
-    reached = (ik.last_pos_err < 1e3 * TOL_M) & (ik.last_rot_err < 1e3 * TOL_RAD)  # 1 um, 1 urad
+    rot = so3.angle(so3.log(np.swapaxes(T[:, :3, :3], 1, 2) @ forward_kinematics(model, q)[:, :3, :3]))
+    reached = (ik.last_pos_err < 1e3 * TOL_M) & ((rot < 1e3 * TOL_RAD) | (model.dof < 6))  # 1 um, 1 urad
     status = np.where(reached, "ok", "unreachable").astype(object)
     stuck = ~(status == "ok") & np.any((q <= model.lower + 1e-12) | (q >= model.upper - 1e-12), axis=1)
     status[stuck] = "limit"
     change = np.max(np.abs(q - seed), axis=1)
     status[(status == "ok") & (change > BRANCH_RAD)] = "branch changed"
     status[~limits.within_limits(seed)] = "outside limits"
-    return q, ik.last_pos_err, ik.last_rot_err, status, change
+    return q, ik.last_pos_err, rot, status, change
 
 
 def _collect(per_arm) -> Compensation:

@@ -1,0 +1,63 @@
+"""``kincal compensate CALIBRATED PROGRAM.csv --nominal MODEL -o OUT.csv``: the joint values the calibrated robot
+needs to reach what a program written for the nominal model intends (docs/deploy.md)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from kincal.cli.calibrate_cmds import _console
+from kincal.io.models import load_robot
+from kincal.io.programs import read_program, write_program
+from kincal.workflow.compensate import compensate_joints, compensate_poses
+
+# Rows that could not be compensated printed at most; the output file marks them all.
+SHOWN = 20
+FAILED_EXIT = 1
+
+
+@click.command("compensate")
+@click.argument("calibrated")
+@click.argument("program", type=click.Path(path_type=Path))
+@click.option("--nominal", required=True, help="The model the program was written for (built-in name or file).")
+@click.option("-o", "--output", type=click.Path(path_type=Path), required=True, help="Compensated program (CSV).")
+@click.option("--angle", type=click.Choice(["rad", "deg"]), default="rad", show_default=True,
+              help="Unit of the joint columns (motor columns are always motor rad).")
+@click.option("--length", type=click.Choice(["m", "mm"]), default="m", show_default=True,
+              help="Unit of pose positions and prismatic joints.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
+def compensate_cmd(calibrated, program: Path, nominal, output: Path, angle, length, overwrite) -> None:
+    """Compensate PROGRAM.csv (joint targets in model or controller order, or Cartesian tool poses with their
+    nominal joint values) for the CALIBRATED model. Exit 1 when some rows could not be compensated (they are
+    named here and marked in the output)."""
+    cal, nom = load_robot(calibrated), load_robot(nominal)
+    prog = read_program(program, nom, angle, length)
+    if prog.form == "poses":
+        parts = [compensate_poses(cal, a, prog.poses[a], prog.q[a], nominal=nom) for a in prog.q]
+        comp = parts[0] if len(parts) == 1 else _merge(parts)
+    else:
+        comp = compensate_joints(nom, cal, prog.q)
+    write_program(output, prog, cal, comp, overwrite=overwrite)
+    console = _console()
+    failed = comp.failed()
+    rows = len(prog.lines)
+    console.print(f"wrote {output}: {rows} rows, {rows * len(prog.q) - len(failed)} arm targets compensated, "
+                  f"{len(failed)} not")
+    for arm, i, status in failed[:SHOWN]:
+        console.print(f"  {program}: line {prog.lines[i]}, arm '{arm}': {status} (remaining "
+                      f"{comp.position_error[arm][i] * 1e3:.3g} mm)")
+    if len(failed) > SHOWN:
+        console.print(f"  and {len(failed) - SHOWN} more (marked in {output})")
+    if failed:
+        raise SystemExit(FAILED_EXIT)
+
+
+def _merge(parts):
+    first = parts[0]
+    fields = ("q", "position_error", "rotation_error", "status", "change")
+    return type(first)(*({k: v for p in parts for k, v in getattr(p, f).items()} for f in fields))
+
+
+def register(group: click.Group) -> None:
+    group.add_command(compensate_cmd)
