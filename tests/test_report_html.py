@@ -73,6 +73,8 @@ def test_report_is_self_contained_with_the_verdict_first(report):
     assert "Predicted accuracy over the workspace" in p.headings and "ab" * 32 in body
     for e in res.estimates:
         assert e.name in body
+    if res.gauge is not None:  # the determined change and gauge move in the named gauge
+        assert "determined change" in body and "gauge move" in body and res.gauge.description in body
 
 
 def test_report_renders_in_headless_chromium(report, tmp_path):

@@ -107,15 +107,38 @@ def _shown(unit: str, value: float) -> tuple[str, float]:
 
 
 def _estimates(result) -> str:
-    rows = ["<tr><th>parameter</th><th>unit</th><th>nominal</th><th>estimate</th><th>change</th><th>std</th></tr>"]
+    """The estimates with, where the data do not fix every coordinate, their change split in the named gauge
+    (what the data determine, with its standard deviation, and a gauge move that changes no residual), then
+    the derived quantities (axis geometry, tool pose at the nominal zero)."""
+    g = result.gauge
+    intro = "" if g is None else f"<p class=\"muted\">Gauge of the determined changes: {_e(g.description)}</p>"
+    head = ("<tr><th>parameter</th><th>unit</th><th>nominal</th><th>estimate</th><th>change</th>"
+            + ("<th>determined change</th><th>std</th><th>gauge move</th>" if g is not None else "<th>std</th>")
+            + "</tr>")
+    rows = [head]
     for e in result.estimates:
         unit, value = _shown(e.unit, e.value)
         _, nominal = _shown(e.unit, e.nominal)
-        _, std = _shown(e.unit, e.std)
-        rows.append(f"<tr><td>{_e(e.name)}</td><td>{unit}</td><td>{nominal:.6g}</td><td>{value:.6g}</td>"
-                    f"<td>{value - nominal:+.4g}</td><td>{_num(std) if e.identifiable else 'not identifiable'}"
-                    "</td></tr>")
-    return "<table>" + "".join(rows) + "</table>"
+        cells = f"<td>{_e(e.name)}</td><td>{unit}</td><td>{nominal:.6g}</td><td>{value:.6g}</td><td>{value - nominal:+.4g}</td>"
+        if g is not None:
+            d, s, m = (_shown(e.unit, x)[1] for x in g.split(e.name))
+            cells += f"<td>{d:+.4g}</td><td>{_num(s)}</td><td>{m:+.4g}</td>"
+        else:
+            _, std = _shown(e.unit, e.std)
+            cells += f"<td>{_num(std) if e.identifiable else 'not identifiable'}</td>"
+        rows.append(f"<tr>{cells}</tr>")
+    out = intro + "<table>" + "".join(rows) + "</table>"
+    if result.derived:
+        drows = ["<tr><th>derived quantity</th><th>unit</th><th>nominal</th><th>value</th><th>std</th>"
+                 "<th>gauge invariant</th></tr>"]
+        for q in result.derived:
+            unit, value = _shown(q.unit, q.value)
+            _, nominal = _shown(q.unit, q.nominal)
+            _, std = _shown(q.unit, q.std)
+            drows.append(f"<tr><td title=\"{_e(q.words)}\">{_e(q.name)}</td><td>{unit}</td><td>{nominal:.6g}</td>"
+                         f"<td>{value:.6g}</td><td>{_num(std)}</td><td>{'yes' if q.identifiable else 'no'}</td></tr>")
+        out += "<h3>Derived quantities</h3><table>" + "".join(drows) + "</table>"
+    return out
 
 
 def _residual_table(result) -> str:
