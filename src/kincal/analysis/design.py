@@ -36,6 +36,9 @@ RIDGE = 1e-8
 # Candidates scored at once (bounds the (chunk, k, r) work arrays).
 CHUNK = 4096
 MAX_PASSES = 10
+# A D-exchange swap must raise log det by this much (0.01 % of the determinant): smaller gains are round-off's
+# or not worth another pass over the pool.
+D_GAIN = 1e-4
 SPECTRAL = ("E", "O2", "O3", "O4", "O5")  # non-smooth in M: exchanged from random starts too
 RESTARTS = 8
 SMOOTHING = (1, 4, 16)  # exponents p of phi_p on the way to a spectral criterion
@@ -207,10 +210,9 @@ class _LogDet:
 
 
 def _sandwich(U: np.ndarray, C: np.ndarray) -> np.ndarray:
-    """U_i C U_i^T for every i: (N, k, k)."""
+    """U_i C U_i^T for every i: (N, k, k) (batched matmul: several times faster than einsum here)."""
     N, k, _ = U.shape
-    UC = (U.reshape(-1, k) @ C).reshape(N, k, k)
-    return np.einsum("nac,nbc->nab", UC, U)
+    return (U.reshape(-1, k) @ C).reshape(N, k, k) @ np.swapaxes(U, 1, 2)
 
 
 def _logdet_plus_identity(G: np.ndarray) -> np.ndarray:
@@ -225,8 +227,11 @@ def _logdet_plus_identity(G: np.ndarray) -> np.ndarray:
     elif k == 3:
         det = np.einsum("ni,ni->n", A[:, 0], np.cross(A[:, 1], A[:, 2]))
     else:
-        sign, logdet = np.linalg.slogdet(A)
-        return np.where(sign > 0, logdet, -np.inf)
+        try:
+            return 2 * np.log(np.diagonal(np.linalg.cholesky(A), axis1=1, axis2=2)).sum(axis=1)
+        except np.linalg.LinAlgError:  # a chosen candidate's own downdate may be singular at round-off
+            sign, logdet = np.linalg.slogdet(A)
+            return np.where(sign > 0, logdet, -np.inf)
     return np.log(np.maximum(det, 1e-300))  # round-off can leave a chosen candidate's downdate at <= 0
 
 
@@ -255,7 +260,7 @@ def _exchange_d(X, chosen, M0) -> tuple[list[int], float, int]:
             sc = st.scores(G, logdet)
             sc[chosen] = -np.inf
             j = int(np.argmax(sc))
-            if sc[j] > st.logdet + 1e-9 * max(abs(st.logdet), 1.0):
+            if sc[j] > st.logdet + D_GAIN:
                 st.add(out, -1.0)
                 st.add(j)
                 chosen[pos] = j
