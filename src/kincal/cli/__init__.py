@@ -19,8 +19,10 @@ from kincal.errors import KincalError
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="kincal")
-def cli() -> None:
+@click.pass_context
+def cli(ctx: click.Context) -> None:
     """kincal: kinematic calibration of robot arms."""
+    ctx.with_resource(blas_threads())  # every command, however it is invoked (console, tests' CliRunner)
 
 
 for _module in (model_cmds, list_cmds, simulate_cmds, calibrate_cmds, analyze_cmds, design_cmds, export_cmds,
@@ -78,8 +80,7 @@ def main(argv=None) -> int:
     in_main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _terminated) if in_main else None
     try:
-        with blas_threads():
-            return _run(argv)
+        return _run(argv)
     finally:
         if in_main:
             signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)

@@ -23,6 +23,7 @@ import re
 import secrets
 import shutil
 import signal
+import threading
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -55,15 +56,24 @@ class Staging:
 
 @contextmanager
 def _held_signals():
-    """SIGINT and SIGTERM wait until the block is done (main thread, POSIX; elsewhere nothing is held)."""
-    if not hasattr(signal, "pthread_sigmask"):
+    """SIGINT and SIGTERM wait until the block is done: handlers that only note the signal, then the previous
+    handlers and the signal raised again. Python runs signal handlers in the main thread whichever thread the
+    system delivers a signal to (BLAS worker threads included), which a thread signal mask would not cover;
+    outside the main thread nothing is held."""
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, _HELD)
+    pending: list[int] = []
+    previous = {s: signal.getsignal(s) for s in _HELD}
+    for s in _HELD:
+        signal.signal(s, lambda signum, frame: pending.append(signum))
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        for s, handler in previous.items():
+            signal.signal(s, signal.SIG_DFL if handler is None else handler)
+        if pending:
+            signal.raise_signal(pending[0])  # now, to the handler that was in place
 
 
 def _remove(p: Path) -> None:
