@@ -71,3 +71,21 @@ def test_a_path_of_the_wrong_kind_is_one_line_for_every_command(tmp_path, capsys
         err = capsys.readouterr().err.strip()
         assert err.startswith("kincal: error: ") and "\n" not in err, (args, err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["adir", "afile"]
+
+
+def test_calibrate_and_design_replace_a_previous_output_only_with_overwrite(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["simulate", "frida_dual_bracket", "-o", "sim", "--quiet"]) == 0
+    (tmp_path / "job.yaml").write_text("format: kincal-job\nversion: 1\nmodel: frida\ndata: [sim/data.yaml]\n")
+    first = main(["calibrate", "job.yaml", "-o", "r", "--quiet"])
+    before = os.stat(tmp_path / "r" / "result.yaml").st_ino
+    assert main(["calibrate", "job.yaml", "-o", "r", "--quiet"]) == 2
+    assert "not overwritten" in capsys.readouterr().err
+    assert main(["calibrate", "job.yaml", "-o", "r", "--quiet", "--overwrite"]) == first
+    assert os.stat(tmp_path / "r" / "result.yaml").st_ino != before  # a new file moved in whole
+    assert "provenance" in (tmp_path / "r" / "result.yaml").read_text()
+    assert sorted(os.listdir(tmp_path / "r")) == ["model.yaml", "result.yaml"]
+    assert main(["design", "frida_dual_bracket", "-n", "30", "--pool", "60", "-o", "d"]) == 0
+    assert main(["design", "frida_dual_bracket", "-n", "30", "--pool", "60", "-o", "d"]) == 2
+    assert main(["design", "frida_dual_bracket", "-n", "31", "--pool", "60", "-o", "d", "--overwrite"]) == 0
+    assert len((tmp_path / "d" / "targets.csv").read_text().splitlines()) == 32

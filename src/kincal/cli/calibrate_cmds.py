@@ -195,14 +195,16 @@ def _progress(console: Console, quiet: bool):
               help="K-fold cross-validation by configuration (overrides the job's solver.cv); its model error "
                    "goes into the predictions (docs/calibration.md).")
 @click.option("--confine", is_flag=True, help="Refuse file references outside the job's folder (docs/formats.md).")
+@click.option("--overwrite", is_flag=True, help="Replace a previous result in OUT (only once the new one is whole).")
 def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool, cv: int | None,
-                  confine: bool) -> None:
+                  confine: bool, overwrite: bool) -> None:
     """Calibrate as described by JOB.yaml (docs/job-format.md) and write the results to OUT.
 
     Exit codes: 0 converged, 1 not converged, 2 bad input, 3 degenerate, 4 misfit, 5 converged but not
     trusted at the validation configurations (docs/calibration.md)."""
     console = _console()
-    _refuse_existing(out, ("model.yaml", "result.yaml") + (("plots",) if plots else ()))
+    if not overwrite:
+        _refuse_existing(out, ("model.yaml", "result.yaml") + (("plots",) if plots else ()))
     if plots:
         require_plots()
     j = load_job(job, confine=confine)
@@ -214,10 +216,11 @@ def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool,
         console.print(f"calibrating '{j.name}': {len(j.datasets)} data set(s), free: {j.free}, method: {j.method}")
     result = run_job(j, _progress(console, quiet or as_json))
     if j.method == "thesis":
-        _write_thesis(result, j, out, console, quiet or as_json, as_json)
+        _write_thesis(result, j, out, console, quiet or as_json, as_json, overwrite)
         _exit("converged" if result.converged else "not converged")
         return
-    paths = write_calibration(result, out, plots=plots, provenance=provenance(j))  # all or nothing (docs/formats.md)
+    paths = write_calibration(result, out, plots=plots, provenance=provenance(j),
+                              overwrite=overwrite)  # all or nothing (docs/formats.md "Outputs")
     figures = paths["plots"]
     if as_json:
         click.echo(json.dumps(result_to_dict(result)))
@@ -242,12 +245,12 @@ def _exit(status: str, trusted: bool = True) -> None:
         raise SystemExit(code)
 
 
-def _write_thesis(res, job, out: Path, console, quiet, as_json) -> None:
+def _write_thesis(res, job, out: Path, console, quiet, as_json, overwrite: bool = False) -> None:
     """Write and print a thesis baseline's result, validated on the job's held-out sets like kincal's."""
     robot = res.calibrated(job.robot)
     if job.validation:
         res = replace(res, validation=validation_stats(job.robot, robot, job.validation))
-    write_calibration(res, out, robot=robot, provenance=provenance(job))
+    write_calibration(res, out, robot=robot, provenance=provenance(job), overwrite=overwrite)
     report = result_to_dict(res)
     if as_json:
         click.echo(json.dumps(report))

@@ -61,7 +61,8 @@ def _limits(box: str | None, cone: float | None) -> Candidates:
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--box", default=None, help="Tracker experiments: tool position box xmin,ymin,zmin,xmax,ymax,zmax (m).")
 @click.option("--cone", type=float, default=None, help="Tracker experiments: line-of-sight half-angle (deg).")
-def design_cmd(source, count, next_count, result, output, free, criterion, pool, seed, box, cone) -> None:
+@click.option("--overwrite", is_flag=True, help="Replace a previous design in the output folder.")
+def design_cmd(source, count, next_count, result, output, free, criterion, pool, seed, box, cone, overwrite) -> None:
     """Choose configurations to measure for the experiment of SOURCE (a scenario file or built-in name), or
     with --next the ones that most improve the calibration of a job. Writes joint targets in model order and in
     controller order (motor units) and design.yaml."""
@@ -72,7 +73,7 @@ def design_cmd(source, count, next_count, result, output, free, criterion, pool,
         robot, q, summary = _next(source, next_count, result, free, pool, seed, console)
     else:
         robot, q, summary = _design(source, count, free, criterion, pool, seed, _limits(box, cone), console)
-    paths = write_targets(output, robot, q, summary)
+    paths = write_targets(output, robot, q, summary, overwrite=overwrite)
     console.print(f"wrote {', '.join(str(p) for p in paths.values())}")
 
 

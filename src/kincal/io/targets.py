@@ -27,14 +27,15 @@ from kincal.io.logs import joint_to_motor
 from kincal.kinematics import Robot
 
 
-def write_targets(directory, robot: Robot, q: Mapping[str, np.ndarray], summary: Mapping) -> dict[str, Path]:
+def write_targets(directory, robot: Robot, q: Mapping[str, np.ndarray], summary: Mapping,
+                  overwrite: bool = False) -> dict[str, Path]:
     """Write ``targets.csv``, ``controller.csv`` and ``design.yaml`` into the new folder ``directory``, all or
     nothing (``kincal.io.atomic.output_directory``)."""
     d = Path(directory)
     names = ("targets.csv", "controller.csv", "design.yaml")
-    if d.exists():
-        raise DataFormatError(f"{d}: exists; not overwritten (choose another output folder)")
-    with output_directory(d, names=names, last="design.yaml") as stage:
+    if d.exists() and not overwrite:
+        raise DataFormatError(f"{d}: exists; not overwritten (choose another output folder or pass --overwrite)")
+    with output_directory(d, names=names, overwrite=overwrite, last="design.yaml") as stage:
         _write(stage.path, robot, q, summary)
     return {name: d / name for name in names}
 

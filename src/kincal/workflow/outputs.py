@@ -27,11 +27,12 @@ def require_plots() -> None:
         raise KincalError('plots need matplotlib: pip install "kincal[plot]" (or leave out --plots)')
 
 
-def write_calibration(result, out, *, robot=None, plots: bool = False, provenance: dict | None = None) -> dict:
+def write_calibration(result, out, *, robot=None, plots: bool = False, provenance: dict | None = None,
+                      overwrite: bool = False) -> dict:
     """``model.yaml``, ``result.yaml`` and with ``plots`` the ``plots/`` folder, all or nothing; returns their
     final paths (``plots``: a list of files). ``result.yaml`` is moved in last: it marks a complete output."""
     names = CALIBRATION_ENTRIES + (("plots",) if plots else ())
-    with output_directory(out, names=names, last="result.yaml") as stage:
+    with output_directory(out, names=names, overwrite=overwrite, last="result.yaml") as stage:
         paths = write_results(result, stage.path, robot=robot, provenance=provenance)
         figures = write_plots(result, stage.path / "plots") if plots else []
     return {**{k: stage.final(p) for k, p in paths.items()}, "plots": [stage.final(f) for f in figures]}
