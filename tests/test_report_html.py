@@ -120,3 +120,18 @@ def test_cli_report_and_plot_recompute_from_the_recorded_job(tmp_path, monkeypat
     err = capsys.readouterr().err
     assert "changed since this result was computed" in err and err.count("\n") == 1
     assert not (tmp_path / "r2.html").exists()
+
+
+def test_report_and_plot_without_matplotlib_are_one_line_before_any_work(tmp_path, monkeypatch, capsys):
+    import sys
+
+    from kincal.cli import main
+    from kincal.cli import report_cmds
+
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # as if not installed
+    monkeypatch.setattr(report_cmds, "recompute", lambda *a, **k: pytest.fail("recomputed before refusing"))
+    for command, words in (("report", "the report's plots need matplotlib"), ("plot", "plots need matplotlib")):
+        assert main([command, str(tmp_path)]) == 2
+        err = capsys.readouterr().err
+        assert words in err and "--plots" not in err and err.count("\n") == 1
+    assert list(tmp_path.iterdir()) == []

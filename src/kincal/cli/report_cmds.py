@@ -30,7 +30,7 @@ WORKSPACE = 300
 def report_cmd(result_dir: Path, output, workspace: int, seed: int, overwrite: bool) -> None:
     """Write one self-contained HTML report of the calibration in RESULT_DIR: verdict, what cannot be
     identified and what to measure next, estimates, residuals, validation, spectrum, accuracy map, provenance."""
-    require_plots()
+    require_plots("the report's plots", "")
     out = output or result_dir / "report.html"
     result, prov = recompute(result_dir)
     rng = np.random.default_rng(seed)
@@ -47,7 +47,7 @@ def report_cmd(result_dir: Path, output, workspace: int, seed: int, overwrite: b
 @click.option("--overwrite", is_flag=True, help="Replace existing plots.")
 def plot_cmd(result_dir: Path, overwrite: bool) -> None:
     """Write the PNG plots of the calibration in RESULT_DIR into RESULT_DIR/plots."""
-    require_plots()
+    require_plots("plots", "")
     result, _ = recompute(result_dir)
     with output_directory(result_dir / "plots", overwrite=overwrite) as stage:
         files = write_plots(result, stage.path)

@@ -21,10 +21,11 @@ SIMULATION_ENTRIES = ("data.yaml", "data.csv", "truth", "validation")
 DEMO_ENTRIES = SIMULATION_ENTRIES + ("job.yaml",)
 
 
-def require_plots() -> None:
-    """Refuse ``--plots`` before any work when matplotlib is missing (nothing gets written, no solve is wasted)."""
+def require_plots(what: str = "plots", hint: str = " (or leave out --plots)") -> None:
+    """Refuse ``--plots`` (or a report) before any work when matplotlib is missing (nothing gets written, no
+    solve is wasted)."""
     if importlib.util.find_spec("matplotlib") is None:
-        raise KincalError('plots need matplotlib: pip install "kincal[plot]" (or leave out --plots)')
+        raise KincalError(f'{what} need matplotlib: pip install "kincal[plot]"{hint}')
 
 
 def write_calibration(result, out, *, robot=None, plots: bool = False, provenance: dict | None = None,
