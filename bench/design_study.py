@@ -26,8 +26,8 @@ from kincal.estimation import Problem, SolverOptions  # noqa: E402
 from kincal.estimation.plan import plan  # noqa: E402
 from kincal.io.datasets import load_scenario, scenario_path  # noqa: E402
 from kincal.simulate.scenario import build_scenario  # noqa: E402
-from kincal.workflow.design import (_candidate_rows, _tool_error, _workspace_rows, candidate_pool,  # noqa: E402
-                                    identifiable_basis)
+from kincal.estimation.plan import identifiable_basis  # noqa: E402
+from kincal.workflow.design import _candidate_rows, _tool_error, _workspace_rows, candidate_pool  # noqa: E402
 
 CASES = (("ur10_tracker_markers", "kinematic"), ("frida_clamp_one", "offsets"), ("frida_plate4", "offsets"),
          ("frida_dual_bracket", "offsets"))
@@ -40,7 +40,7 @@ def rows(name: str, free: str, pool: int, seed: int = 0):
     ds = candidate_pool(sc.robot, sc.kind, sc.options, pool, seed)
     problem = Problem.build(sc.robot, [ds], free, noise=sc.noise)
     p = plan(problem, SolverOptions())
-    V = identifiable_basis(problem, p)
+    V = identifiable_basis(problem, p.identifiability)
     return sc, _candidate_rows(problem, p, V), _workspace_rows(sc.robot, p, V, 100, seed), p.rank
 
 

@@ -63,10 +63,10 @@ def test_cartesian_targets_and_unreachable_rows():
     q = random_configurations(nominal["arm"], 20, np.random.default_rng(1), 0.1)
     T = forward_kinematics(nominal["arm"], q)
     T[5] = se3.make(T[5, :3, :3], T[5, :3, 3] * 3)  # far outside the reach
-    comp = compensate_poses(res.robot, "arm", T, q, nominal=nominal)
+    comp = compensate_poses(res.robot, {"arm": T}, {"arm": q}, nominal=nominal)
     assert comp.status["arm"][5] == "unreachable" and comp.position_error["arm"][5] > 0.1
     assert (comp.status["arm"] == "ok").sum() >= 17
     with pytest.raises(ShapeError, match="20 poses but 3 seed"):
-        compensate_poses(res.robot, "arm", T, q[:3])
+        compensate_poses(res.robot, {"arm": T}, {"arm": q[:3]})
     with pytest.raises(ShapeError, match="not finite"):
         compensate_joints(nominal, res.robot, {"arm": np.full((2, 6), np.nan)})

@@ -17,7 +17,7 @@ from kincal.estimation import Noise, calibrate
 from kincal.simulate import generate_markers, perturb_robot, random_configurations
 
 pytest.importorskip("matplotlib")
-from kincal.report.html import report_html, trusted  # noqa: E402
+from kincal.report.html import report_html  # noqa: E402
 
 UR10 = robots.load("ur10")
 ARM = next(iter(UR10.arms))
@@ -69,7 +69,7 @@ def test_report_is_self_contained_with_the_verdict_first(report):
     assert p.headings[:3] == ["UR10 tracker", "Summary", p.headings[2]] and p.headings[2].startswith("What cannot")
     body = "".join(p.text)
     assert body.index(res.status) < body.index("Estimates") < body.index("Provenance")
-    assert f"trusted: {'yes' if trusted(res) else 'no'}" in " ".join(body.split())
+    assert f"trusted: {'yes' if res.trusted else 'no'}" in " ".join(body.split())
     assert "Predicted accuracy over the workspace" in p.headings and "ab" * 32 in body
     for e in res.estimates:
         assert e.name in body

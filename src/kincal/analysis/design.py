@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import solve_triangular
 
-from kincal.analysis.observability import MEANINGS, observability
+from kincal.analysis.observability import index
 from kincal.errors import ModelError
 
 CRITERIA = ("D", "A", "E", "I", "G", "O1", "O2", "O3", "O4", "O5")
@@ -331,16 +331,4 @@ def _spectral(s: np.ndarray, criterion, configurations: int) -> np.ndarray:
         return -np.mean(lam ** -float(criterion), axis=1) ** (1.0 / criterion)
     if criterion == "E":
         return s[:, -1] ** 2
-    s = np.maximum(s, 1e-300)
-    if criterion == "O1":
-        return np.exp(np.mean(np.log(s), axis=1)) / np.sqrt(configurations)
-    if criterion == "O2":
-        return s[:, -1] / s[:, 0]
-    if criterion == "O3":
-        return s[:, -1]
-    if criterion == "O4":
-        return s[:, -1] ** 2 / s[:, 0]
-    return 1.0 / np.sum(1.0 / s, axis=1)
-
-
-__all__ = ["CRITERIA", "MEANINGS", "Selection", "criterion_value", "information", "observability", "select"]
+    return index(criterion, np.maximum(s, 1e-300), configurations)

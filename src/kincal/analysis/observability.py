@@ -3,7 +3,7 @@ robot calibration", ICRA 2008): one number each for how well a set of configurat
 identifiable parameters.
 
 They are computed from the singular values ``s_1 >= ... >= s_m`` of the whitened Jacobian restricted to the
-identifiable subspace (``identifiable_singular_values``), with lengths in units of a characteristic length of
+identifiable subspace (``kincal.estimation.plan.identifiable_basis``), with lengths in units of a characteristic length of
 the robot (its reach) and angles in rad, so that one set of configurations compares with another: the scaling
 does not depend on the data (scaling every column to unit norm, as the rank test does, would hide how strongly
 the configurations excite each parameter). ``N`` is the number of configurations; whitening makes the values
@@ -45,14 +45,17 @@ class Observability:
         return {k: getattr(self, k) for k in MEANINGS}
 
 
-def identifiable_singular_values(R: np.ndarray, range_space: np.ndarray, scale: np.ndarray) -> np.ndarray:
-    """Singular values of ``J D`` (``J`` given by its triangular factor R (q, p), ``D = diag(scale)``) on the
-    identifiable subspace: ``range_space`` (p, r) in natural units, mapped to the scaled coordinates and
-    orthonormalized there. Descending, (r,)."""
-    if range_space.shape[1] == 0:
-        return np.zeros(0)
-    Q = np.linalg.qr(range_space / scale[:, None])[0]
-    return np.linalg.svd((R * scale) @ Q, compute_uv=False)
+def index(name: str, s: np.ndarray, configurations: int) -> np.ndarray:
+    """Index ``name`` (``MEANINGS``) of every row of singular values s (n, m), descending and positive."""
+    if name == "O1":
+        return np.exp(np.mean(np.log(s), axis=1)) / np.sqrt(configurations)
+    if name == "O2":
+        return s[:, -1] / s[:, 0]
+    if name == "O3":
+        return s[:, -1]
+    if name == "O4":
+        return s[:, -1] ** 2 / s[:, 0]
+    return 1.0 / np.sum(1.0 / s, axis=1)
 
 
 def observability(singular_values: np.ndarray, configurations: int) -> Observability:
@@ -64,7 +67,4 @@ def observability(singular_values: np.ndarray, configurations: int) -> Observabi
         raise ShapeError(f"configurations: expected at least 1, found {configurations}")
     if not len(s):
         return Observability(0.0, 0.0, 0.0, 0.0, 0.0, 0, configurations)
-    m = len(s)
-    o1 = float(np.exp(np.mean(np.log(s))) / np.sqrt(configurations))
-    return Observability(o1, float(s[-1] / s[0]), float(s[-1]), float(s[-1] ** 2 / s[0]),
-                         float(1.0 / np.sum(1.0 / s)), m, configurations)
+    return Observability(*(float(index(k, s[None], configurations)[0]) for k in MEANINGS), len(s), configurations)

@@ -34,8 +34,7 @@ def compensate_cmd(calibrated, program: Path, nominal, output: Path, angle, leng
     cal, nom = load_robot(calibrated), load_robot(nominal)
     prog = read_program(program, nom, angle, length)
     if prog.form == "poses":
-        parts = [compensate_poses(cal, a, prog.poses[a], prog.q[a], nominal=nom) for a in prog.q]
-        comp = parts[0] if len(parts) == 1 else _merge(parts)
+        comp = compensate_poses(cal, prog.poses, prog.q, nominal=nom)
     else:
         comp = compensate_joints(nom, cal, prog.q)
     write_program(output, prog, cal, comp, overwrite=overwrite)
@@ -51,12 +50,6 @@ def compensate_cmd(calibrated, program: Path, nominal, output: Path, angle, leng
         console.print(f"  and {len(failed) - SHOWN} more (marked in {output})")
     if failed:
         raise SystemExit(FAILED_EXIT)
-
-
-def _merge(parts):
-    first = parts[0]
-    fields = ("q", "position_error", "rotation_error", "status", "change")
-    return type(first)(*({k: v for p in parts for k, v in getattr(p, f).items()} for f in fields))
 
 
 def register(group: click.Group) -> None:

@@ -16,7 +16,7 @@ from typing import Sequence
 import numpy as np
 
 from kincal.analysis import Identifiability, covariance
-from kincal.analysis.observability import Observability, identifiable_singular_values, observability
+from kincal.analysis.observability import Observability, observability
 from kincal.analysis.sensitivity import Sensitivity, sensitivity
 from kincal.errors import ModelError
 from kincal.estimation import steps
@@ -71,8 +71,8 @@ def plan(problem: Problem, options: SolverOptions | None = None, held: Sequence[
     result = replace(nominal, covariance=cov, sigma2=1.0, status="converged", estimates=estimates,
                      messages=tuple(ana.messages))
     configurations = sum(e.size for e in problem.experiments)
-    scale = np.where(np.array(problem.layout.units)[problem.free_idx] == "m", reach(problem.robot), 1.0)
-    obs = observability(identifiable_singular_values(lin.Rf, ana.range_space, scale), configurations)
+    B = identifiable_basis(problem, ana)
+    obs = observability(np.linalg.svd(lin.Rf @ B, compute_uv=False) if B.shape[1] else np.zeros(0), configurations)
     return Plan(problem, ana, obs, estimates, cov, _held_sensitivity(problem, lin, cov, held), result)
 
 
@@ -81,6 +81,15 @@ def reach(robot) -> float:
     configuration (1 m if that is zero), the unit of lengths in the observability indices."""
     d = [np.linalg.norm((a.home @ a.tool)[:3, 3]) for a in robot.arms.values()]
     return float(max(d)) if d and max(d) > 0 else 1.0
+
+
+def identifiable_basis(problem: Problem, ana: Identifiability) -> np.ndarray:
+    """(p, r) basis of the identifiable subspace in natural units whose coordinates are orthonormal with lengths
+    in units of the robot's ``reach``: the scaling of the observability indices and of the design criteria, so
+    one set of configurations compares with another (D, I and G do not depend on it)."""
+    scale = np.where(np.array(problem.layout.units)[problem.free_idx] == "m", reach(problem.robot), 1.0)
+    Q = np.linalg.qr(ana.range_space / scale[:, None])[0]
+    return scale[:, None] * Q
 
 
 def _unit_covariance(lin, ana, gauge, order) -> np.ndarray:

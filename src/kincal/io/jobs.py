@@ -55,6 +55,7 @@ class Job:
     options: Mapping[str, Any] = field(default_factory=dict)  # loss, f_scale, max_outer, rank_rtol, ...
     constraints: tuple = ()  # FrameDistance
     outliers: str | float = "reject"  # reject | keep | a tail probability (``calibrate(outliers=...)``)
+    model: str = ""  # the model reference as resolved: a built-in name or the model file's path
 
 
 def load_job(path, confine: bool = False) -> Job:
@@ -115,7 +116,7 @@ def load_job(path, confine: bool = False) -> Job:
         raise DataFormatError(f"{f}: field 'constraints' must be a list, found {quote(constraints)}")
     constraints = tuple(_constraint(f"{f}: constraints[{i}]", c) for i, c in enumerate(constraints))
     return Job(path, str(top.get("name", path.stem)), robot, datasets, validation, free, fixed, priors, noise, gauge,
-               method, options, constraints, _outliers(f, top.get("outliers", "reject")))
+               method, options, constraints, _outliers(f, top.get("outliers", "reject")), model)
 
 
 def write_job(path, *, name: str, model: str, data, validation=(), free: str | list[str] = "offsets") -> Path:

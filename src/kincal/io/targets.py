@@ -14,7 +14,6 @@ The folder is written beside the target under a temporary name and renamed into 
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Mapping
 
@@ -48,15 +47,11 @@ def _write(folder: Path, robot: Robot, q: Mapping[str, np.ndarray], summary: Map
     motor = np.concatenate([joint_to_motor(q[a], robot[a]) for a in arms], axis=1)
     channels = [f"{a}.ch{c + 1}" for a in arms for c in range(robot[a].dof)]
     _csv(folder / "controller.csv", channels, motor)
-    with open(folder / "design.yaml", "x", encoding="utf-8") as fh:
+    with open(folder / "design.yaml", "x", encoding="utf-8") as fh:  # output_directory fsyncs the folder
         yaml.safe_dump(dict(summary), fh, sort_keys=False)
-        fh.flush()
-        os.fsync(fh.fileno())
 
 
 def _csv(path: Path, header: list[str], values: np.ndarray) -> None:
     with open(path, "x", encoding="utf-8") as fh:
         fh.write(",".join(header) + "\n")
         np.savetxt(fh, values, delimiter=",", fmt="%.17g")  # round-trip exact: a target at a limit stays within it
-        fh.flush()
-        os.fsync(fh.fileno())

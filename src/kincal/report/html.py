@@ -59,14 +59,9 @@ def report_html(result, *, title: str, workspace: Mapping[str, np.ndarray] | Non
             f"<style>{_CSS}</style></head><body>\n{body}\n</body></html>\n")
 
 
-def trusted(result) -> bool:
-    """Converged, and every prediction of the result trusted."""
-    return result.status == "converged" and all(p.trusted for _, p in result.predictions)
-
-
 def _verdict(result, next_steps) -> str:
     ana = result.identifiability
-    ok = trusted(result)
+    ok = result.trusted
     colour = STATUS_COLOUR["converged"] if ok else STATUS_COLOUR.get(result.status, "#555")
     if result.status == "converged" and not ok:
         colour = STATUS_COLOUR["misfit"]

@@ -20,14 +20,13 @@ from kincal.analysis.design import select
 from kincal.data import Dataset
 from kincal.errors import ModelError
 from kincal.estimation import Problem, SolverOptions
-from kincal.estimation.plan import plan
+from kincal.estimation.plan import identifiable_basis, plan
 from kincal.experiments.sharing import frame_names
 from kincal.kinematics import Robot
 from kincal.noise import Noise
 from kincal.schema import schema_of
 from kincal.simulate import GENERATORS
 from kincal.simulate.noise import Noise as SimNoise
-from kincal.workflow.design import identifiable_basis
 
 # Generator options named differently from the data set's known entry.
 _OPTION = {"p_tool_marker": "markers", "T_toolA_toolB": "clamp"}
@@ -67,7 +66,7 @@ def next_configurations(robot: Robot, datasets: Sequence[Dataset], K: int, *, fr
     cand = _candidates(robot, before, pinned, roles, pool, seed)
     both = Problem.build(robot, datasets + [cand], free, noise=noise)
     pb = plan(both, SolverOptions())
-    V = identifiable_basis(both, pb)
+    V = identifiable_basis(both, pb.identifiability)
     J = pb.result.linearization.J @ V
     start, stop = _rows(both, cand.name)
     X = J[start:stop].reshape(cand.size, -1, V.shape[1])
@@ -102,14 +101,10 @@ def _candidates(robot: Robot, problem: Problem, ds0: Dataset, roles, pool: int, 
     name) at their current values, as a data set sharing those frames (and ``ds0``'s known entries)."""
     gen = GENERATORS[ds0.kind]
     accepted = set(inspect.signature(gen).parameters)
-    values = {key: problem.start.extras[roles[role]] for role, key in _role_keys(ds0).items()}
+    values = {key: problem.start.extras[roles[role]] for role, key in schema_of(ds0.kind).role_keys.items()}
     values.update(ds0.known)
     options = {_OPTION.get(k, k): v for k, v in values.items() if _OPTION.get(k, k) in accepted}
     arms = {"arms": ds0.arms} if "arms" in accepted else {"arm": ds0.arms[0]}
     ds, _, _ = gen(robot, n=pool, rng=seed, noise=SimNoise(), n_validation=2, **arms, **options)
     return Dataset(ds0.kind, ds0.robot, ds0.arms, ds.q, ds.measured, dict(ds0.known), f"{ds0.name}-candidates",
                    dict(ds0.meta), dict(roles))
-
-
-def _role_keys(ds: Dataset) -> dict[str, str]:
-    return dict(schema_of(ds.kind).role_keys)

@@ -60,17 +60,20 @@ def compensate_joints(nominal: Robot, calibrated: Robot, program: Mapping[str, n
     return _collect(out)
 
 
-def compensate_poses(calibrated: Robot, arm: str, T_world_tool: np.ndarray, seed: np.ndarray,
+def compensate_poses(calibrated: Robot, targets: Mapping[str, np.ndarray], seeds: Mapping[str, np.ndarray],
                      nominal: Robot | None = None) -> Compensation:
-    """Compensate Cartesian targets (N, 4, 4) for ``arm``, starting each row's IK at ``seed`` (N, n): the
-    nominal joint values that reach it (which choose the branch)."""
-    T = np.asarray(T_world_tool, float)
-    if T.ndim != 3 or T.shape[1:] != (4, 4):
-        raise ShapeError(f"targets: expected (N, 4, 4) tool poses, found shape {T.shape}")
-    seed = _joints(calibrated[arm], seed, arm)
-    if len(seed) != len(T):
-        raise ShapeError(f"targets: {len(T)} poses but {len(seed)} seed configurations")
-    return _collect({arm: _solve(calibrated[arm], T, seed, (nominal or calibrated)[arm])})
+    """Compensate Cartesian targets ``{arm: (N, 4, 4) tool poses}``, starting each row's IK at ``seeds[arm]``
+    (N, n): the nominal joint values that reach it (which choose the branch)."""
+    out = {}
+    for arm, T in targets.items():
+        T = np.asarray(T, float)
+        if T.ndim != 3 or T.shape[1:] != (4, 4):
+            raise ShapeError(f"targets of arm '{arm}': expected (N, 4, 4) tool poses, found shape {T.shape}")
+        seed = _joints(calibrated[arm], seeds[arm], arm)
+        if len(seed) != len(T):
+            raise ShapeError(f"targets of arm '{arm}': {len(T)} poses but {len(seed)} seed configurations")
+        out[arm] = _solve(calibrated[arm], T, seed, (nominal or calibrated)[arm])
+    return _collect(out)
 
 
 def _joints(model: ArmModel, q, arm: str) -> np.ndarray:

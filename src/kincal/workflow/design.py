@@ -15,7 +15,7 @@ sensitivity over a workspace sample (registered as validation registers).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping, Sequence
+from typing import Mapping
 
 import numpy as np
 
@@ -24,7 +24,7 @@ from kincal.analysis.prediction import tool_motion
 from kincal.data import Dataset
 from kincal.errors import DegenerateExperimentError, ModelError
 from kincal.estimation import Problem, SolverOptions
-from kincal.estimation.plan import plan, reach
+from kincal.estimation.plan import identifiable_basis, plan
 from kincal.kinematics import Robot, forward_kinematics
 from kincal.noise import Noise
 from kincal.simulate import GENERATORS, random_configurations
@@ -122,26 +122,17 @@ def choose(robot: Robot, pool: Dataset, K: int, *, free="offsets", criterion: st
                          f"least {-(-2 * p.rank // rows)} configurations, or free fewer parameters")
     if K > pool.size:
         raise ModelError(f"cannot choose {K} configurations from a pool of {pool.size}: enlarge the pool")
-    V = identifiable_basis(problem, p)
+    V = identifiable_basis(problem, p.identifiability)
     X = _candidate_rows(problem, p, V)
     W = _workspace_rows(robot, p, V, workspace, seed)
     sel = select(X, K, criterion, workspace=W, exchange=exchange, seed=seed)
     rng = np.random.default_rng(seed + 1)
     draws = [rng.choice(len(X), K, replace=False) for _ in range(RANDOM_DRAWS)]
-    values = np.array([criterion_value(_info(X, d), criterion, W, K) for d in draws])
-    tools = [_tool_error(_info(X, d), W)[0] for d in draws]
-    tool = _tool_error(_info(X, sel.indices), W)
+    values = np.array([criterion_value(information(X[d]), criterion, W, K) for d in draws])
+    tools = [_tool_error(information(X[d]), W)[0] for d in draws]
+    tool = _tool_error(information(X[sel.indices]), W)
     return Design(pool.subset(sel.indices), pool.size, sel, p.rank, len(p.identifiability.names),
                   float(np.median(values)), values, tool[0], tool[1], float(np.median(tools)))
-
-
-def identifiable_basis(problem: Problem, p) -> np.ndarray:
-    """(p, r) basis of the identifiable subspace in natural units whose coordinates are orthonormal with
-    lengths in units of the robot's reach (as the observability indices): spectral criteria compare like with
-    like; D, I and G do not depend on this choice."""
-    scale = np.where(np.array(problem.layout.units)[problem.free_idx] == "m", reach(problem.robot), 1.0)
-    Q = np.linalg.qr(p.identifiability.range_space / scale[:, None])[0]
-    return scale[:, None] * Q
 
 
 def ds_rows(problem: Problem) -> int:
@@ -163,10 +154,6 @@ def _workspace_rows(robot: Robot, p, V: np.ndarray, n: int, seed: int) -> np.nda
     out = [tool_motion(p.result, random_configurations(robot[a], n, rng), a, V)[:, :3, :]
            for a in p.result.state.arms]
     return np.concatenate(out)
-
-
-def _info(X: np.ndarray, idx: Sequence[int]) -> np.ndarray:
-    return information(X[np.asarray(idx)])
 
 
 def _tool_error(M: np.ndarray, W: np.ndarray) -> tuple[float, float]:

@@ -16,7 +16,6 @@ import scipy
 from kincal import __version__
 from kincal.errors import DataFormatError
 from kincal.io.jobs import Job
-from kincal.io.yamlfile import read_yaml
 
 
 def sha256(path) -> str:
@@ -30,10 +29,8 @@ def sha256(path) -> str:
 def input_files(job: Job) -> list[Path]:
     """The job file, its model file (when not a built-in) and every data set's manifest and CSV, in order."""
     files = [Path(job.path)]
-    top = read_yaml(job.path, "job file")
-    model = Path(job.path).parent / str(top.get("model", ""))
-    if model.is_file():  # a model file, not a built-in name
-        files.append(model)
+    if job.model and Path(job.model).is_file():  # a model file, not a built-in name
+        files.append(Path(job.model))
     for ds in tuple(job.datasets) + tuple(job.validation):
         files += [Path(ds.meta[k]) for k in ("manifest", "file") if ds.meta.get(k)]
     return list(dict.fromkeys(files))
