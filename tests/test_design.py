@@ -121,8 +121,8 @@ def test_design_reports_and_predicts():
 
 
 def test_bad_input_says_what_to_change():
-    with pytest.raises(ModelError, match="choose at least 18"):
-        design(UR10, "markers", {"arm": ARM, "markers": 1}, 10, free="kinematic", pool=100,
+    with pytest.raises(ModelError, match=r"choose at least 10 configurations \(18 to check the fit\)"):
+        design(UR10, "markers", {"arm": ARM, "markers": 1}, 9, free="kinematic", pool=100,
                noise=Noise(position=5e-5))
     with pytest.raises(ModelError, match="enlarge the pool"):
         design(UR10, "markers", {"arm": ARM, "markers": 1}, 30, free="kinematic", pool=25,
@@ -186,7 +186,7 @@ def test_cli_design_next_and_bad_input(tmp_path, capsys):
     assert (tmp_path / "next" / "targets.csv").read_text().count("\n") == 4
     for args, words in ((["frida_dual_bracket", "-o", str(tmp_path / "x")], "either -n K"),
                         (["ur10_tracker_markers", "-n", "30", "--box", "1,2,3", "-o", str(tmp_path / "y")], "6 comma"),
-                        (["frida_dual_bracket", "-n", "3", "--pool", "50", "-o", str(tmp_path / "z")], "choose at least")):
+                        (["frida_dual_bracket", "-n", "2", "--pool", "50", "-o", str(tmp_path / "z")], "choose at least")):
         assert main(["design", *args]) == 2
         err = capsys.readouterr().err
         assert words in err and err.count("\n") == 1

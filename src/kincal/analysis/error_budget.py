@@ -112,7 +112,8 @@ def _residual_sums(result) -> dict:
     ``w``: the robust loss' weight per row)."""
     lin, problem = result.linearization, result.problem
     sums = {POSITION: np.zeros(5), ORIENTATION: np.zeros(5)}
-    A = result.covariance / result.sigma2 if np.isfinite(result.sigma2) and result.sigma2 > 0 else result.covariance
+    scale = result.scale
+    A = result.covariance / scale if np.isfinite(scale) and scale > 0 else result.covariance
     start = 0
     for exp, nz, W, r in zip(problem.experiments, problem.noise, lin.W, lin.residuals):
         N, k = r.shape

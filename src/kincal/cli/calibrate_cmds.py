@@ -63,7 +63,10 @@ def _print_outliers(console: Console, outliers, what: str = "") -> None:
 def print_summary(console: Console, result, title: str) -> None:
     ana = result.identifiability
     untrusted = result.status == "converged" and not result.trusted
-    verdict = " (NOT TRUSTED at the validation configurations)" if untrusted else ""
+    verdict = ""
+    if untrusted:
+        verdict = (" (NOT TRUSTED: low redundancy and no validation data)" if not result.predictions
+                   else " (NOT TRUSTED at the validation configurations)")
     console.print(f"{title}: {result.status}{verdict} after {result.iterations} outer iterations "
                   f"({result.evaluations} evaluations); rank {ana.rank} of {len(ana.names)} free parameters; "
                   f"residual variance factor {_num(result.sigma2)}")

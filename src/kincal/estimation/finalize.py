@@ -47,8 +47,11 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
     dof = len(lin.r) - ana.rank
     sigma2 = variance_factor(lin.r, weights, slopes, ana.rank)
     status, messages = _status(problem, run, options, sigma2)
-    cov, std, ok = _uncertainty(lin, ana, options, run.order, sigma2, status, weights)
+    scale = covariance_scale(sigma2, dof, ana.rank)
+    cov, std, ok = _uncertainty(lin, ana, options, run.order, scale, status, weights)
     messages += list(ana.messages)
+    if low_redundancy(dof, ana.rank):
+        messages.append(low_redundancy_note(len(lin.r), ana.rank, sigma2))
     if dof <= 0:
         messages.append("as many equations as identifiable parameters: no residual variance, standard deviations "
                         "are not scaled")
@@ -67,7 +70,30 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
         iterations=run.iterations, evaluations=run.evaluations, messages=tuple(messages),
         extras=dict(run.state.extras), problem=problem, linearization=lin,
         twists=_twists(problem, run.state, cov), weights=None if options.loss == "linear" else weights,
+        covariance_scale=scale,
     )
+
+
+def low_redundancy(dof: int, rank: int) -> bool:
+    """Fewer redundant equations than identifiable parameters (but some): the residual variance rests on few
+    degrees of freedom and the fit barely checks the model."""
+    return 0 < dof < rank
+
+
+def covariance_scale(sigma2: float, dof: int, rank: int) -> float:
+    """The factor that scales the covariance: the residual variance factor; with low redundancy never below 1
+    (the stated noise), since a variance factor from a few degrees of freedom may come out small by chance
+    (with 3 degrees of freedom below 0.07 one time in 20)."""
+    if low_redundancy(dof, rank) and np.isfinite(sigma2):
+        return max(sigma2, 1.0)
+    return sigma2
+
+
+def low_redundancy_note(m: int, rank: int, sigma2: float) -> str:
+    return (f"low redundancy: {m} equations for {rank} identifiable parameters (fewer than {2 * rank}): the residual "
+            f"variance factor ({sigma2:.3g}) rests on {m - rank} degrees of freedom and the fit barely checks the "
+            "model; standard deviations use the stated noise where the residuals are smaller; not trusted until "
+            "validated on fresh configurations (measure more, or give validation data)")
 
 
 def robust_weights(r: np.ndarray, loss: str, f_scale: float) -> tuple[np.ndarray, np.ndarray]:
@@ -128,8 +154,8 @@ def _collapse_message(name: str, before_q: float, after_q: float) -> str:
 
 def _uncertainty(lin: Linearization, ana: Identifiability, options: SolverOptions, order, sigma2: float,
                  status: str, weights: np.ndarray):
-    """Covariance (p, p) in the solve's gauge (of the robustly weighted problem with a robust loss), standard
-    deviations (nan where not identifiable) and the mask of identifiable coordinates."""
+    """Covariance (p, p) in the solve's gauge (of the robustly weighted problem with a robust loss) scaled by
+    ``sigma2``, standard deviations (nan where not identifiable) and the mask of identifiable coordinates."""
     p = lin.p
     Rf = lin.Rf if options.loss == "linear" else np.linalg.qr(np.sqrt(weights)[:, None] * lin.J, mode="r")
     V = gauge_basis(Rf, ana, options.gauge, list(order))

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kincal.analysis import Identifiability, Linearization, identify
+from kincal.analysis.covariance import right_svd
 from kincal.errors import DegenerateExperimentError
 from kincal.estimation import steps
 from kincal.estimation.gauge import gauge_basis, priority
@@ -67,7 +68,7 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
             if ana.degenerate:
                 status = "degenerate"
                 break
-            _require_redundancy(problem, len(lin.r), ana.rank)
+            _require_redundancy(problem, lin, ana.rank)
         V = gauge_basis(lin.Rf, ana, options.gauge, order)
         z, r1sq = steps.gauss_newton(lin, V)
         if it > 1 and steps.negligible(lin, V, z, r1sq):
@@ -119,16 +120,28 @@ def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.nd
     return state, done, fast, evaluations
 
 
-def _require_redundancy(problem: Problem, m: int, rank: int) -> None:
-    """At least as many residual degrees of freedom as identifiable parameters.
+# Singular values below this fraction of the largest are exact zeros (structure, not weak data).
+EXACT_RTOL = 1e-10
 
-    The standard deviations are scaled by the residual variance; with fewer redundant equations than
-    parameters that scale (and any check of the model against the data) rests on too little.
-    """
-    if m - rank < rank:
+
+def _require_redundancy(problem: Problem, lin: Linearization, rank: int) -> None:
+    """More equations than identifiable parameters: with none left over, nothing checks the fit (fewer than twice
+    as many is allowed, with the consequences ``finalize`` states: ``low_redundancy``).
+
+    With fewer equations than free coordinates, the number of equations may itself be what limits the rank:
+    the data then cannot tell which parameters the robot's structure leaves identifiable. They can only where
+    the Jacobian's exact rank (structure: every singular value above ``EXACT_RTOL``, weak ones included) stays
+    below the number of equations; otherwise the experiment is refused as too small."""
+    m, p = len(lin.r), len(problem.free_idx)
+    exact = rank
+    if m < p:
+        S = right_svd(lin.J)[0]
+        exact = int(np.sum(S > EXACT_RTOL * S[0])) if len(S) else 0
+    if m <= max(rank, exact):
         per = ", ".join(f"'{e.name}' ({e.kind_name}): {e.size} configurations" for e in problem.experiments)
         need = ", ".join(f"'{e.name}'" for e in problem.experiments)
         raise DegenerateExperimentError(
-            f"{m} equations for {rank} identifiable parameters: too few configurations to calibrate and check "
-            f"the result (at least {2 * rank} equations needed; {per}); measure more configurations in {need}"
+            f"{m} equations for {p} unknowns ({max(rank, exact)} found identifiable from these equations): too few "
+            f"configurations to calibrate and check the result (more equations than identifiable parameters "
+            f"needed, twice as many to check the model; {per}); measure more configurations in {need}"
         )

@@ -79,12 +79,30 @@ class Result:
     cross_validation: CrossValidation | None = None  # ``calibrate(..., cv=K)``: held-out errors per fold
     validation_outliers: tuple[Outlier, ...] = ()  # validation rows beyond the outlier rule (not in ``validation``)
     validation_all: tuple[ValidationStats, ...] = ()  # validation sets with such rows: their errors with every row
+    covariance_scale: float | None = None  # what scaled ``covariance`` (None: ``sigma2``; ``finalize.covariance_scale``)
+
+    @property
+    def scale(self) -> float:
+        """The factor that scaled ``covariance``: the residual variance factor, or 1 where low redundancy keeps a
+        smaller one from shrinking the standard deviations (``low_redundancy``)."""
+        return self.sigma2 if self.covariance_scale is None else self.covariance_scale
+
+    @property
+    def low_redundancy(self) -> bool:
+        """Fewer redundant equations than identifiable parameters: the fit barely checks the model, so the
+        result is trusted only where validation data confirm it."""
+        lin = self.linearization
+        if lin is None:
+            return False
+        dof = len(lin.r) - self.identifiability.rank
+        return 0 < dof < self.identifiability.rank
 
     @property
     def trusted(self) -> bool:
         """Converged, and every validation prediction trusted (``Prediction.trusted``): nothing the data cannot
-        determine moves the tool where the model was validated."""
-        return self.status == "converged" and all(p.trusted for _, p in self.predictions)
+        determine moves the tool where the model was validated; with ``low_redundancy``, validated at all."""
+        validated = bool(self.predictions) or not self.low_redundancy
+        return self.status == "converged" and validated and all(p.trusted for _, p in self.predictions)
 
     @property
     def success(self) -> bool:
@@ -148,7 +166,7 @@ def in_gauge(result: Result) -> tuple[GaugeView | None, tuple[Derived, ...]]:
     if found is not None:
         state, lin, ana = found
         null = ana.null_space
-        cov = covariance(lin.Rf, ana.range_space, result.sigma2 if np.isfinite(result.sigma2) else 1.0)
+        cov = covariance(lin.Rf, ana.range_space, result.scale if np.isfinite(result.scale) else 1.0)
     disp, D = displacement(state, problem.nominal, layout)
     view = min_change(disp[free], D[np.ix_(free, free)], null, cov, w)
     change = displacement(result.state, problem.nominal, layout)[0][free]

@@ -231,17 +231,10 @@ def _require_plausible_units(problem: Problem) -> None:
 
 
 def _require_equations(problem: Problem) -> None:
-    p = len(problem.free_idx)
-    if p == 0:
+    """Something to estimate. Fewer equations than free coordinates is no error by itself: only the identifiable
+    parameters must be fewer than the equations (``iterate``, after the first linearization gives the rank)."""
+    if len(problem.free_idx) == 0:
         raise DegenerateExperimentError("every parameter is fixed: nothing to estimate")
-    eqs = [e.size * len(e.components()) for e in problem.experiments]
-    m = sum(eqs) + len(problem.prior_idx) + len(problem.constraints)
-    if m < p:
-        per = ", ".join(f"'{e.name}' ({e.kind_name}, {e.size} samples): {n}" for e, n in zip(problem.experiments, eqs))
-        raise DegenerateExperimentError(
-            f"{m} equations for {p} unknowns: too few configurations for the free parameters "
-            f"(equations per data set: {per})"
-        )
 
 
 __all__ = ["Problem", "SolverOptions", "calibrate", "evaluate", "solve", "validate", "validation_stats"]

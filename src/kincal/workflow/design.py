@@ -116,10 +116,11 @@ def choose(robot: Robot, pool: Dataset, K: int, *, free="offsets", criterion: st
     problem = Problem.build(robot, [pool], free, noise=noise)
     p = plan(problem, SolverOptions())
     rows = ds_rows(problem)
-    if K * rows < 2 * p.rank:  # what calibrate needs: as many redundant equations as identifiable parameters
+    if K * rows <= p.rank:  # what calibrate needs: more equations than identifiable parameters
         raise ModelError(f"{K} configurations give {K * rows} equations for {p.rank} identifiable parameters; a "
-                         f"calibration needs twice as many equations (to estimate and to check the fit): choose at "
-                         f"least {-(-2 * p.rank // rows)} configurations, or free fewer parameters")
+                         f"calibration needs more equations than that (twice as many to check the fit): choose at "
+                         f"least {p.rank // rows + 1} configurations ({-(-2 * p.rank // rows)} to check the fit), "
+                         "or free fewer parameters")
     if K > pool.size:
         raise ModelError(f"cannot choose {K} configurations from a pool of {pool.size}: enlarge the pool")
     V = identifiable_basis(problem, p.identifiability)
