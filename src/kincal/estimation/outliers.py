@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtrc, chdtri  # not scipy.stats: importing it takes longer than kincal
 
 from kincal.errors import ModelError
 from kincal.experiments import KINDS
@@ -59,8 +59,8 @@ def row_chi2(problem, state) -> list[np.ndarray]:
 def scaled_chi2(c: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """(scaled chi^2, tail probability) of rows with chi^2 ``c`` (N,) over ``k`` components each: the robust
     scale of the module doc (the median row over the chi^2 median at ``k`` dof, at least 1)."""
-    scale = max(float(np.median(c)) / chi2.median(k), 1.0) if len(c) else 1.0
-    return c / scale, chi2.sf(c / scale, k)
+    scale = max(float(np.median(c)) / chdtri(k, 0.5), 1.0) if len(c) else 1.0  # chi^2 median at k dof
+    return c / scale, chdtrc(k, c / scale)  # upper tail probability
 
 
 def beyond(p: np.ndarray, threshold: float) -> np.ndarray:

@@ -9,7 +9,6 @@ subspace with the analytic Jacobian.
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from kincal.analysis import Linearization
 from kincal.errors import DegenerateExperimentError
@@ -52,6 +51,8 @@ def inner_solve(problem: Problem, state: State, lin: Linearization, V: np.ndarra
     analytic Jacobian (``jac="2-point"``: scipy's finite differences instead, for bench/bench_calibrate.py);
     the first evaluation is the linearization already at hand. Returns (z, cost, nfev), cost = 0.5 |r|^2
     without the floor."""
+    from scipy.optimize import least_squares  # a fallback; importing scipy.optimize costs more than kincal
+
     method = "lm" if loss == "linear" and V.shape[1] <= len(lin.r) else "trf"
     floor = np.array([_COST_FLOOR if method == "lm" else 0.0])
     zero_row = np.zeros((1, V.shape[1]))
