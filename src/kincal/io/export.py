@@ -8,6 +8,7 @@
   Nearly parallel consecutive axes (a calibrated model) are refused as ill-conditioned.
 - ``controller``: the joint offsets per controller channel in motor units via the gear ratios.
 - ``json``: the model file's content as JSON.
+- ``ur-ros``: the kinematics file the Universal Robots ROS driver loads (``kincal.io.ur_ros``).
 
 Every file is written under a temporary name beside the target and renamed at the end; an existing target is
 never overwritten unless asked.
@@ -26,20 +27,21 @@ from kincal.errors import DataFormatError
 from kincal.io.atomic import output_file
 from kincal.io.models import robot_to_dict
 from kincal.io.urdf import from_urdf, to_urdf
+from kincal.io.ur_ros import ur_ros_text
 from kincal.io.urdf_patch import patch_urdf
 from kincal.kinematics import ArmModel, Robot, forward_kinematics
 from kincal.kinematics.dh import to_dh
 
-FORMATS = ("urdf", "dh", "mdh", "controller", "json")
+FORMATS = ("urdf", "dh", "mdh", "controller", "json", "ur-ros")
 CHECK_CONFIGURATIONS = 200
 SIGN_CONVENTION = ("joint angle = controller reading + offset (theta = q + o); a controller that adds a "
                    "calibration offset to its reading takes these values as they are, one that subtracts takes "
                    "their negatives")
 
 
-def export_text(robot: Robot, arm: str, fmt: str, model_file: Path | None = None) -> str:
+def export_text(robot: Robot, arm: str, fmt: str, model_file: Path | None = None, ur_hash: str | None = None) -> str:
     """The text of ``arm`` of ``robot`` in format ``fmt`` (``model_file``: where the model was read from, to
-    resolve a recorded URDF path)."""
+    resolve a recorded URDF path; ``ur_hash``: the robot's calibration checksum for ``ur-ros``)."""
     if fmt not in FORMATS:
         raise DataFormatError(f"--to {fmt!r}: expected one of {', '.join(FORMATS)}")
     a = robot[arm]
@@ -49,6 +51,8 @@ def export_text(robot: Robot, arm: str, fmt: str, model_file: Path | None = None
         return yaml.safe_dump(dh_document(a, modified=fmt == "mdh"), sort_keys=False)
     if fmt == "controller":
         return yaml.safe_dump(controller_document(a), sort_keys=False)
+    if fmt == "ur-ros":
+        return ur_ros_text(a, str(model_file or robot.name), ur_hash)[0]
     return json.dumps(robot_to_dict(robot), indent=2) + "\n"
 
 
