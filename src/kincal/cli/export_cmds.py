@@ -1,4 +1,4 @@
-"""``kincal import URDF -o MODEL.yaml`` and ``kincal export MODEL.yaml --to FORMAT -o OUT``."""
+"""``kincal import URDF_OR_DH -o MODEL.yaml`` and ``kincal export MODEL.yaml --to FORMAT -o OUT``."""
 
 from __future__ import annotations
 
@@ -8,25 +8,42 @@ import click
 
 from kincal.cli.calibrate_cmds import _console
 from kincal.errors import DataFormatError
+from kincal.io.dh_table import read_dh_table
 from kincal.io.export import FORMATS, export_text, import_urdf, write_text
 from kincal.io.ur_ros import ur_ros_text
 from kincal.io.models import dump_robot, load_robot, select_arm
+from kincal.kinematics import Robot
+
+DH_SUFFIXES = (".yaml", ".yml")
 
 
 @click.command("import")
-@click.argument("urdf", type=click.Path(path_type=Path))
-@click.option("--base-link", required=True, help="First link of the chain (the arm's base).")
-@click.option("--tip-link", required=True, help="Last link of the chain (the flange).")
-@click.option("--arm", default="arm", show_default=True, help="Name of the arm in the model.")
+@click.argument("source", type=click.Path(path_type=Path))
+@click.option("--base-link", default=None, help="URDF: first link of the chain (the arm's base).")
+@click.option("--tip-link", default=None, help="URDF: last link of the chain (the flange).")
+@click.option("--arm", default=None, help="Name of the arm in the model (default: the DH file's, or arm).")
 @click.option("--name", default=None, help="Robot name (default: the file's stem).")
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True)
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
-def import_cmd(urdf: Path, base_link: str, tip_link: str, arm: str, name, output: Path, overwrite: bool) -> None:
-    """Read the chain BASE_LINK -> TIP_LINK of URDF into a kincal model file; the URDF is recorded so that
-    `kincal export --to urdf` can write a calibration back into it."""
-    robot = import_urdf(urdf, base_link, tip_link, arm=arm, name=name)
+def import_cmd(source: Path, base_link, tip_link, arm, name, output: Path, overwrite: bool) -> None:
+    """Read SOURCE into a kincal model file: a URDF (the chain BASE_LINK -> TIP_LINK; the URDF is recorded so
+    that `kincal export --to urdf` can write a calibration back into it) or a DH table file (.yaml, the format
+    `kincal export --to dh|mdh` writes: docs/formats.md)."""
+    if source.suffix.lower() in DH_SUFFIXES:
+        if base_link or tip_link:
+            raise DataFormatError(f"{source}: a DH table has no links; --base-link and --tip-link are for URDFs")
+        robot = read_dh_table(source, name)
+        if arm is not None:
+            robot = Robot(robot.name, {arm: robot[next(iter(robot.arms))].replace(name=arm)})
+    else:
+        if not base_link or not tip_link:
+            raise DataFormatError(f"{source}: a URDF needs --base-link and --tip-link (the chain to import); "
+                                  "DH tables are read from .yaml files")
+        robot = import_urdf(source, base_link, tip_link, arm=arm or "arm", name=name)
     write_text(output, dump_robot(robot), overwrite)
-    _console().print(f"wrote {output}: arm '{arm}' with {robot[arm].dof} joints ({', '.join(robot[arm].joint_names)})")
+    arm = next(iter(robot.arms))
+    _console().print(f"wrote {output}: arm '{arm}' with {robot[arm].dof} joints ({', '.join(robot[arm].joint_names)})",
+                     highlight=False)
 
 
 @click.command("export")
