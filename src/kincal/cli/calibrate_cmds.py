@@ -12,6 +12,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
+from kincal.cli.console import make_console
 from kincal.errors import DataFormatError
 from kincal.estimation import validation_stats
 from kincal.io.datasets import load_scenario
@@ -28,8 +29,7 @@ DEMO_SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "frida_dual_
 
 
 def _console() -> Console:
-    console = Console(highlight=False, markup=False)
-    return console if console.is_terminal else Console(highlight=False, markup=False, width=200)
+    return make_console(highlight=False, markup=False)  # tables split, never cut, to fit (kincal.cli.console)
 
 
 def _num(x, scale=1.0, digits=4) -> str:

@@ -12,6 +12,7 @@ from rich.console import Console
 from rich.table import Table
 
 from kincal.errors import ShapeError
+from kincal.cli.console import make_console
 from kincal.io.models import load_robot, select_arm
 from kincal.lie.rotations import matrix_to_quat_wxyz, matrix_to_rpy
 from kincal.kinematics import forward_kinematics
@@ -19,10 +20,7 @@ from kincal.kinematics.model import REVOLUTE, ArmModel
 
 
 def _console() -> Console:
-    console = Console(highlight=False, markup=False)
-    if not console.is_terminal:  # pipes and tests: wide enough that tables never wrap numbers
-        console = Console(highlight=False, markup=False, width=200)
-    return console
+    return make_console(highlight=False, markup=False)
 
 
 def _fmt(x: float, digits: int = 4) -> str:

@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from kincal.cli.console import CountColumn, make_console
 from kincal.errors import DataFormatError
 from kincal.io.datasets import load_scenario
 from kincal.io.logs import EXTCTRL_PERIOD_S, convert_log as convert, write_joint_csv
@@ -42,7 +43,7 @@ def simulate(scenario: str, output: Path, seed: int | None, overwrite: bool, qui
     if seed is not None:
         sc = replace(sc, seed=seed)
     console = Console(stderr=True, quiet=quiet)
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), CountColumn(),
                   TimeElapsedColumn(), console=console, transient=True, disable=quiet) as bar:
         task = bar.add_task(f"{sc.name}: configurations", total=sc.options.get("n"))
 
@@ -54,7 +55,7 @@ def simulate(scenario: str, output: Path, seed: int | None, overwrite: bool, qui
                                     length=sc.length_unit, overwrite=overwrite)  # all or nothing
     if quiet:
         return
-    out = Console()
+    out = make_console()
     out.print(f"[bold]{sc.name}[/]: {ds.kind}, {ds.size} samples, arms {', '.join(ds.arms)}")
     for key, p in paths.items():
         out.print(f"  {key}: {p}")
