@@ -310,7 +310,7 @@ def demo_cmd(out: Path | None, samples: int, quiet: bool, as_json: bool) -> None
     # thesis Table 4.5: nominal geometry, joint offsets of thesis size (up to 0.07 rad)
     scenario = replace(scenario, options={**scenario.options, "n": samples},
                        perturbation=perturbation("thesis", twist_m=0.0, twist_rad=0.0, home_m=0.0, home_rad=0.0))
-    say(f"simulating {samples} configurations of Frida's clamped arms (true robot: joint offsets up to 0.07 rad) ...")
+    say(f"simulating {samples} configurations of Frida's clamped arms (true robot: joint offsets up to 4 deg) ...")
     true, ds, truth, validation = run(scenario)
     written = write_demo_input(out, ds, truth, validation, scenario.robot, model=scenario.model,
                                job_name="frida-dual-offsets", free="offsets")

@@ -81,14 +81,22 @@ def _natural(console: Console, table: Table) -> int:
 
 # A number (or a dash for none, a percentage): a cell token that must never be cut.
 _NUMBER = re.compile(r"^[-+(]?(\d[\d.,]*([eE][-+]?\d+)?%?|inf|nan|-)\)?$")
-TEXT_TOKEN_CAP = 24  # longer names (data set labels) fold at this width when the table must be narrow
+TEXT_TOKEN_CAP = 30  # longer names (data set labels) fold at this width when the table must be narrow
+
+
+# A cell of numbers only (a vector "(0, 0.1273, 0)", a range "-360.00 .. 360.00 deg"): kept on one line.
+_NUMBERS = re.compile(r"^[-+\d.,eE()\[\]\s]*\d[-+\d.,eE()\[\]\s]*(deg|rad|mm|m|%)?$")
+NUMBERS_CAP = 40  # longer rows of numbers wrap between them
 
 
 def _needed(column) -> int:
-    """The width of the column's longest word: numbers whole, names up to TEXT_TOKEN_CAP."""
-    texts = [str(column.header)] + [c.plain if isinstance(c, Text) else str(c) for c in column._cells]
-    tokens = [t for text in texts for t in text.split()] or [""]
-    return max(1, max(len(t) if _NUMBER.match(t) else min(len(t), TEXT_TOKEN_CAP) for t in tokens))
+    """The width of the column's longest word: numbers whole (a cell of numbers whole up to NUMBERS_CAP),
+    names up to TEXT_TOKEN_CAP."""
+    cells = [c.plain if isinstance(c, Text) else str(c) for c in column._cells]
+    tokens = [t for text in [str(column.header)] + cells for t in text.split()] or [""]
+    whole = [len(c) for c in cells if len(c) <= NUMBERS_CAP and _NUMBERS.match(c)]
+    longest = max(len(t) if _NUMBER.match(t) else min(len(t), TEXT_TOKEN_CAP) for t in tokens)
+    return max([1, longest] + whole)
 
 
 def _part(table: Table, columns: list[int], widths: list[int], title: str) -> Table:

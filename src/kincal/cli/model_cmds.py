@@ -130,7 +130,7 @@ def model_group() -> None:
     """Inspect robot models (built-in names or model files)."""
 
 
-@model_group.command("show")
+@model_group.command("show", short_help="Joints, screws, limits and poses of a model.")
 @click.argument("source", metavar="NAME|FILE")
 @click.option("--arm", default=None, help="Show only this arm.")
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output (SI units, limits in deg/mm).")
