@@ -28,7 +28,7 @@ DH_SUFFIXES = (".yaml", ".yml")
 def import_cmd(source: Path, base_link, tip_link, arm, name, output: Path, overwrite: bool) -> None:
     """Read SOURCE into a kincal model file: a URDF (the chain BASE_LINK -> TIP_LINK; the URDF is recorded so
     that `kincal export --to urdf` can write a calibration back into it) or a DH table file (.yaml, the format
-    `kincal export --to dh|mdh` writes: docs/formats.md)."""
+    `kincal export --to dh|mdh` writes: docs/deploy.md)."""
     if source.suffix.lower() in DH_SUFFIXES:
         if base_link or tip_link:
             raise DataFormatError(f"{source}: a DH table has no links; --base-link and --tip-link are for URDFs")

@@ -1,5 +1,5 @@
 """DH table files (``format: kincal-dh``): what ``kincal export --to dh|mdh`` writes and ``kincal import`` reads
-(docs/formats.md, "DH table files").
+(docs/deploy.md, "DH table files").
 
 ```yaml
 format: kincal-dh

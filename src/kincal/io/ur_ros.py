@@ -60,11 +60,9 @@ def ur_frames(a: ArmModel) -> tuple[np.ndarray, np.ndarray]:
     for i, (p, z) in enumerate(lines[:5]):
         origin = _foot(p, z, *lines[i + 1], origin)
         x = _perpendicular(x, z)
-        frames.append(se3.make(np.column_stack([x, np.cross(z, x), z]), origin))
+        frames.append(_frame(origin, x, z))
     p, z = lines[5]
-    on_axis = p + np.dot(flange[:3, 3] - p, z) * z
-    last = se3.make(np.column_stack([_perpendicular(flange[:3, 0], z), np.cross(z, _perpendicular(flange[:3, 0], z)),
-                                     z]), on_axis)
+    last = _frame(p + np.dot(flange[:3, 3] - p, z) * z, _perpendicular(flange[:3, 0], z), z)  # tool0 on the axis
     rest = se3.inverse(last) @ flange
     if np.abs(rest - np.eye(4)).max() < ON_AXIS_TOL:
         last, rest = flange, np.eye(4)
@@ -79,6 +77,10 @@ def _foot(p, z, p_next, z_next, previous) -> np.ndarray:
         return p + np.dot(previous - p, z) * z
     t, _, _ = np.linalg.solve(np.column_stack([z, -z_next, c]), p_next - p)
     return p + t * z
+
+
+def _frame(origin, x, z) -> np.ndarray:
+    return se3.make(np.column_stack([x, np.cross(z, x), z]), origin)
 
 
 def _perpendicular(x, z) -> np.ndarray:
