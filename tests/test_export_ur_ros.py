@@ -115,3 +115,53 @@ def test_non_ur_arms_are_refused_in_one_line(name, tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and len(err.strip().splitlines()) == 1 and "6 revolute joints" in err
     assert not (tmp_path / "k.yaml").exists()
+
+
+# The joint layout of ur_description's ur_macro.xacro (base_link -> base_link_inertia turned by pi, six joints
+# whose origins come from the kinematics file, wrist_3_link -> flange -> tool0), written here for the test.
+XACRO = """<?xml version="1.0"?>
+<robot name="ur" xmlns:xacro="http://wiki.ros.org/xacro">
+  <xacro:property name="kin" value="${{xacro.load_yaml('{file}')['kinematics']}}"/>
+  <link name="base_link"/><link name="base_link_inertia"/><link name="flange"/><link name="tool0"/>
+  <joint name="base_link-base_link_inertia" type="fixed"><parent link="base_link"/>
+    <child link="base_link_inertia"/><origin xyz="0 0 0" rpy="0 0 ${{pi}}"/></joint>
+  <xacro:macro name="arm_joint" params="name parent child key">
+    <link name="${{child}}"/>
+    <joint name="${{name}}" type="revolute"><parent link="${{parent}}"/><child link="${{child}}"/>
+      <origin xyz="${{kin[key]['x']}} ${{kin[key]['y']}} ${{kin[key]['z']}}"
+              rpy="${{kin[key]['roll']}} ${{kin[key]['pitch']}} ${{kin[key]['yaw']}}"/>
+      <axis xyz="0 0 1"/><limit lower="-6.3" upper="6.3" effort="1" velocity="1"/></joint>
+  </xacro:macro>
+  <xacro:arm_joint name="shoulder_pan_joint" parent="base_link_inertia" child="shoulder_link" key="shoulder"/>
+  <xacro:arm_joint name="shoulder_lift_joint" parent="shoulder_link" child="upper_arm_link" key="upper_arm"/>
+  <xacro:arm_joint name="elbow_joint" parent="upper_arm_link" child="forearm_link" key="forearm"/>
+  <xacro:arm_joint name="wrist_1_joint" parent="forearm_link" child="wrist_1_link" key="wrist_1"/>
+  <xacro:arm_joint name="wrist_2_joint" parent="wrist_1_link" child="wrist_2_link" key="wrist_2"/>
+  <xacro:arm_joint name="wrist_3_joint" parent="wrist_2_link" child="wrist_3_link" key="wrist_3"/>
+  <joint name="wrist_3-flange" type="fixed"><parent link="wrist_3_link"/><child link="flange"/>
+    <origin xyz="0 0 0" rpy="0 ${{-pi/2.0}} ${{-pi/2.0}}"/></joint>
+  <joint name="flange-tool0" type="fixed"><parent link="flange"/><child link="tool0"/>
+    <origin xyz="0 0 0" rpy="${{pi/2.0}} 0 ${{pi/2.0}}"/></joint>
+</robot>
+"""
+
+
+def test_exported_file_through_xacro_and_a_urdf_parser(tmp_path):
+    """The file read by xacro's own YAML loader into the macro's joint layout, the URDF parsed by yourdfpy:
+    base mount @ URDF(base_link -> tool0) @ tool remainder = kincal's forward kinematics."""
+    xacro = pytest.importorskip("xacro")
+    pytest.importorskip("yourdfpy")
+    from kincal.io.urdf import from_urdf
+
+    cal = _calibrated_ur10()
+    kin = tmp_path / "my_robot_calibration.yaml"
+    kin.write_text(ur_ros_text(cal, "model.yaml")[0])
+    (tmp_path / "ur.xacro").write_text(XACRO.format(file=kin))
+    urdf = tmp_path / "ur.urdf"
+    urdf.write_text(xacro.process_file(str(tmp_path / "ur.xacro")).toxml())
+    arm = from_urdf(urdf, "base_link", "tool0")
+    doc = yaml.safe_load(kin.read_text())["kincal"]
+    pose = lambda d: se3.make(rpy_to_matrix(d["rpy"]), np.array(d["xyz"]))  # noqa: E731
+    q = np.random.default_rng(7).uniform(-np.pi, np.pi, (200, 6))
+    got = pose(doc["world_to_base_link"]) @ forward_kinematics(arm, q) @ pose(doc["tool0_to_tool"])
+    assert np.abs(got - forward_kinematics(cal, q)).max() < 1e-9
