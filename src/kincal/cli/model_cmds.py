@@ -188,10 +188,11 @@ def fk(source: str, arm: str | None, q_deg: str | None, q_rad: str | None, as_js
     for _ in range(4):
         matrix.add_column(justify="right")
     for row in T:
-        matrix.add_row(*(f"{x: .9f}" for x in row))
+        matrix.add_row(*(f"{x + 0.0: .9f}" for x in np.where(np.abs(row) < 5e-10, 0.0, row)))  # no "-0.000000000"
     console.print(matrix)
     console.print(f"xyz [m]:          {_vec(pose['xyz_m'], 6)}")
-    console.print(f"rpy [deg]:        {_vec(pose['rpy_deg'], 6)}   (R = Rz(yaw) Ry(pitch) Rx(roll))")
+    console.print(f"rpy [deg]:        {_vec(pose['rpy_deg'], 6)}")
+    console.print("                  (R = Rz(yaw) Ry(pitch) Rx(roll))")
     console.print(f"quaternion wxyz:  {_vec(pose['quaternion_wxyz'], 9)}")
 
 
