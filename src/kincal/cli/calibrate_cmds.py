@@ -12,6 +12,7 @@ import click
 from rich.console import Console
 from rich.table import Table
 
+from kincal.cli.console import make_console
 from kincal.errors import DataFormatError
 from kincal.estimation import validation_stats
 from kincal.io.datasets import load_scenario
@@ -28,8 +29,7 @@ DEMO_SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "frida_dual_
 
 
 def _console() -> Console:
-    console = Console(highlight=False, markup=False)
-    return console if console.is_terminal else Console(highlight=False, markup=False, width=200)
+    return make_console(highlight=False, markup=False)  # tables split, never cut, to fit (kincal.cli.console)
 
 
 def _num(x, scale=1.0, digits=4) -> str:
@@ -313,7 +313,7 @@ def demo_cmd(out: Path | None, samples: int, quiet: bool, as_json: bool) -> None
     # thesis Table 4.5: nominal geometry, joint offsets of thesis size (up to 0.07 rad)
     scenario = replace(scenario, options={**scenario.options, "n": samples},
                        perturbation=perturbation("thesis", twist_m=0.0, twist_rad=0.0, home_m=0.0, home_rad=0.0))
-    say(f"simulating {samples} configurations of Frida's clamped arms (true robot: joint offsets up to 0.07 rad) ...")
+    say(f"simulating {samples} configurations of Frida's clamped arms (true robot: joint offsets up to 4 deg) ...")
     true, ds, truth, validation = run(scenario)
     written = write_demo_input(out, ds, truth, validation, scenario.robot, model=scenario.model,
                                job_name="frida-dual-offsets", free="offsets")

@@ -1,4 +1,4 @@
-"""``kincal import URDF -o MODEL.yaml`` and ``kincal export MODEL.yaml --to FORMAT -o OUT``."""
+"""``kincal import URDF_OR_DH -o MODEL.yaml`` and ``kincal export MODEL.yaml --to FORMAT -o OUT``."""
 
 from __future__ import annotations
 
@@ -8,35 +8,55 @@ import click
 
 from kincal.cli.calibrate_cmds import _console
 from kincal.errors import DataFormatError
+from kincal.io.dh_table import read_dh_table
 from kincal.io.export import FORMATS, export_text, import_urdf, write_text
+from kincal.io.ur_ros import ur_ros_text
 from kincal.io.models import dump_robot, load_robot, select_arm
+from kincal.kinematics import Robot
+
+DH_SUFFIXES = (".yaml", ".yml")
 
 
 @click.command("import")
-@click.argument("urdf", type=click.Path(path_type=Path))
-@click.option("--base-link", required=True, help="First link of the chain (the arm's base).")
-@click.option("--tip-link", required=True, help="Last link of the chain (the flange).")
-@click.option("--arm", default="arm", show_default=True, help="Name of the arm in the model.")
+@click.argument("source", type=click.Path(path_type=Path))
+@click.option("--base-link", default=None, help="URDF: first link of the chain (the arm's base).")
+@click.option("--tip-link", default=None, help="URDF: last link of the chain (the flange).")
+@click.option("--arm", default=None, help="Name of the arm in the model (default: the DH file's, or arm).")
 @click.option("--name", default=None, help="Robot name (default: the file's stem).")
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True)
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
-def import_cmd(urdf: Path, base_link: str, tip_link: str, arm: str, name, output: Path, overwrite: bool) -> None:
-    """Read the chain BASE_LINK -> TIP_LINK of URDF into a kincal model file; the URDF is recorded so that
-    `kincal export --to urdf` can write a calibration back into it."""
-    robot = import_urdf(urdf, base_link, tip_link, arm=arm, name=name)
+def import_cmd(source: Path, base_link, tip_link, arm, name, output: Path, overwrite: bool) -> None:
+    """Read SOURCE into a kincal model file: a URDF (the chain BASE_LINK -> TIP_LINK; the URDF is recorded so
+    that `kincal export --to urdf` can write a calibration back into it) or a DH table file (.yaml, the format
+    `kincal export --to dh|mdh` writes: docs/deploy.md)."""
+    if source.suffix.lower() in DH_SUFFIXES:
+        if base_link or tip_link:
+            raise DataFormatError(f"{source}: a DH table has no links; --base-link and --tip-link are for URDFs")
+        robot = read_dh_table(source, name)
+        if arm is not None:
+            robot = Robot(robot.name, {arm: robot[next(iter(robot.arms))].replace(name=arm)})
+    else:
+        if not base_link or not tip_link:
+            raise DataFormatError(f"{source}: a URDF needs --base-link and --tip-link (the chain to import); "
+                                  "DH tables are read from .yaml files")
+        robot = import_urdf(source, base_link, tip_link, arm=arm or "arm", name=name)
     write_text(output, dump_robot(robot), overwrite)
-    _console().print(f"wrote {output}: arm '{arm}' with {robot[arm].dof} joints ({', '.join(robot[arm].joint_names)})")
+    arm = next(iter(robot.arms))
+    _console().print(f"wrote {output}: arm '{arm}' with {robot[arm].dof} joints ({', '.join(robot[arm].joint_names)})",
+                     highlight=False)
 
 
 @click.command("export")
 @click.argument("model", type=click.Path(path_type=Path))
 @click.option("--to", "fmt", type=click.Choice(FORMATS), required=True,
               help="urdf (patched into the imported URDF, or new), dh / mdh (table), controller (offsets per "
-                   "channel in motor units), json.")
+                   "channel in motor units), json, ur-ros (the Universal Robots ROS driver's kinematics file).")
+@click.option("--ur-hash", default=None, help="ur-ros: the robot's calibration checksum (the hash line "
+              "ur_calibration writes for it), which the driver checks at start-up.")
 @click.option("--arm", default=None, help="Arm to export (default: the only one).")
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True)
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
-def export_cmd(model: Path, fmt: str, arm, output: Path, overwrite: bool) -> None:
+def export_cmd(model: Path, fmt: str, ur_hash, arm, output: Path, overwrite: bool) -> None:
     """Write MODEL (a model file or built-in name, e.g. a calibration's model.yaml) in another format."""
     robot = load_robot(model)
     if arm is None and fmt != "json":
@@ -44,9 +64,16 @@ def export_cmd(model: Path, fmt: str, arm, output: Path, overwrite: bool) -> Non
     name = arm or next(iter(robot.arms))
     if name not in robot.arms:
         raise DataFormatError(f"--arm {name!r}: the model's arms are {', '.join(robot.arms)}")
-    text = export_text(robot, name, fmt, Path(model) if Path(model).is_file() else None)
+    notes = []
+    if fmt == "ur-ros":
+        text, notes = ur_ros_text(robot[name], str(model), ur_hash)
+    else:
+        text = export_text(robot, name, fmt, Path(model) if Path(model).is_file() else None)
     write_text(output, text, overwrite)
-    _console().print(f"wrote {output} ({fmt}, arm '{name}')")
+    console = _console()
+    console.print(f"wrote {output} ({fmt}, arm '{name}')")
+    for note in notes:
+        console.print(f"note: {note}", highlight=False)
 
 
 def register(group: click.Group) -> None:

@@ -12,6 +12,7 @@ from rich.console import Console
 from rich.table import Table
 
 from kincal.errors import ShapeError
+from kincal.cli.console import make_console
 from kincal.io.models import load_robot, select_arm
 from kincal.lie.rotations import matrix_to_quat_wxyz, matrix_to_rpy
 from kincal.kinematics import forward_kinematics
@@ -19,10 +20,7 @@ from kincal.kinematics.model import REVOLUTE, ArmModel
 
 
 def _console() -> Console:
-    console = Console(highlight=False, markup=False)
-    if not console.is_terminal:  # pipes and tests: wide enough that tables never wrap numbers
-        console = Console(highlight=False, markup=False, width=200)
-    return console
+    return make_console(highlight=False, markup=False)
 
 
 def _fmt(x: float, digits: int = 4) -> str:
@@ -132,7 +130,7 @@ def model_group() -> None:
     """Inspect robot models (built-in names or model files)."""
 
 
-@model_group.command("show")
+@model_group.command("show", short_help="Joints, screws, limits and poses of a model.")
 @click.argument("source", metavar="NAME|FILE")
 @click.option("--arm", default=None, help="Show only this arm.")
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output (SI units, limits in deg/mm).")
@@ -190,10 +188,11 @@ def fk(source: str, arm: str | None, q_deg: str | None, q_rad: str | None, as_js
     for _ in range(4):
         matrix.add_column(justify="right")
     for row in T:
-        matrix.add_row(*(f"{x: .9f}" for x in row))
+        matrix.add_row(*(f"{x + 0.0: .9f}" for x in np.where(np.abs(row) < 5e-10, 0.0, row)))  # no "-0.000000000"
     console.print(matrix)
     console.print(f"xyz [m]:          {_vec(pose['xyz_m'], 6)}")
-    console.print(f"rpy [deg]:        {_vec(pose['rpy_deg'], 6)}   (R = Rz(yaw) Ry(pitch) Rx(roll))")
+    console.print(f"rpy [deg]:        {_vec(pose['rpy_deg'], 6)}")
+    console.print("                  (R = Rz(yaw) Ry(pitch) Rx(roll))")
     console.print(f"quaternion wxyz:  {_vec(pose['quaternion_wxyz'], 9)}")
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -10,10 +11,12 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from kincal.cli.console import CountColumn, make_console
 from kincal.errors import DataFormatError
 from kincal.io.datasets import load_scenario
 from kincal.io.logs import EXTCTRL_PERIOD_S, convert_log as convert, write_joint_csv
 from kincal.io.models import load_robot
+from kincal.kinematics.model import PRISMATIC
 from kincal.simulate.generators import dataset_spread
 from kincal.simulate.scenario import build_scenario, run
 from kincal.workflow.outputs import SIMULATION_ENTRIES, write_simulation_output
@@ -42,7 +45,7 @@ def simulate(scenario: str, output: Path, seed: int | None, overwrite: bool, qui
     if seed is not None:
         sc = replace(sc, seed=seed)
     console = Console(stderr=True, quiet=quiet)
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), CountColumn(),
                   TimeElapsedColumn(), console=console, transient=True, disable=quiet) as bar:
         task = bar.add_task(f"{sc.name}: configurations", total=sc.options.get("n"))
 
@@ -54,27 +57,34 @@ def simulate(scenario: str, output: Path, seed: int | None, overwrite: bool, qui
                                     length=sc.length_unit, overwrite=overwrite)  # all or nothing
     if quiet:
         return
-    out = Console()
+    out = make_console()
     out.print(f"[bold]{sc.name}[/]: {ds.kind}, {ds.size} samples, arms {', '.join(ds.arms)}")
     for key, p in paths.items():
         out.print(f"  {key}: {p}")
-    stats = {k: v for k, v in truth.meta.items() if k != "generator"}
+    stats = {k: v for k, v in truth.meta.items() if k != "generator" and v is not None}  # None: not counted
     if stats:
         out.print("  generator: " + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in stats.items()))
     # how much of each joint's range the data cover, whatever the kind: identifiability rests on it
     for arm, sp in dataset_spread(ds, sc.robot, truth).items():
-        t = Table(title=f"joint spread, arm {arm}")
-        for col in ("joint", "min (rad)", "max (rad)", "range (rad)", "of limits"):
-            t.add_column(col, justify="right")
-        for i, name in enumerate(sp.names):
-            frac = "" if sp.fraction[i] != sp.fraction[i] else f"{100 * sp.fraction[i]:.0f}%"
-            t.add_row(name + (" (weak)" if name in sp.weak else ""), f"{sp.low[i]:.3f}", f"{sp.high[i]:.3f}",
-                      f"{sp.range[i]:.3f}", frac)
-        out.print(t)
+        out.print(_spread_table(arm, sp, sc.robot[arm].joint_types))
         if sp.n_branches is not None:
             out.print(f"  self-motion branches visited: {sp.n_branches}")
         if sp.weak:
             out.print(f"  [yellow]hardly excited: {', '.join(sp.weak)}[/]")
+
+
+def _spread_table(arm: str, sp, kinds) -> Table:
+    """Joint spread in deg (mm for prismatic joints)."""
+    unit = "deg, mm for prismatic joints" if PRISMATIC in kinds else "deg"
+    t = Table(title=f"joint spread, arm {arm} ({unit})")
+    for col in ("joint", "min", "max", "range", "of limits"):
+        t.add_column(col, justify="left" if col == "joint" else "right")
+    for i, name in enumerate(sp.names):
+        k = 1e3 if kinds[i] == PRISMATIC else 180 / math.pi
+        frac = "" if sp.fraction[i] != sp.fraction[i] else f"{100 * sp.fraction[i]:.0f}%"
+        t.add_row(name + (" (weak)" if name in sp.weak else ""), f"{sp.low[i] * k:.2f}", f"{sp.high[i] * k:.2f}",
+                  f"{sp.range[i] * k:.2f}", frac)
+    return t
 
 
 @click.command("convert-log")

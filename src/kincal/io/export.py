@@ -8,6 +8,7 @@
   Nearly parallel consecutive axes (a calibrated model) are refused as ill-conditioned.
 - ``controller``: the joint offsets per controller channel in motor units via the gear ratios.
 - ``json``: the model file's content as JSON.
+- ``ur-ros``: the kinematics file the Universal Robots ROS driver loads (``kincal.io.ur_ros``).
 
 Every file is written under a temporary name beside the target and renamed at the end; an existing target is
 never overwritten unless asked.
@@ -16,39 +17,39 @@ never overwritten unless asked.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
-import numpy as np
 import yaml
 
 from kincal.errors import DataFormatError
 from kincal.io.atomic import output_file
+from kincal.io.dh_table import dh_document, dh_text  # noqa: F401  (dh_document: part of this API)
 from kincal.io.models import robot_to_dict
+from kincal.io.ur_ros import ur_ros_text
 from kincal.io.urdf import from_urdf, to_urdf
 from kincal.io.urdf_patch import patch_urdf
-from kincal.kinematics import ArmModel, Robot, forward_kinematics
-from kincal.kinematics.dh import to_dh
+from kincal.kinematics import ArmModel, Robot
 
-FORMATS = ("urdf", "dh", "mdh", "controller", "json")
-CHECK_CONFIGURATIONS = 200
+FORMATS = ("urdf", "dh", "mdh", "controller", "json", "ur-ros")
 SIGN_CONVENTION = ("joint angle = controller reading + offset (theta = q + o); a controller that adds a "
                    "calibration offset to its reading takes these values as they are, one that subtracts takes "
                    "their negatives")
 
 
-def export_text(robot: Robot, arm: str, fmt: str, model_file: Path | None = None) -> str:
+def export_text(robot: Robot, arm: str, fmt: str, model_file: Path | None = None, ur_hash: str | None = None) -> str:
     """The text of ``arm`` of ``robot`` in format ``fmt`` (``model_file``: where the model was read from, to
-    resolve a recorded URDF path)."""
+    resolve a recorded URDF path; ``ur_hash``: the robot's calibration checksum for ``ur-ros``)."""
     if fmt not in FORMATS:
         raise DataFormatError(f"--to {fmt!r}: expected one of {', '.join(FORMATS)}")
     a = robot[arm]
     if fmt == "urdf":
         return _urdf(a, model_file)
     if fmt in ("dh", "mdh"):
-        return yaml.safe_dump(dh_document(a, modified=fmt == "mdh"), sort_keys=False)
+        return dh_text(a, modified=fmt == "mdh")
     if fmt == "controller":
         return yaml.safe_dump(controller_document(a), sort_keys=False)
+    if fmt == "ur-ros":
+        return ur_ros_text(a, str(model_file or robot.name), ur_hash)[0]
     return json.dumps(robot_to_dict(robot), indent=2) + "\n"
 
 
@@ -74,26 +75,6 @@ def _urdf(a: ArmModel, model_file: Path | None) -> str:
     return patch_urdf(file, src["base_link"], src["tip_link"], nominal, a)
 
 
-def dh_document(a: ArmModel, modified: bool) -> dict:
-    """The DH table of ``a`` as plain data (m, rad), with its closing transforms and its FK check."""
-    t = to_dh(a, modified=modified)
-    rng = np.random.default_rng(0)
-    q = rng.uniform(np.maximum(a.lower, -np.pi), np.minimum(a.upper, np.pi), (CHECK_CONFIGURATIONS, a.dof))
-    diff = forward_kinematics(t.to_model(), q) - forward_kinematics(a, q)
-    rows = [{"joint": n, "type": k, "a_m": float(x), "alpha_rad": float(al), "d_m": float(d), "theta_rad": float(th)}
-            for n, k, x, al, d, th in zip(t.joint_names, t.joint_types, t.a, t.alpha, t.d, t.theta)]
-    return {"format": "kincal-dh", "convention": "modified (Craig): A_i = Rx(alpha_{i-1}) Tx(a_{i-1}) Rz(theta_i + q_i) "
-                                                 "Tz(d_i)" if modified else
-            "standard: A_i = Rz(theta_i + q_i) Tz(d_i) Tx(a_i) Rx(alpha_i)",
-            "chain": "T_world_tool = base @ A_1 ... A_n @ flange @ tool; theta (d for prismatic joints) includes the "
-                     "joint offsets",
-            "arm": a.name, "joints": rows, "base": _matrix(t.base), "flange": _matrix(t.flange),
-            "tool": _matrix(t.tool),
-            "check": {"configurations": CHECK_CONFIGURATIONS,
-                      "max_position_difference_m": float(np.abs(diff[:, :3, 3]).max()),
-                      "max_rotation_difference": float(np.abs(diff[:, :3, :3]).max())}}
-
-
 def controller_document(a: ArmModel) -> dict:
     """Joint offsets per controller channel: rad at the joint and motor rad (offset x gear ratio)."""
     channels = []
@@ -104,10 +85,6 @@ def controller_document(a: ArmModel) -> dict:
     return {"format": "kincal-controller-offsets", "arm": a.name, "units": {
         "offset_joint": "rad (m for prismatic joints)", "offset_motor": "motor rad (motor m) = offset x gear ratio"},
             "sign_convention": SIGN_CONVENTION, "channels": channels}
-
-
-def _matrix(T: np.ndarray) -> list[list[float]]:
-    return [[float(x) for x in row] for row in T]
 
 
 def import_urdf(path, base_link: str, tip_link: str, *, arm: str = "arm", name: str | None = None) -> Robot:
