@@ -652,6 +652,25 @@ def _read_wrench(ctx, o, value, p, robot):
     return w
 
 
+def _read_configurations(ctx, o, value, p, robot):
+    """Joint readings, one list per configuration, in the scenario's angle (revolute) or length unit."""
+    rows = _read_list(ctx, value, p, "configurations")
+    if len(robot.arms) != 1:
+        raise ctx.fail(p, f"fixed configurations need a model of one arm; '{robot.name}' has {', '.join(robot.arms)}")
+    arm = next(iter(robot.arms.values()))
+    q = np.array([_vector(ctx, r, f"{p}[{i}]", arm.dof) for i, r in enumerate(rows)])
+    return q * np.array([ctx.length if t == PRISMATIC else ctx.angle for t in arm.joint_types])
+
+
+def _read_payload(ctx, o, value, p, robot):
+    """``{mass_kg, com}``: the payload's mass and its centre of mass in the tool frame (length unit)."""
+    d = _mapping(ctx, value, p, {"mass_kg", "com"}, ("mass_kg", "com"))
+    mass = _number(ctx, d["mass_kg"], f"{p}.mass_kg")
+    if mass <= 0:
+        raise ctx.fail(f"{p}.mass_kg", f"expected a mass > 0 (kg), found {quote(d['mass_kg'])}")
+    return mass, _vector(ctx, d["com"], f"{p}.com", 3) * ctx.length
+
+
 _OPTION_READERS = {
     "count": _read_count,
     "bool": _read_bool,
@@ -665,4 +684,6 @@ _OPTION_READERS = {
     "box": _read_box,
     "explore": _read_explore,
     "wrench": _read_wrench,
+    "configurations": _read_configurations,
+    "payload": _read_payload,
 }
