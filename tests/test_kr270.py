@@ -2,6 +2,7 @@
 configurations, three markers, each configuration measured before and after hanging 250 kg on the tool,
 joint 2's compliance depending on q2. Table IV is recovered within 3 reported standard deviations."""
 
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -10,7 +11,7 @@ import yaml
 
 from kincal.cli import main
 from kincal.estimation import calibrate
-from kincal.io.datasets import load_dataset, load_scenario
+from kincal.io.datasets import load_dataset, load_scenario, scenario_path
 from kincal.kinematics import Robot, forward_kinematics
 from kincal.kinematics.elastic import compliance_coefficients
 from kincal.robots import load
@@ -107,3 +108,21 @@ def test_reported_standard_deviations_match_the_scatter_over_noise_seeds():
     assert np.all((ratio > 0.7) & (ratio < 1.4)), dict(zip(TABLE_IV, ratio.round(2)))
     bias = (np.mean(est, axis=0) - [v * URAD for v, _ in TABLE_IV.values()]) / (np.mean(std, axis=0) / np.sqrt(40))
     assert np.all(np.abs(bias) < 4), dict(zip(TABLE_IV, bias.round(2)))
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ("[79.20, -0.01, -5.57", "[79.20, 10.0, -5.57",
+     r"bad.yaml: experiment.configurations\[0\]\[1\]: expected a value of joint j2 within its limits \[-140, 0\], found 10"),
+    ("[79.20, -0.01, -5.57, 51.00, -97.52, -91.67]", "[79.20, -0.01]",
+     r"bad.yaml: experiment.configurations\[0\]: expected a list of 6 numbers, found a list of length 2"),
+    ("mass_kg: 250", "mass_kg: -1", r"bad.yaml: experiment.payload.mass_kg: expected a mass > 0 \(kg\), found -1"),
+    ("com: [300, 0, 200]", "com: [300, 0]", r"bad.yaml: experiment.payload.com: expected a list of 3 numbers"),
+])
+def test_bad_scenario_configurations_and_payload_are_one_line_errors(tmp_path, capsys, old, new, message):
+    text = scenario_path(SCENARIO).read_text()
+    assert old in text
+    (tmp_path / "bad.yaml").write_text(text.replace(old, new, 1))
+    assert main(["simulate", str(tmp_path / "bad.yaml"), "-o", str(tmp_path / "out"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert re.search(message, err), err

@@ -659,7 +659,12 @@ def _read_configurations(ctx, o, value, p, robot):
         raise ctx.fail(p, f"fixed configurations need a model of one arm; '{robot.name}' has {', '.join(robot.arms)}")
     arm = next(iter(robot.arms.values()))
     q = np.array([_vector(ctx, r, f"{p}[{i}]", arm.dof) for i, r in enumerate(rows)])
-    return q * np.array([ctx.length if t == PRISMATIC else ctx.angle for t in arm.joint_types])
+    q = q * np.array([ctx.length if t == PRISMATIC else ctx.angle for t in arm.joint_types])
+    for i, j in zip(*np.nonzero((q < arm.lower - 1e-9) | (q > arm.upper + 1e-9))):
+        f = ctx.length if arm.joint_types[j] == PRISMATIC else ctx.angle
+        raise ctx.fail(f"{p}[{i}][{j}]", f"expected a value of joint {arm.joint_names[j]} within its limits "
+                       f"[{arm.lower[j] / f:g}, {arm.upper[j] / f:g}], found {quote(rows[i][j])}")
+    return q
 
 
 def _read_payload(ctx, o, value, p, robot):
