@@ -15,10 +15,12 @@ from kincal.params import ArmValues
 ARM_PARTS = TOOL_PARTS
 
 
-def arm_jacobians(a: ArmValues, kin: Kinematics, G: np.ndarray, parts=ARM_PARTS, with_jq: bool = True):
+def arm_jacobians(a: ArmValues, kin: Kinematics, G: np.ndarray, parts=ARM_PARTS, with_jq: bool = True, q=None):
     """``kincal.kinematics.tool_jacobians`` for one arm's current values ``a``: ``G @ d T_world_tool / d param``
-    per part (N, k, d), and ``G @ J_q`` (N, k, n) if ``with_jq``."""
-    return tool_jacobians(kin, G, a.screws, a.generators, a.joint_compliance, parts, with_jq)
+    per part (N, k, d), and ``G @ J_q`` (N, k, n) if ``with_jq``; ``q`` (N, n): the readings, which an
+    angle-dependent compliance needs (``ArmValues.compliance_basis``)."""
+    basis = None if q is None else a.compliance_basis(q)
+    return tool_jacobians(kin, G, a.screws, a.generators, a.joint_compliance, parts, with_jq, basis)
 
 
 def pose_gap(TA: np.ndarray, TB: np.ndarray):

@@ -138,7 +138,8 @@ class Experiment:
         w = self.dataset.measured.get("wrench_tool")
         if w is None:
             return chain(a.screws, theta0, a.base, a.home, a.tool)
-        return loaded_chain(a.screws, theta0, a.base, a.home, a.tool, a.joint_compliance, w)
+        c = a.compliance_at(self.dataset.q[arm])  # (n,), or (N, n) when a joint's compliance depends on its angle
+        return loaded_chain(a.screws, theta0, a.base, a.home, a.tool, c, w)
 
     def _fk(self, state: State, arm: str) -> np.ndarray:
         return self._kin(state, arm).tool
@@ -150,7 +151,7 @@ class Experiment:
         parts = self._parts(arm, want)
         if not parts and not jq:
             return
-        blocks, gq = arm_jacobians(state.arms[arm], kin, G, parts, with_jq=jq)
+        blocks, gq = arm_jacobians(state.arms[arm], kin, G, parts, with_jq=jq, q=self.dataset.q[arm])
         out.update({f"{arm}.{p}": J for p, J in blocks.items()})
         if jq:
             jqs[arm] = gq

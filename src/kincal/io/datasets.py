@@ -679,6 +679,30 @@ def _read_wrench(ctx, o, value, p, robot):
     return w
 
 
+def _read_configurations(ctx, o, value, p, robot):
+    """Joint readings, one list per configuration, in the scenario's angle (revolute) or length unit."""
+    rows = _read_list(ctx, value, p, "configurations")
+    if len(robot.arms) != 1:
+        raise ctx.fail(p, f"fixed configurations need a model of one arm; '{robot.name}' has {', '.join(robot.arms)}")
+    arm = next(iter(robot.arms.values()))
+    q = np.array([_vector(ctx, r, f"{p}[{i}]", arm.dof) for i, r in enumerate(rows)])
+    q = q * np.array([ctx.length if t == PRISMATIC else ctx.angle for t in arm.joint_types])
+    for i, j in zip(*np.nonzero((q < arm.lower - 1e-9) | (q > arm.upper + 1e-9))):
+        f = ctx.length if arm.joint_types[j] == PRISMATIC else ctx.angle
+        raise ctx.fail(f"{p}[{i}][{j}]", f"expected a value of joint {arm.joint_names[j]} within its limits "
+                       f"[{arm.lower[j] / f:g}, {arm.upper[j] / f:g}], found {quote(rows[i][j])}")
+    return q
+
+
+def _read_payload(ctx, o, value, p, robot):
+    """``{mass_kg, com}``: the payload's mass and its centre of mass in the tool frame (length unit)."""
+    d = _mapping(ctx, value, p, {"mass_kg", "com"}, ("mass_kg", "com"))
+    mass = _number(ctx, d["mass_kg"], f"{p}.mass_kg")
+    if mass <= 0:
+        raise ctx.fail(f"{p}.mass_kg", f"expected a mass > 0 (kg), found {quote(d['mass_kg'])}")
+    return mass, _vector(ctx, d["com"], f"{p}.com", 3) * ctx.length
+
+
 _OPTION_READERS = {
     "count": _read_count,
     "bool": _read_bool,
@@ -692,4 +716,6 @@ _OPTION_READERS = {
     "box": _read_box,
     "explore": _read_explore,
     "wrench": _read_wrench,
+    "configurations": _read_configurations,
+    "payload": _read_payload,
 }

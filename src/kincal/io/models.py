@@ -149,7 +149,8 @@ def _arm(ctx: _Ctx, name: str, data: Any, path: str) -> ArmModel:
             lower=[p["lower"] for p in parsed],
             upper=[p["upper"] for p in parsed],
             gear_ratios=[p["gear_ratio"] for p in parsed],
-            compliance=[p["compliance"] for p in parsed],
+            compliance=[0.0 if isinstance(p["compliance"], np.ndarray) else p["compliance"] for p in parsed],
+            compliance_nodes={p["name"]: p["compliance"] for p in parsed if isinstance(p["compliance"], np.ndarray)},
             controller_order=order,
             joint_names=tuple(names),
             joint_types=tuple(p["type"] for p in parsed),
@@ -203,12 +204,42 @@ def _joint(ctx: _Ctx, data: Any, path: str, index: int) -> dict:
     ratio = _number(ctx, d.get("gear_ratio", 1.0), f"{path}.gear_ratio")
     if ratio == 0:
         raise ctx.fail(f"{path}.gear_ratio", "expected a non-zero gear ratio, found 0")
-    compliance = _number(ctx, d.get("compliance", 0.0), f"{path}.compliance")
-    if compliance < 0:
-        unit = "angle unit/(N m)" if kind == REVOLUTE else "length unit/N"
-        raise ctx.fail(f"{path}.compliance", f"expected a compliance >= 0 ({unit}), found {quote(compliance)}")
+    if isinstance(d.get("compliance"), dict):
+        compliance = _compliance_nodes(ctx, d["compliance"], f"{path}.compliance", kind, (lower, upper))
+    else:
+        compliance = _number(ctx, d.get("compliance", 0.0), f"{path}.compliance") * scale
+        if compliance < 0:
+            unit = "angle unit/(N m)" if kind == REVOLUTE else "length unit/N"
+            raise ctx.fail(f"{path}.compliance", f"expected a compliance >= 0 ({unit}), found {quote(compliance / scale)}")
     return {"name": name, "type": kind, "twist": twist, "offset": offset, "lower": lower, "upper": upper,
-            "gear_ratio": ratio, "compliance": compliance * scale}
+            "gear_ratio": ratio, "compliance": compliance}
+
+
+def _compliance_nodes(ctx: _Ctx, data: dict, path: str, kind: str, limits) -> np.ndarray:
+    """``compliance: {nodes: [angles], values: [compliances]}`` -> (m, 2) rows (angle rad, rad/(N m))."""
+    d = _mapping(ctx, data, path, {"nodes", "values"}, required=("nodes", "values"))
+    if kind != REVOLUTE:
+        raise ctx.fail(path, "compliance nodes (a compliance that depends on the joint angle) need a revolute joint; "
+                       "give a prismatic joint one number")
+    nodes, values = d["nodes"], d["values"]
+    if not isinstance(nodes, list) or len(nodes) < 2:
+        raise ctx.fail(f"{path}.nodes", f"expected a list of at least 2 joint angles, found {quote(nodes)}")
+    if not isinstance(values, list) or len(values) != len(nodes):
+        raise ctx.fail(f"{path}.values", f"expected {len(nodes)} compliances (one per node), found {quote(values)}")
+    x = np.array([_number(ctx, v, f"{path}.nodes[{i}]") for i, v in enumerate(nodes)]) * ctx.angle
+    c = np.array([_number(ctx, v, f"{path}.values[{i}]") for i, v in enumerate(values)]) * ctx.angle
+    for i in range(1, len(x)):
+        if x[i] <= x[i - 1]:
+            raise ctx.fail(f"{path}.nodes[{i}]", f"expected node angles increasing strictly, found {quote(nodes[i])} "
+                           f"after {quote(nodes[i - 1])}")
+    for i, a in enumerate(x):
+        if not limits[0] <= a <= limits[1]:
+            raise ctx.fail(f"{path}.nodes[{i}]", f"expected a node within the joint limits "
+                           f"[{limits[0] / ctx.angle:g}, {limits[1] / ctx.angle:g}], found {quote(nodes[i])}")
+    for i, v in enumerate(c):
+        if v < 0:
+            raise ctx.fail(f"{path}.values[{i}]", f"expected a compliance >= 0 (angle unit/(N m)), found {quote(values[i])}")
+    return np.stack([x, c], axis=-1)
 
 
 def _twist(ctx: _Ctx, value: Any, path: str, kind: str) -> np.ndarray:
@@ -381,7 +412,10 @@ def _arm_to_dict(arm: ArmModel) -> dict:
             j["limits"] = [float(arm.lower[i]), float(arm.upper[i])]
         if arm.gear_ratios[i] != 1:
             j["gear_ratio"] = float(arm.gear_ratios[i])
-        if arm.compliance[i] != 0:
+        if name in arm.compliance_nodes:
+            t = arm.compliance_nodes[name]
+            j["compliance"] = {"nodes": _floats(t[:, 0]), "values": _floats(t[:, 1])}
+        elif arm.compliance[i] != 0:
             j["compliance"] = float(arm.compliance[i])
         joints.append(j)
     out = {

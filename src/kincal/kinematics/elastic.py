@@ -6,11 +6,21 @@ Its torque on joint i is ``tau = J_b(theta0)^T wrench`` (``J_b`` the body Jacobi
 unloaded configuration ``theta0 = q + o``), and each joint yields like a linear spring in the direction of
 that torque::
 
-    theta = q + o + c * tau        (c: joint compliance, rad/(N m) revolute, m/N prismatic)
+    theta = q + o + c * tau        (c: joint compliance, rad/(N m) revolute, m/N prismatic; c(q) below)
 
 so a downward force on a horizontal arm makes the tool sag. First order, as in the paper: ``tau`` is
 evaluated at the unloaded configuration (the change of the lever arms by the deflection itself, of order
 ``c |tau|`` relative, is neglected), links are rigid and only the actuated joints are compliant.
+
+Angle-dependent compliance (``ArmModel.compliance_nodes``; seed 001 Sec. V, the KR-270's joint 2 with its
+gravity compensator): joint j's compliance is given at node angles ``x_1 < .. < x_m`` of its *reading* q_j
+(where the paper's chi_21..chi_25 were identified) and interpolated linearly between them, held constant
+beyond the end nodes. The paper identifies one value per measured q2 and does not say what lies between; a
+linear interpolation keeps the virtual spring continuous, and at the nodes (where data are taken) it is the
+paper's model exactly. The reading, not ``q + o``, so the nodes stay where the table puts them while offsets
+are calibrated and the compliance has no offset derivative. Every compliance is linear in the *coefficients*
+``k`` (one per constant joint, one per node): ``c(q) = W(q) k`` with ``W`` (N, n, p) the interpolation weights
+(``compliance_basis``).
 
 In world coordinates ``tau_i = xi_s_i . F_s`` with ``xi_s_i = Ad(P_{i-1}) xi_i`` the current joint axis and
 ``F_s = Ad(T_world_tool^-1)^T wrench`` the load as a spatial wrench (the same number in any frame).
@@ -43,13 +53,61 @@ class LoadedKinematics(Kinematics):
 
 
 def loaded_chain(screws, theta0, base, home, tool, compliance, wrench_tool) -> LoadedKinematics:
-    """Unvalidated kernel on raw arrays: ``theta0`` (..., n) unloaded joint values, ``wrench_tool`` (..., 6)."""
+    """Unvalidated kernel on raw arrays: ``theta0`` (..., n) unloaded joint values, ``wrench_tool`` (..., 6),
+    ``compliance`` (n,) or per sample (..., n)."""
     kin0 = chain(screws, theta0, base, home, tool)
     F_s = np.einsum("...ji,...j->...i", se3.adjoint_inv(kin0.tool), wrench_tool)  # Ad(T^-1)^T F_b
     axes = np.einsum("...kij,kj->...ki", se3.adjoint(kin0.prefixes[..., :-1, :, :]), screws)
     tau = np.einsum("...ki,...i->...k", axes, F_s)
     kin = chain(screws, kin0.theta + compliance * tau, base, home, tool)
     return LoadedKinematics(kin.theta, kin.exps, kin.prefixes, kin.flange, kin.tool, kin0, F_s, axes, tau)
+
+
+def compliance_coefficients(model: ArmModel) -> np.ndarray:
+    """The compliance coefficients k (p,): per joint its constant compliance, or its node values."""
+    nodes = model.compliance_nodes
+    return np.concatenate([nodes[j][:, 1] if j in nodes else model.compliance[i: i + 1]
+                           for i, j in enumerate(model.joint_names)])
+
+
+def compliance_basis(nodes, q) -> tuple[np.ndarray, np.ndarray]:
+    """``W`` (N, n, p) with ``c(q) = W k`` and its derivative ``S = dW/dq_j`` (N, n, p) for readings q (N, n);
+    ``nodes``: per joint None (constant compliance, one coefficient) or its node angles (m,) (m coefficients)."""
+    q = np.asarray(q, dtype=float)
+    N, n = q.shape
+    sizes = [1 if x is None else len(x) for x in nodes]
+    starts = np.concatenate([[0], np.cumsum(sizes)])
+    W = np.zeros((N, n, starts[-1]))
+    S = np.zeros_like(W)
+    rows = np.arange(N)
+    for j, x in enumerate(nodes):  # loop over joints, vectorized over samples
+        if x is None:
+            W[:, j, starts[j]] = 1.0
+            continue
+        qj = np.clip(q[:, j], x[0], x[-1])
+        k = np.clip(np.searchsorted(x, qj, side="right") - 1, 0, len(x) - 2)
+        h = x[k + 1] - x[k]
+        t = (qj - x[k]) / h
+        inside = ((q[:, j] > x[0]) & (q[:, j] < x[-1])).astype(float)
+        W[rows, j, starts[j] + k] = 1.0 - t
+        W[rows, j, starts[j] + k + 1] = t
+        S[rows, j, starts[j] + k] = -inside / h
+        S[rows, j, starts[j] + k + 1] = inside / h
+    return W, S
+
+
+def node_angles(model: ArmModel) -> tuple:
+    """Per joint None or its compliance node angles (m,): the ``nodes`` of ``compliance_basis``."""
+    return tuple(model.compliance_nodes[j][:, 0] if j in model.compliance_nodes else None for j in model.joint_names)
+
+
+def joint_compliance(model: ArmModel, q: np.ndarray) -> np.ndarray:
+    """Each joint's compliance at readings q (..., n): (n,) without nodes, else (..., n)."""
+    if not model.compliance_nodes:
+        return model.compliance
+    q = np.asarray(q, dtype=float)
+    W, _ = compliance_basis(node_angles(model), q.reshape(-1, model.dof))
+    return (W @ compliance_coefficients(model)).reshape(q.shape)
 
 
 def _wrench(wrench_tool, shape) -> np.ndarray:
@@ -61,7 +119,8 @@ def loaded_kinematics(model: ArmModel, q, wrench_tool) -> LoadedKinematics:
     """Forward kinematics of ``model`` at readings q (..., n) under ``wrench_tool`` (6,) or (..., 6)."""
     q = joint_array(model, q)
     w = _wrench(wrench_tool, q.shape[:-1])
-    return loaded_chain(model.screws, q + model.offsets, model.base, model.home, model.tool, model.compliance, w)
+    c = joint_compliance(model, q)
+    return loaded_chain(model.screws, q + model.offsets, model.base, model.home, model.tool, c, w)
 
 
 def loaded_forward_kinematics(model: ArmModel, q, wrench_tool) -> np.ndarray:

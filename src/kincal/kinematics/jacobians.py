@@ -21,6 +21,10 @@ position k of the chain (after the prefix ``P_k``); it moves the axes after it a
 the load turn. Offset j inserts ``xi_s_j`` at k = j (0-based: rows i < j), a twist tangent ``+Ad(P_j) G_j``
 before joint j and ``-Ad(P_{j+1}) G_j`` after it, home ``Ad(P_n)`` and tool ``Ad(T_world_flange)`` after every
 joint; the base moves everything (no change).
+
+Angle-dependent compliance (``kincal.kinematics.elastic``): with ``c(q) = W(q) k`` the block is w.r.t. the
+coefficients k, ``sum_i Jq[..., i] tau_i W[i, :]``, and a joint reading also moves its own compliance:
+``dtheta_j/dq_j`` gains ``(S k)_j tau_j`` (``S = dW/dq_j``, zero beyond the end nodes).
 """
 
 from __future__ import annotations
@@ -39,13 +43,15 @@ _CORRECTED = ("offsets", "twists", "home", "tool")  # the parts whose load torqu
 
 def tool_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, generators: Sequence[np.ndarray],
                    compliance: np.ndarray | None = None, parts: Sequence[str] = TOOL_PARTS,
-                   with_jq: bool = True) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
+                   with_jq: bool = True, basis: tuple[np.ndarray, np.ndarray] | None = None
+                   ) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
     """``G @ d T_world_tool / d param`` per part (N, k, d), and ``G @ J_q`` (N, k, n) if ``with_jq``.
 
     ``kin``: the chain at the data's joint values (``chain`` or ``loaded_chain``); ``G`` (N, k, 6): the residual's
     derivative w.r.t. the left increment of ``T_world_tool`` (identity (N, 6, 6) for the pose itself);
     ``screws`` (n, 6) and ``generators`` (per joint (6, k_j)): the joint twists and their rigid-motion generators;
-    ``compliance`` (n,): joint compliances (None: zero). Projecting first is what makes this fast:
+    ``compliance`` (n,): joint compliances (None: zero), or with ``basis = (W, S)`` (``elastic.compliance_basis``
+    at the readings) the compliance coefficients (p,). Projecting first is what makes this fast:
     ``M_j = G Ad(P_j)`` (N, k, 6) for the prefixes ``P_j = base E_1 .. E_j``, then
 
     * offset / joint reading j: ``M_{j-1} xi_j``;
@@ -79,11 +85,11 @@ def tool_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, generator
         out["base"] = G
     if "tool" in parts:
         out["tool"] = G @ se3.adjoint(kin.flange)
-    c = np.zeros(n) if compliance is None else np.asarray(compliance, float)
+    k_c = np.zeros(n) if compliance is None else np.asarray(compliance, float)
     if loaded:
-        jq = _add_compliance(kin, generators, c, jq, out, parts)
+        jq = _add_compliance(kin, generators, k_c, basis, jq, out, parts)
     elif "compliance" in parts:
-        out["compliance"] = np.zeros((N, k, n))
+        out["compliance"] = np.zeros((N, k, len(k_c)))
     return out, (jq if with_jq else None)
 
 
@@ -111,21 +117,24 @@ def torque_derivatives(kin: LoadedKinematics, generators: Sequence[np.ndarray], 
     return out
 
 
-def _add_compliance(kin: LoadedKinematics, generators, c: np.ndarray, jq: np.ndarray, out: dict,
+def _add_compliance(kin: LoadedKinematics, generators, k_c: np.ndarray, basis, jq: np.ndarray, out: dict,
                     parts) -> np.ndarray:
     """Add the compliance block and the ``c * dtau/dp`` terms to ``out`` (in place); returns the corrected
     derivative w.r.t. the joint readings. ``jq`` (N, k, n): ``G dT/dtheta`` at the deflected theta."""
+    jt = jq * kin.tau[:, None, :]
     if "compliance" in parts:
-        out["compliance"] = jq * kin.tau[:, None, :]
+        out["compliance"] = jt if basis is None else jt @ basis[0]
     want = [p for p in _CORRECTED if p in parts] + ([] if "offsets" in parts else ["offsets"])
+    c = k_c if basis is None else basis[0] @ k_c  # (n,) or per sample (N, n)
     if not np.any(c):
         return jq
-    cjq = jq * c
+    cjq = jq * c[..., None, :]
     D = torque_derivatives(kin, generators, want)
     for p in _CORRECTED:
         if p in parts:
             out[p] = out[p] + cjq @ D[p]
-    return jq + cjq @ D["offsets"]
+    own = 0.0 if basis is None else jt * (basis[1] @ k_c)[:, None, :]  # a reading moves its own compliance
+    return jq + cjq @ D["offsets"] + own
 
 
 def _project_prefixes(G: np.ndarray, P: np.ndarray) -> np.ndarray:

@@ -48,6 +48,12 @@ class ArmModel:
     compliance : ndarray, shape (n,)
         Joint compliances c >= 0 (rad/(N m) revolute, m/N prismatic), default zeros: under a load the joint
         deflects by ``c_i tau_i`` (``kincal.kinematics.elastic``).
+    compliance_nodes : mapping joint name -> ndarray (m, 2), optional
+        Joints whose compliance depends on their own reading (seed 001 Sec. V: joint 2 of a KR-270, whose
+        gravity compensator makes its spring non-linear): rows ``(angle rad, compliance)`` with strictly
+        increasing angles within the joint's limits, at least 2; the compliance is interpolated linearly in
+        the reading between them and held at the end values beyond (``kincal.kinematics.elastic``). Revolute
+        joints only; their entry in ``compliance`` must be 0 (the table replaces it).
     gear_ratios : ndarray, shape (n,)
         Motor units per joint unit (motor rad = ratio * arm rad), in model joint order.
     controller_order : tuple of int
@@ -72,6 +78,7 @@ class ArmModel:
     joint_types: tuple[str, ...] | None = None
     meta: Mapping = field(default_factory=dict)
     compliance: np.ndarray | None = None
+    compliance_nodes: Mapping[str, np.ndarray] | None = None
 
     def __post_init__(self) -> None:
         where = f"arm '{self.name}'"
@@ -129,6 +136,7 @@ class ArmModel:
                     f"got |w| = {np.linalg.norm(w):.3g}, |v| = {np.linalg.norm(v):.12g}"
                 )
 
+        set_("compliance_nodes", MappingProxyType(_nodes(self, where)))
         order = tuple(range(n)) if self.controller_order is None else tuple(int(i) for i in self.controller_order)
         if sorted(order) != list(range(n)):
             raise ModelError(f"{where}: controller_order must be a permutation of 0..{n - 1}, got {order}")
@@ -161,9 +169,40 @@ class ArmModel:
             and self.joint_types == other.joint_types
             and self.controller_order == other.controller_order
             and all(np.array_equal(getattr(self, a), getattr(other, a)) for a in arrays)
+            and self.compliance_nodes.keys() == other.compliance_nodes.keys()
+            and all(np.array_equal(v, other.compliance_nodes[k]) for k, v in self.compliance_nodes.items())
         )
 
     __hash__ = None  # type: ignore[assignment]
+
+
+def _nodes(arm: ArmModel, where: str) -> dict[str, np.ndarray]:
+    """``compliance_nodes`` checked: known revolute joints, >= 2 increasing angles within limits, values >= 0."""
+    out = {}
+    for name, table in dict(arm.compliance_nodes or {}).items():
+        at = f"{where}: joint {name}: compliance nodes"
+        if name not in arm.joint_names:
+            raise ModelError(f"{at}: no such joint; joints: {', '.join(arm.joint_names)}")
+        j = arm.joint_names.index(name)
+        t = np.array(table, dtype=float)
+        if t.ndim != 2 or t.shape[1] != 2 or len(t) < 2 or not np.all(np.isfinite(t)):
+            raise ModelError(f"{at}: expected at least 2 finite rows (angle, compliance), got shape {t.shape}")
+        if arm.joint_types[j] != REVOLUTE:
+            raise ModelError(f"{at}: only a revolute joint's compliance can depend on its angle")
+        if arm.compliance[j] != 0:
+            raise ModelError(f"{at}: the joint also has a constant compliance {arm.compliance[j]:g}; give one of them")
+        if np.any(np.diff(t[:, 0]) <= 0):
+            raise ModelError(f"{at}: angles must increase strictly, got {t[:, 0].tolist()}")
+        if t[0, 0] < arm.lower[j] or t[-1, 0] > arm.upper[j]:
+            raise ModelError(f"{at}: angles {t[:, 0].tolist()} leave the joint limits "
+                             f"[{arm.lower[j]:g}, {arm.upper[j]:g}] rad")
+        if len(np.unique(np.round(np.degrees(t[:, 0])))) < len(t):
+            raise ModelError(f"{at}: angles {np.degrees(t[:, 0]).round(3).tolist()} deg: keep them at least 1 deg "
+                             "apart (their parameters are named by the nearest degree)")
+        if np.any(t[:, 1] < 0):
+            raise ModelError(f"{at}: compliances must be >= 0 (rad/(N m)), got {t[:, 1].tolist()}")
+        out[name] = _frozen(t)
+    return out
 
 
 @dataclass(frozen=True, eq=False)

@@ -174,20 +174,30 @@ class _ArmPose(ParamKind):
 
 
 class _Compliance(ParamKind):
+    """Compliance coefficients, ``k + d``: one per joint (``arm.j3.compliance``), or one per node of a joint
+    whose compliance depends on its angle (``arm.j2.compliance@-57deg``: the node angle to the nearest degree)."""
+
     name, rank, absolute, on_arm = "compliance", 5, True, True
 
     def coordinates(self, prefix, a):
-        return [f"{prefix}.{j}.compliance" for j in a.joint_names], [COMPLIANCE_UNITS[t] for t in a.joint_types]
+        names, units = [], []
+        for j, at in a.compliance_columns():
+            node = "" if at is None else f"@{np.degrees(at):.0f}deg".replace("@-0deg", "@0deg")
+            names.append(f"{prefix}.{a.joint_names[j]}.compliance{node}")
+            units.append(COMPLIANCE_UNITS[a.joint_types[j]])
+        return names, units
 
     def retract(self, a, d):
         return replace(a, compliance=a.joint_compliance + d)
 
     def displacement(self, a, a0):
-        return a.joint_compliance - a0.joint_compliance, np.eye(a.dof)
+        k = a.joint_compliance
+        return k - a0.joint_compliance, np.eye(len(k))
 
     def scale(self, a):  # same deflection under a pure force: torques scale with length
+        prismatic = np.array([a.joint_types[j] == PRISMATIC for j, _ in a.compliance_columns()])
         c = a.joint_compliance
-        return np.where(np.array(a.joint_types) == PRISMATIC, c, -c)
+        return np.where(prismatic, c, -c)
 
     def values(self, a):
         return a.joint_compliance

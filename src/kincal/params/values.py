@@ -14,6 +14,7 @@ import numpy as np
 
 from kincal.errors import ModelError
 from kincal.kinematics import ArmModel, Robot, conform_twists, tangent_basis, tangent_generators
+from kincal.kinematics.elastic import compliance_basis, compliance_coefficients, node_angles
 from kincal.lie import se3, so3
 
 
@@ -30,7 +31,8 @@ class ArmValues:
     joint_names: tuple
     joint_types: tuple
     generators: tuple = ()  # per joint (6, k_i): Ad(exp(G d)) retraction generators at the linearization point
-    compliance: np.ndarray | None = None  # (n,) rad/(N m) or m/N; None: zeros
+    compliance: np.ndarray | None = None  # (p,) coefficients, rad/(N m) or m/N; None: zeros
+    compliance_nodes: tuple = ()  # per joint None or its compliance node angles (m,); (): no joint has nodes
 
     @property
     def dof(self) -> int:
@@ -38,8 +40,24 @@ class ArmValues:
 
     @property
     def joint_compliance(self) -> np.ndarray:
-        """(n,) compliances (zeros when none are set)."""
+        """(p,) compliance coefficients (zeros when none are set): one per joint, or per node of a joint with
+        ``compliance_nodes`` (``kincal.kinematics.elastic``); (n,) joint compliances when no joint has nodes."""
         return np.zeros(self.dof) if self.compliance is None else self.compliance
+
+    def compliance_basis(self, q) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(W, S)`` of ``kincal.kinematics.elastic.compliance_basis`` at readings q (N, n); None without nodes."""
+        return compliance_basis(self.compliance_nodes, q) if self.compliance_nodes else None
+
+    def compliance_at(self, q) -> np.ndarray:
+        """Each joint's compliance at readings q (N, n): (n,) without nodes, else (N, n)."""
+        basis = self.compliance_basis(q)
+        return self.joint_compliance if basis is None else basis[0] @ self.joint_compliance
+
+    def compliance_columns(self) -> list[tuple[int, float | None]]:
+        """Per coefficient: its joint index and node angle (None for a constant compliance)."""
+        nodes = self.compliance_nodes or (None,) * self.dof
+        return [(j, None if x is None else float(a)) for j, x in enumerate(nodes)
+                for a in ([None] if x is None else x)]
 
     @property
     def basis(self) -> np.ndarray:
@@ -57,7 +75,8 @@ class ArmValues:
         return ArmValues(
             np.array(model.screws), np.array(model.offsets), np.array(model.base), np.array(model.home),
             np.array(model.tool), bases(model.screws, model.joint_types), model.joint_names, model.joint_types,
-            generators(model.screws, model.joint_types), np.array(model.compliance),
+            generators(model.screws, model.joint_types), compliance_coefficients(model),
+            node_angles(model) if model.compliance_nodes else (),
         )
 
 
@@ -80,6 +99,20 @@ def retract_twists(a: ArmValues, d: np.ndarray) -> ArmValues:
         gens.append(se3.left_jacobian(g) @ G)  # retracting again from here keeps basis == -ad(xi) G
         bs.append(-se3.ad(screws[j]) @ gens[-1])
     return replace(a, screws=screws, bases=tuple(bs), generators=tuple(gens))
+
+
+def _compliance_fields(a: ArmValues) -> dict:
+    """``compliance`` (n,) and ``compliance_nodes`` of an ArmModel from the coefficients (negatives held at 0)."""
+    k = np.maximum(a.joint_compliance, 0.0)
+    if not a.compliance_nodes:
+        return {"compliance": k}
+    c, nodes, i = np.zeros(a.dof), {}, 0
+    for j, x in enumerate(a.compliance_nodes):
+        if x is None:
+            c[j], i = k[i], i + 1
+        else:
+            nodes[a.joint_names[j]], i = np.stack([x, k[i: i + len(x)]], axis=-1), i + len(x)
+    return {"compliance": c, "compliance_nodes": nodes}
 
 
 @dataclass(frozen=True)
@@ -147,7 +180,5 @@ class State:
             a = self.arms[key]
             screws = conform_twists(a.screws, a.joint_types)
             arms[key] = model.replace(  # a compliance estimated below 0 (noise) is held at 0 in the model
-                screws=screws, offsets=a.offsets, base=a.base, home=a.home, tool=a.tool,
-                compliance=np.maximum(a.joint_compliance, 0.0),
-            )
+                screws=screws, offsets=a.offsets, base=a.base, home=a.home, tool=a.tool, **_compliance_fields(a))
         return Robot(robot.name, arms, dict(robot.meta))

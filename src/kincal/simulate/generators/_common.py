@@ -40,6 +40,8 @@ OPTION_TYPES = {
     "box": "{lower: [x, y, z], upper: [x, y, z]}",
     "explore": "{n_seeds, n_steps, step_rad, momentum} of the self-motion walk (selfmotion.explore)",
     "wrench": "a load magnitude > 0 (N, random directions) or [fx, fy, fz, tx, ty, tz] (N, N m)",
+    "configurations": "a list of joint-value lists (angle unit; prismatic joints length unit)",
+    "payload": "{mass_kg, com: [x, y, z]} (centre of mass in the tool frame, length unit)",
 }
 
 

@@ -14,6 +14,7 @@ from kincal.schema import LENGTH
 from kincal.simulate.generators._common import (ARM, NOISE_FREE, WRENCH, Option, check_n, count_option,
                                                 dataset_meta, generator, known_option, noisy_readings, pick_arm,
                                                 pose_or, random_configurations)
+from kincal.simulate.generators._payload import before_and_after, fixed_configurations, payload_wrenches
 from kincal.simulate.generators._tracker import (random_markers, random_tracker_pose, tool_loads, tool_poses,
                                                  validation_loads)
 from kincal.simulate.noise import tracker_points
@@ -25,7 +26,9 @@ __all__ = ["generate_markers"]
 @generator("markers", ARM, count_option(50), count_option(3, "markers", "number of random markers"),
            Option("p_tool_marker", "points", LENGTH, argument="markers", doc="the markers, tool frame"),
            known_option("markers"), Option("T_world_tracker", "pose", LENGTH, doc="the tracker (default: random)"),
-           known_option("tracker"), WRENCH)
+           known_option("tracker"), WRENCH,
+           Option("configurations", "configurations", doc="fixed joint readings (replace the random draw and n)"),
+           Option("payload", "payload", doc="a payload on the tool, each configuration measured before and after"))
 def generate_markers(
     robot: Robot,
     arm: str | None = None,
@@ -40,6 +43,8 @@ def generate_markers(
     n_validation: int = 100,
     margin: float = 0.05,
     wrench=None,
+    configurations=None,
+    payload: tuple[float, np.ndarray] | None = None,
 ) -> tuple[Dataset, Truth, dict]:
     """Positions of markers on the tool seen by a tracker (partial pose): ``p_tracker_marker`` (N, m, 3).
 
@@ -49,6 +54,9 @@ def generate_markers(
     (``random_wrenches``); the true poses are deflected with the true robot's compliance
     (``kincal.kinematics.elastic``) and the validation set carries loads too. Without it the draws, and so
     the outputs for a seed, are those of earlier versions.
+    ``configurations`` (n, dof): these readings instead of random ones. ``payload`` ``(mass kg, centre of mass
+    (3,) m, tool frame)``: each configuration measured twice at the same readings, unloaded then loaded by the
+    payload's weight (``_payload``, seed 001 Sec. V); not with ``wrench``.
     """
     n, rng = check_n(n), np.random.default_rng(rng)
     arm, model = pick_arm(robot, arm)
@@ -56,8 +64,14 @@ def generate_markers(
     if p_tm.ndim != 2 or len(p_tm) < 1:
         raise DegenerateExperimentError(f"markers: expected a count >= 1 or an (m, 3) array, got {markers!r}")
     T_wt = pose_or(T_world_tracker, "T_world_tracker", lambda: random_tracker_pose(robot, arm, rng))
-    q = random_configurations(model, n, rng, margin)
-    loads = tool_loads(wrench, n, rng)
+    q = random_configurations(model, n, rng, margin) if configurations is None else \
+        fixed_configurations(model, configurations)
+    if payload is not None and wrench is not None:
+        raise DegenerateExperimentError("payload and wrench_N: give one way of loading the tool")
+    loads = tool_loads(wrench, len(q), rng) if payload is None else payload_wrenches(model, q, *payload)
+    configs = q
+    if payload is not None:
+        q, loads = before_and_after(q, loads)
     T = se3.inverse(T_wt) @ tool_poses(model, q, loads)
     p = se3.transform_points(T[:, None], p_tm[None])
     known = {}
@@ -68,14 +82,17 @@ def generate_markers(
     measured = {"p_tracker_marker": tracker_points(p, noise, rng)}
     if loads is not None:
         measured["wrench_tool"] = loads
-    ds = Dataset("markers", robot.name, (arm,), noisy_readings({arm: q}, noise, rng), measured, known, "markers",
+    readings = noisy_readings({arm: configs}, noise, rng)  # a configuration's two measurements share its readings
+    if payload is not None:
+        readings = {arm: np.repeat(readings[arm], 2, axis=0)}
+    ds = Dataset("markers", robot.name, (arm,), readings, measured, known, "markers",
                  dataset_meta("markers", noise))
     truth = Truth(robot, {"T_world_tracker": T_wt, "p_tool_marker": p_tm}, {arm: q}, noise, {"generator": "markers"})
     # Validate what this experiment observes: marker positions at fresh configurations, noise-free, with the
     # tracker frame and marker offsets left unknown (refitted), not the world-frame tool pose (which a partial
     # pose measurement does not determine: the tracker gauge, and with one marker the tool orientation).
     qv = random_configurations(model, n_validation, rng, margin)
-    lv = validation_loads(wrench, loads, n_validation, rng)
+    lv = validation_loads(wrench, loads, n_validation, rng) if payload is None else payload_wrenches(model, qv, *payload)
     pv = se3.transform_points((se3.inverse(T_wt) @ tool_poses(model, qv, lv))[:, None], p_tm[None])
     mv = {"p_tracker_marker": pv} if lv is None else {"p_tracker_marker": pv, "wrench_tool": lv}
     validation = {arm: Dataset("markers", robot.name, (arm,), {arm: qv}, mv, {}, f"validation-{arm}",
