@@ -32,6 +32,9 @@ FORM_SHAPES = {
     "scalar": (),  # manifest: a number
     "plane": (4,),  # manifest: [nx, ny, nz, d] with a unit normal
     "index": (),  # CSV: one integer column, an index into the first dimension of ``bound``
+    # a pose's 6x6 covariance, components (position, orientation); CSV: <prefix>.<a>.<b> for the 21 entries a <= b
+    # of x y z rx ry rz, position in the file's length unit, orientation in its angle unit
+    "covariance": (6, 6),
 }
 # which side of the measurement loop a role's frame sits on
 WORLD, TOOL, BETWEEN = "world", "tool", "between"
@@ -190,3 +193,21 @@ def schema_of(kind: str, where: str = "data set") -> Schema:
     if kind not in _REGISTRY:
         raise ShapeError(f"{where}: unknown kind {kind!r}; kinds: {', '.join(_REGISTRY)}")
     return _REGISTRY[kind]
+
+
+def covariance_problem(cov: np.ndarray) -> tuple[int, str] | None:
+    """The first row of covariances ``cov`` (N, k, k) that is not symmetric positive definite, as
+    (row, what was found), or None."""
+    cov = np.asarray(cov, dtype=float)
+    bad = np.flatnonzero(~np.isfinite(cov).all(axis=(1, 2)))
+    if bad.size:
+        return int(bad[0]), "non-finite entries"
+    asym = np.abs(cov - np.swapaxes(cov, -1, -2)).max(axis=(1, 2))
+    bad = np.flatnonzero(asym > 1e-9 * np.abs(cov).max(axis=(1, 2)))
+    if bad.size:
+        return int(bad[0]), f"an asymmetric matrix (|C - C^T| up to {asym[bad[0]]:.3g})"
+    eig = np.linalg.eigvalsh(cov)[:, 0]
+    bad = np.flatnonzero(eig <= 0)
+    if bad.size:
+        return int(bad[0]), f"a matrix that is not positive definite (smallest eigenvalue {eig[bad[0]]:.3g})"
+    return None

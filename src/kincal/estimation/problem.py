@@ -1,7 +1,8 @@
 """The calibration problem (``Problem.build``): experiments, parameter layout, states and noise; it stacks the
 experiments' residuals over the free coordinates and whitens them by each experiment's stated noise.
 
-Whitening (per configuration, k x k): ``Sigma = diag(sigma_meas^2) + sum_arms sigma_joint^2 J_q J_q^T``,
+Whitening (per configuration, k x k): ``Sigma = diag(sigma_meas^2) + sum_arms sigma_joint^2 J_q J_q^T``, where
+the data's own covariance (``Experiment.covariance``: a pose's ``pose_cov``) replaces the diagonal term,
 ``r_w = L^-1 r`` with ``Sigma = L L^T``. Encoder noise thus enters through the residual's Jacobian w.r.t. the
 joint readings (first order). ``Sigma`` is evaluated at the linearization point of each outer iteration and
 held during the inner solve. Measurement variances have a floor of (1e-9)^2 so a purely encoder-noise
@@ -135,15 +136,17 @@ class Problem:
     def _whiteners_of(self, residuals) -> list[np.ndarray]:
         out = []
         for exp, nz, res in zip(self.experiments, self.noise, residuals):
-            var = np.maximum(stated_sigmas(exp, nz) ** 2, VARIANCE_FLOOR)
-            sj = nz.joint_sigma()
-            if sj > 0:
-                cov = np.broadcast_to(np.diag(var), res.r.shape + (res.r.shape[1],)).copy()
-                for jq in res.jq.values():
-                    cov += sj**2 * (jq @ np.swapaxes(jq, -1, -2))
-                out.append(np.linalg.inv(np.linalg.cholesky(cov)))
-            else:  # constant: a diagonal, broadcast over samples
-                out.append(np.broadcast_to(np.diag(1.0 / np.sqrt(var)), res.r.shape + (res.r.shape[1],)))
+            own, sj = exp.covariance(), nz.joint_sigma()
+            if own is None:
+                var = np.maximum(stated_sigmas(exp, nz) ** 2, VARIANCE_FLOOR)
+                if sj == 0:  # constant: a diagonal, broadcast over samples
+                    out.append(np.broadcast_to(np.diag(1.0 / np.sqrt(var)), res.r.shape + (res.r.shape[1],)))
+                    continue
+                own = np.diag(var)
+            cov = np.broadcast_to(own, res.r.shape + (res.r.shape[1],)).copy()
+            for jq in res.jq.values() if sj > 0 else ():
+                cov += sj**2 * (jq @ np.swapaxes(jq, -1, -2))
+            out.append(np.linalg.inv(np.linalg.cholesky(cov)))
         return out
 
     def linearize(self, state: State, whiteners=None, cols=None):

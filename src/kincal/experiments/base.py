@@ -100,6 +100,11 @@ class Experiment:
     def check(self) -> None:
         """Raise on data this kind cannot use (beyond what Dataset checks)."""
 
+    def covariance(self) -> np.ndarray | None:
+        """The residual's covariance per sample (N, k, k) when the data state it (a pose's ``pose_cov``), else
+        None: whitening then uses the stated noise per component (``estimation.problem``)."""
+        return None
+
     def frame_shape(self, role: str) -> tuple[int, ...]:
         """Shape of the value of a role's frame, to check data sets sharing it agree: the schema's shape, with
         data-chosen sizes (markers ``m``) read off this data set."""

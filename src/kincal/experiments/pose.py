@@ -10,17 +10,20 @@ from __future__ import annotations
 
 import numpy as np
 
+from kincal.errors import DataFormatError
 from kincal.experiments._kernel import pose_gap, pose_mean
 from kincal.experiments.base import WRENCH, Experiment, Residual
 from kincal.experiments.handeye import hand_eye
 from kincal.noise import ORIENTATION, POSITION
 from kincal.lie import se3, so3
-from kincal.schema import LENGTH, WORLD, Field, Role, Schema
+from kincal.schema import LENGTH, NONE, WORLD, Field, Role, Schema, covariance_problem
 
 
 SCHEMA = Schema(
     "pose", arms=1,
-    measured=(Field("T_tracker_tool", "pose", LENGTH, columns=("tool",), doc="tool pose in the tracker frame"), WRENCH),
+    measured=(Field("T_tracker_tool", "pose", LENGTH, columns=("tool",), doc="tool pose in the tracker frame"), WRENCH,
+              Field("pose_cov", "covariance", NONE, required=False, columns=("cov",),
+                    doc="covariance of the pose's error (position, left rotation), tracker frame")),
     known=(Field("T_world_tracker", "pose", LENGTH, required=False),),
     roles=(Role("tracker", "T_world_tracker", WORLD, "pose"),),
 )
@@ -46,6 +49,20 @@ class PoseExperiment(Experiment):
         if self._wanted("tracker", want):
             jac[self.frames["tracker"]] = -GA  # W -> exp(d) W moves W^-1 T by exp(-Ad(W^-1) d)
         return Residual(r, jac, jqs)
+
+    def covariance(self):
+        """``pose_cov``: the covariance of the measured pose's error ``(p_meas - p, log(R_meas R^T))``, tracker
+        frame; the residual is minus that error at the truth, so it is the residual's covariance too."""
+        return self.dataset.measured.get("pose_cov")
+
+    def check(self):
+        cov = self.covariance()
+        bad = None if cov is None else covariance_problem(cov)
+        if bad:
+            lines = self.dataset.meta.get("lines")
+            at = f" (line {lines[bad[0]]} of {self.dataset.meta.get('file')})" if lines is not None else ""
+            raise DataFormatError(f"data set '{self.name}': sample {bad[0]}{at}, field pose_cov: expected a "
+                                  f"symmetric positive definite 6x6 covariance, found {bad[1]}")
 
     def initial(self, state, known):
         if "tracker" in known:
