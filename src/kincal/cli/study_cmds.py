@@ -55,7 +55,7 @@ def study(study_file: str, output: Path, workers, scheduler, repeats, seed, over
     paths = study_flow.write_study(result, output, overwrite=overwrite)
     if quiet:
         return
-    out = Console()
+    out = _wide()
     shown = [{k: v for k, v in r.items() if k not in ("truth", "repeats")} for r in study_flow.table(result)]
     out.print(_table(f"{s.name}: {s.repeats} repeats, seed {s.seed}", shown))
     out.print(_table("validation RMS position error", [{k: v for k, v in r.items() if k != "first_failure"}
@@ -84,7 +84,8 @@ def batch(jobs, output: Path, workers, scheduler, overwrite: bool, quiet: bool) 
         rows = batch_flow.run_batch([Path(j) for j in jobs], output, workers=workers, scheduler=scheduler,
                                     overwrite=overwrite, progress=lambda done, total: bar.update(task, completed=done))
     if not quiet:
-        Console().print(_table(f"{len(rows)} jobs -> {output}", rows))
+        _wide().print(_table(f"{len(rows)} jobs -> {output}", [{k: v for k, v in r.items() if k != "folder"}
+                                                               for r in rows]))
     if any(r["status"] == batch_flow.FAILED for r in rows):
         raise SystemExit(1)
 
@@ -94,6 +95,12 @@ def studies() -> None:
     """List the built-in studies."""
     for name in study_names():
         click.echo(name)
+
+
+def _wide() -> Console:
+    """The tables' console: a pipe or a file gets 120 columns, not rich's 80."""
+    c = Console()
+    return c if c.is_terminal else Console(width=120)
 
 
 def _table(title: str, rows: list[dict]) -> Table:

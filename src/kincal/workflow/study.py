@@ -19,6 +19,7 @@ import numpy as np
 from kincal.data import Dataset
 from kincal.errors import DataFormatError, KincalError
 from kincal.estimation import calibrate
+from kincal.experiments.pose_from_markers import markers_to_pose
 from kincal.io import units
 from kincal.io.atomic import output_directory
 from kincal.io.studies import load_study, write_csv
@@ -163,8 +164,23 @@ def calibrate_variant(study: Study, variant: Variant, ds: Dataset):
     """The ``Result`` of one variant on one repeat's data."""
     data, noise = ds, calibration_noise(study)
     if variant.data == "pose":
-        raise KincalError("pose variants need kincal.experiments.pose_from_markers (branch v-posecov)")
+        data, noise = pose_data(ds, noise, variant.weighting)
     return calibrate(study.robot, [data], noise=noise, **variant.options)
+
+
+# Approach 1 unweighted (the paper's): one metre of position error weighs as much as one radian of orientation.
+UNIT_WEIGHTS = Noise(position=1.0, orientation=1.0, joint=0.0, backlash=0.0)
+
+
+def pose_data(ds: Dataset, noise: Noise, weighting: str) -> tuple[Dataset, Noise]:
+    """Approach 1: the pose fitted to each row's markers (``markers_to_pose``), weighted by the 6x6 covariance
+    of the fit (``covariance``), or with every pose component alike (``unit``, 1 m = 1 rad: the covariance
+    dropped, the variance factor then scales one common sigma)."""
+    pose = markers_to_pose(ds, sigma=noise.position)
+    if weighting == "covariance":
+        return pose, noise
+    measured = {k: v for k, v in pose.measured.items() if k != "pose_cov"}
+    return replace(pose, measured=measured, meta={**pose.meta, "noise": UNIT_WEIGHTS.as_si()}), UNIT_WEIGHTS
 
 
 def calibration_noise(study: Study) -> Noise:
