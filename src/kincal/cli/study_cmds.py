@@ -84,8 +84,9 @@ def batch(jobs, output: Path, workers, scheduler, overwrite: bool, quiet: bool) 
         rows = batch_flow.run_batch([Path(j) for j in jobs], output, workers=workers, scheduler=scheduler,
                                     overwrite=overwrite, progress=lambda done, total: bar.update(task, completed=done))
     if not quiet:
-        _wide().print(_table(f"{len(rows)} jobs -> {output}", [{k: v for k, v in r.items() if k != "folder"}
-                                                               for r in rows]))
+        shown = [{"job": Path(r["folder"]).name, **{k: v for k, v in r.items() if k not in ("job", "folder")}}
+                 for r in rows]
+        _wide().print(_table(f"{len(rows)} jobs -> {output}", shown))
     if any(r["status"] == batch_flow.FAILED for r in rows):
         raise SystemExit(1)
 
@@ -106,7 +107,7 @@ def _wide() -> Console:
 def _table(title: str, rows: list[dict]) -> Table:
     t = Table(title=title)
     for key in (rows[0] if rows else {}):
-        t.add_column(key.replace("_", " "), no_wrap=True, justify="left" if key in ("variant", "quantity", "job", "status", "message") else "right")
+        t.add_column(key.replace("_", " "), no_wrap=key != "message", justify="left" if key in ("variant", "quantity", "job", "status", "message") else "right")
     for r in rows:
         t.add_row(*[f"{v:.3g}" if isinstance(v, float) else str(v) for v in r.values()])
     return t
