@@ -216,3 +216,32 @@ def test_study_spec_reads_units_to_si():
     assert spec["options"]["markers"] == pytest.approx(0.1 * np.eye(3))
     assert S.load("table1").errors["arm.base.v_z"] == pytest.approx(0.003)
     assert S.load("table1").errors["arm.j1.offset"] == pytest.approx(np.radians(1.0))
+
+
+def test_structure_cache_gives_the_same_estimates_and_rank(monkeypatch):
+    """The consistent linearization skipped for a structure known to be full rank (analysis.symmetries): the
+    cached path gives the same estimates, covariance and rank as the uncached one, bit for bit; a structure with
+    exact gauges is never remembered."""
+    from kincal.analysis import symmetries
+    from kincal.estimation import calibrate
+    from kincal.simulate import generate_markers
+
+    s = S.load("table1")
+    fixed = S.fixed_parts(s)
+    data = [S.repeat_data(s, fixed.true, fixed, np.random.default_rng(r)) for r in range(3)]
+    monkeypatch.setattr(symmetries, "FULL_RANK_ENTRIES", 0)  # nothing is remembered: the uncached path
+    cold = [S.calibrate_variant(s, v, ds) for ds in data for v in s.variants]
+    assert len(symmetries._FULL_RANK) == 0
+    monkeypatch.setattr(symmetries, "FULL_RANK_ENTRIES", 256)
+    symmetries.clear_structure_cache()
+    warm = [S.calibrate_variant(s, v, ds) for ds in data for v in s.variants]
+    assert len(symmetries._FULL_RANK) == 2  # markers, and pose (both approach 1 variants: the same structure)
+    for a, b in zip(cold, warm):
+        assert a.identifiability.rank == b.identifiability.rank == 6
+        assert [e.value for e in a.estimates] == [e.value for e in b.estimates]
+        assert np.array_equal(a.covariance, b.covariance) and a.status == b.status
+    # unknown tracker and the full kinematic model: exact gauges (tracker against base and home), not remembered
+    ds, _, _ = generate_markers(s.robot, n=12, rng=3, noise=s.noise, known_markers=True)
+    before = len(symmetries._FULL_RANK)
+    res = calibrate(s.robot, [ds], "kinematic", noise=s.noise.over(S.Noise(joint=0.0)))
+    assert res.identifiability.deficiency > 0 and len(symmetries._FULL_RANK) == before

@@ -115,6 +115,7 @@ class Fixed:
     true: Robot | None
     experiment_seed: np.random.SeedSequence
     q_validation: Mapping[str, np.ndarray]
+    memo: dict = field(default_factory=dict, repr=False)  # per process: what a fixed truth makes once
 
 
 def fixed_parts(study: Study) -> Fixed:
@@ -143,7 +144,12 @@ def repeat_data(study: Study, true: Robot, fixed: Fixed, rng: np.random.Generato
     gen = GENERATORS[study.kind]
     if study.configurations == "redrawn":
         return gen(true, rng=rng, noise=study.noise, n_validation=1, **study.options)[0]
-    exact = gen(true, rng=np.random.default_rng(fixed.experiment_seed), noise=NONE, n_validation=1, **study.options)[0]
+    exact = fixed.memo.get("exact") if true is fixed.true else None
+    if exact is None:
+        exact = gen(true, rng=np.random.default_rng(fixed.experiment_seed), noise=NONE, n_validation=1,
+                    **study.options)[0]
+        if true is fixed.true:
+            fixed.memo["exact"] = exact
     return with_noise(exact, study.noise, rng)
 
 
@@ -224,14 +230,25 @@ def run_chunk(study: Study, fixed: Fixed, repeats: range) -> list[list[Outcome]]
 
 
 def _outcome(study: Study, result, true: Robot, fixed: Fixed) -> Outcome:
-    layout, nominal = result.layout, result.problem.nominal
+    layout = result.layout
     names, C = quantity_matrix(study, layout)
-    est = displacement(result.state, nominal, layout)[0]
-    true_arms = State.from_robot(true).arms
-    truth = displacement(nominal.replace(arms={a: true_arms[a] for a in nominal.arms}), nominal, layout)[0]
+    est = np.zeros(layout.size)  # coordinates not free stay nominal: no displacement
+    est[layout.free] = [e.value - e.nominal for e in result.estimates]
+    key = ("truth", layout.names)
+    truth = fixed.memo.get(key) if true is fixed.true else None
+    if truth is None:
+        truth = true_displacement(result, true)
+        if true is fixed.true:
+            fixed.memo[key] = truth
     Cf = C[:, layout.free]
     std = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", Cf, result.covariance, Cf), 0.0))
     return Outcome(result.status, names, C @ est, C @ truth, std, validation_error(result.robot, true, fixed))
+
+
+def true_displacement(result, true: Robot) -> np.ndarray:
+    """The true robot's displacement from nominal in the result's coordinates (frames: nominal, none)."""
+    nominal, true_arms = result.problem.nominal, State.from_robot(true).arms
+    return displacement(nominal.replace(arms={a: true_arms[a] for a in nominal.arms}), nominal, result.layout)[0]
 
 
 def quantity_matrix(study: Study, layout) -> tuple[tuple[str, ...], np.ndarray]:
