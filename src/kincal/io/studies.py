@@ -127,7 +127,7 @@ def _variants(ctx, data: Any) -> list[dict]:
     out, seen = [], set()
     for i, v in enumerate(data):
         where = f"variants[{i}]"
-        v = _mapping(ctx, v, where, {"name", "data", "weighting"} | CALIBRATE_OPTIONS, ("name",))
+        v = _mapping(ctx, v, where, {"name", "data", "weighting", "length_per_radian"} | CALIBRATE_OPTIONS, ("name",))
         name = v["name"]
         if not isinstance(name, str) or not name or name in seen:
             raise ctx.fail(f"{where}.name", f"expected a new variant name, found {quote(name)}")
@@ -136,9 +136,16 @@ def _variants(ctx, data: Any) -> list[dict]:
         weighting = ctx.one_of(f"{where}.weighting", v.get("weighting", "covariance"), WEIGHTING)
         if weighting == "unit" and data_kind != "pose":
             raise ctx.fail(f"{where}.weighting", "'unit' weighting (1 m = 1 rad) applies to data: pose only")
+        scale = v.get("length_per_radian", 1.0)  # unit weighting: this length (file units) weighs as 1 rad
+        if "length_per_radian" in v and weighting != "unit":
+            raise ctx.fail(f"{where}.length_per_radian", "applies to weighting: unit only")
+        scale = _number(ctx, scale, f"{where}.length_per_radian") * (ctx.length if "length_per_radian" in v else 1.0)
+        if scale <= 0:
+            raise ctx.fail(f"{where}.length_per_radian", f"expected a length > 0, found {quote(v['length_per_radian'])}")
         options = {k: v[k] for k in CALIBRATE_OPTIONS if k in v}
         _check_patterns(ctx, options, where)
-        out.append({"name": name, "data": data_kind, "weighting": weighting, "options": options})
+        out.append({"name": name, "data": data_kind, "weighting": weighting, "length_per_radian": scale,
+                    "options": options})
     return out
 
 

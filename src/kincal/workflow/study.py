@@ -39,12 +39,13 @@ FAILED = "failed"
 class Variant:
     """One way to calibrate every repeat: ``data`` (``markers`` as measured, or ``pose`` computed from them),
     ``weighting`` of pose data (``covariance``: the full covariance of the fitted pose; ``unit``: 1 m = 1 rad)
-    and ``options``, keywords of ``kincal.estimation.calibrate`` (``free``, ``fixed``, ``gauge``, ...)."""
+    (``length_per_radian`` sets the normalization) and ``options``, keywords of ``kincal.estimation.calibrate`` (``free``, ``fixed``, ``gauge``, ...)."""
 
     name: str
     data: str = "markers"
     weighting: str = "covariance"
     options: Mapping[str, Any] = field(default_factory=dict)
+    length_per_radian: float = 1.0  # ``unit`` weighting: this many metres weigh as one radian
 
 
 @dataclass(frozen=True, eq=False)
@@ -91,7 +92,8 @@ def load(path) -> Study:
             raise DataFormatError(f"{spec['file']}: quantities.{q}.{bad[0]}: no such parameter of '{spec['model']}'")
         if len({names[t] for t in terms}) > 1:
             raise DataFormatError(f"{spec['file']}: quantities.{q}: mixes units ({', '.join(names[t] for t in terms)})")
-    variants = tuple(Variant(v["name"], v["data"], v["weighting"], v["options"]) for v in spec["variants"])
+    variants = tuple(Variant(v["name"], v["data"], v["weighting"], v["options"], v["length_per_radian"])
+                     for v in spec["variants"])
     return Study(spec["name"], spec["robot"], spec["kind"], spec["options"], variants, spec["repeats"], spec["seed"],
                  spec["noise"], spec["configurations"], errors,
                  None if errors else perturbation(truth["level"], **truth["overrides"]),
@@ -170,23 +172,21 @@ def calibrate_variant(study: Study, variant: Variant, ds: Dataset):
     """The ``Result`` of one variant on one repeat's data."""
     data, noise = ds, calibration_noise(study)
     if variant.data == "pose":
-        data, noise = pose_data(ds, noise, variant.weighting)
+        data, noise = pose_data(ds, noise, variant.weighting, variant.length_per_radian)
     return calibrate(study.robot, [data], noise=noise, **variant.options)
 
 
-# Approach 1 unweighted (the paper's): one metre of position error weighs as much as one radian of orientation.
-UNIT_WEIGHTS = Noise(position=1.0, orientation=1.0, joint=0.0, backlash=0.0)
-
-
-def pose_data(ds: Dataset, noise: Noise, weighting: str) -> tuple[Dataset, Noise]:
+def pose_data(ds: Dataset, noise: Noise, weighting: str, length_per_radian: float = 1.0) -> tuple[Dataset, Noise]:
     """Approach 1: the pose fitted to each row's markers (``markers_to_pose``), weighted by the 6x6 covariance
-    of the fit (``covariance``), or with every pose component alike (``unit``, 1 m = 1 rad: the covariance
-    dropped, the variance factor then scales one common sigma)."""
+    of the fit (``covariance``), or unweighted as the paper does (``unit``: the covariance dropped, an
+    orientation error of 1 rad weighs as ``length_per_radian`` metres of position error, 1 m = 1 rad by
+    default; the variance factor then scales one common sigma)."""
     pose = markers_to_pose(ds, sigma=noise.position)
     if weighting == "covariance":
         return pose, noise
+    unit = Noise(position=1.0, orientation=1.0 / length_per_radian, joint=0.0, backlash=0.0)
     measured = {k: v for k, v in pose.measured.items() if k != "pose_cov"}
-    return replace(pose, measured=measured, meta={**pose.meta, "noise": UNIT_WEIGHTS.as_si()}), UNIT_WEIGHTS
+    return replace(pose, measured=measured, meta={**pose.meta, "noise": unit.as_si()}), unit
 
 
 def calibration_noise(study: Study) -> Noise:
