@@ -113,7 +113,8 @@ def test_cli_writes_tables_and_refuses_to_overwrite(tmp_path, capsys):
     assert main(["study", "table1", "-o", str(out), "--repeats", "4", "--workers", "0", "--quiet"]) == 2
     assert "exists" in capsys.readouterr().err
     assert main(["study", "table1", "-o", str(out), "--repeats", "4", "--workers", "0", "--quiet",
-                 "--overwrite"]) == 0
+                 "--overwrite", "--plots"]) == 0
+    assert (out / "plots" / "errors.png").stat().st_size > 1000 and (out / "plots" / "validation.png").is_file()
 
 
 REDRAWN = """format: kincal-study

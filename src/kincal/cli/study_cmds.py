@@ -14,6 +14,7 @@ from rich.table import Table
 from kincal.io.studies import study_names
 from kincal.workflow import batch as batch_flow
 from kincal.workflow import study as study_flow
+from kincal.workflow.outputs import require_plots
 
 _WORKERS = click.option("--workers", type=click.IntRange(min=0), default=None,
                         help="Local Dask worker processes (default: one per core; 0: run in this process).")
@@ -40,11 +41,15 @@ def _bar(console: Console, quiet: bool) -> Progress:
 @_SCHEDULER
 @click.option("--repeats", type=click.IntRange(min=2), default=None, help="Override the study's repeats.")
 @click.option("--seed", type=click.IntRange(min=0), default=None, help="Override the study's seed.")
+@click.option("--plots", is_flag=True, help='Also write PNG plots to OUTPUT/plots (needs "kincal[plot]").')
 @click.option("--overwrite", is_flag=True, help="Replace the tables already in the output directory.")
 @click.option("--quiet", is_flag=True, help="No progress bar or table.")
-def study(study_file: str, output: Path, workers, scheduler, repeats, seed, overwrite: bool, quiet: bool) -> None:
+def study(study_file: str, output: Path, workers, scheduler, repeats, seed, plots: bool, overwrite: bool,
+          quiet: bool) -> None:
     """Monte Carlo study of STUDY.yaml (or a built-in study: kincal studies): per variant and parameter the bias,
     std, RMS, reported/empirical std and the validation error."""
+    if plots:
+        require_plots()
     s = study_flow.load(study_file)
     s = replace(s, repeats=repeats or s.repeats, seed=s.seed if seed is None else seed)
     console = Console(stderr=True, quiet=quiet)
@@ -52,7 +57,7 @@ def study(study_file: str, output: Path, workers, scheduler, repeats, seed, over
         task = bar.add_task(f"{s.name}: repeats", total=s.repeats)
         result = study_flow.run_study(s, workers=workers, scheduler=scheduler,
                                       progress=lambda done, total: bar.update(task, completed=done))
-    paths = study_flow.write_study(result, output, overwrite=overwrite)
+    paths = study_flow.write_study(result, output, overwrite=overwrite, plots=plots)
     if quiet:
         return
     out = _wide()

@@ -26,6 +26,7 @@ from kincal.io.studies import load_study, write_csv
 from kincal.kinematics import Robot, forward_kinematics
 from kincal.noise import NONE, Noise
 from kincal.params import State, build_layout, displacement, retract
+from kincal.report.study_plots import write_study_plots
 from kincal.schema import schema_of
 from kincal.simulate import GENERATORS, perturb_robot, random_configurations
 from kincal.simulate.noise import joint_readings, tracker_points, tracker_poses
@@ -419,10 +420,32 @@ def repeats_table(result: StudyResult) -> list[dict]:
     return out
 
 
-def write_study(result: StudyResult, output, *, overwrite: bool = False) -> list:
-    """The study's tables as CSV in ``output`` (all or nothing, ``kincal.io.atomic``)."""
-    with output_directory(output, names=STUDY_ENTRIES, overwrite=overwrite) as stage:
+def write_study(result: StudyResult, output, *, overwrite: bool = False, plots: bool = False) -> list:
+    """The study's tables as CSV in ``output`` and with ``plots`` its PNG plots in ``output/plots`` (all or
+    nothing, ``kincal.io.atomic``); returns the final paths."""
+    names = STUDY_ENTRIES + (("plots",) if plots else ())
+    with output_directory(output, names=names, overwrite=overwrite) as stage:
         paths = [write_csv(stage.path / "study.csv", table(result)),
                  write_csv(stage.path / "validation.csv", validation_table(result)),
                  write_csv(stage.path / "repeats.csv", repeats_table(result))]
-    return [Path(output) / p.name for p in paths]
+        if plots:
+            paths += write_study_plots(*_plot_data(result), stage.path / "plots")
+    return [stage.final(p) for p in paths]
+
+
+def _plot_data(result: StudyResult):
+    """Errors and reported std per quantity and variant, validation errors per variant, units: study units."""
+    study, errors, reported, units_of = result.study, {}, {}, {}
+    for r in result.rows:
+        f, u = _scale(study, r.unit)
+        k = [v.name for v in study.variants].index(r.variant)
+        used = [rep[k] for rep in result.outcomes if rep[k].status == "converged"]
+        i = used[0].names.index(r.quantity)
+        errors.setdefault(r.quantity, {})[r.variant] = np.array([(o.estimate[i] - o.truth[i]) / f for o in used])
+        reported.setdefault(r.quantity, {})[r.variant] = r.reported_std / f
+        units_of[r.quantity] = u
+    fv, uv = _scale(study, "m")
+    validation = {v.name: np.array([rep[k].validation / fv for rep in result.outcomes
+                                    if rep[k].status == "converged" and np.isfinite(rep[k].validation)])
+                  for k, v in enumerate(study.variants)}
+    return errors, reported, validation, {**units_of, "validation": uv}
