@@ -11,7 +11,6 @@ depends on the seed only, never on how repeats are spread over workers (``kincal
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 from typing import Any, Callable, Mapping
 
 import numpy as np
@@ -31,7 +30,7 @@ from kincal.schema import schema_of
 from kincal.simulate import GENERATORS, perturb_robot, random_configurations
 from kincal.simulate.noise import joint_readings, tracker_points, tracker_poses
 from kincal.simulate.perturb import Perturbation, perturbation
-from kincal.workflow.parallel import run_tasks
+from kincal.workflow.parallel import default_workers, run_tasks
 
 FAILED = "failed"
 
@@ -320,7 +319,8 @@ def run_study(study: Study, *, workers: int | None = None, scheduler: str | None
     0 for this process, or the cluster at ``scheduler``), in ``chunks`` tasks (default: 8 per worker);
     ``progress(done, total)`` counts repeats."""
     fixed = fixed_parts(study)
-    n = chunks or 8 * max(1, workers or 1 if scheduler is None else 4)
+    w = workers if workers is not None else (default_workers() if scheduler is None else 4)
+    n = chunks or 8 * max(1, w)
     bounds = np.linspace(0, study.repeats, min(n, study.repeats) + 1).astype(int)
     tasks = [(study, fixed, range(a, b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
     done = [0]
