@@ -236,6 +236,7 @@ def test_structure_cache_gives_the_same_estimates_and_rank(monkeypatch):
     s = S.load("table1")
     fixed = S.fixed_parts(s)
     data = [S.repeat_data(s, fixed.true, fixed, np.random.default_rng(r)) for r in range(3)]
+    symmetries.clear_structure_cache()
     monkeypatch.setattr(symmetries, "FULL_RANK_ENTRIES", 0)  # nothing is remembered: the uncached path
     cold = [S.calibrate_variant(s, v, ds) for ds in data for v in s.variants]
     assert len(symmetries._FULL_RANK) == 0
