@@ -10,6 +10,7 @@ depends on the seed only, never on how repeats are spread over workers (``kincal
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Mapping
 
@@ -92,6 +93,11 @@ def load(path) -> Study:
             raise DataFormatError(f"{spec['file']}: quantities.{q}.{bad[0]}: no such parameter of '{spec['model']}'")
         if len({names[t] for t in terms}) > 1:
             raise DataFormatError(f"{spec['file']}: quantities.{q}: mixes units ({', '.join(names[t] for t in terms)})")
+    accepted = set(inspect.signature(calibrate).parameters)
+    for i, v in enumerate(spec["variants"]):
+        for key in set(v["options"]) - accepted:  # e.g. stages, before the solver has staged solves
+            raise DataFormatError(f"{spec['file']}: variants[{i}].{key}: this kincal's calibrate has no option "
+                                  f"{key!r}")
     variants = tuple(Variant(v["name"], v["data"], v["weighting"], v["options"], v["length_per_radian"])
                      for v in spec["variants"])
     return Study(spec["name"], spec["robot"], spec["kind"], spec["options"], variants, spec["repeats"], spec["seed"],
@@ -220,6 +226,9 @@ def run_repeat(study: Study, fixed: Fixed, r: int) -> list[Outcome]:
             result = calibrate_variant(study, v, ds)
         except KincalError as exc:
             out.append(Outcome(FAILED, message=str(exc)))
+            continue
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:  # one bad draw, not the whole study
+            out.append(Outcome(FAILED, message=f"{type(exc).__name__}: {exc}"))
             continue
         out.append(_outcome(study, result, true, fixed))
     return out
