@@ -13,7 +13,7 @@ from threadpoolctl import threadpool_limits
 
 from kincal import __version__
 from kincal.cli import (analyze_cmds, calibrate_cmds, compensate_cmds, design_cmds, export_cmds, list_cmds, model_cmds,
-                        report_cmds, simulate_cmds, study_cmds)
+                        pose_cmds, report_cmds, simulate_cmds, study_cmds)
 from kincal.errors import KincalError
 
 
@@ -26,7 +26,7 @@ def cli(ctx: click.Context) -> None:
 
 
 for _module in (model_cmds, list_cmds, simulate_cmds, calibrate_cmds, analyze_cmds, design_cmds, export_cmds,
-                report_cmds, compensate_cmds, study_cmds):  # each defines ``register(group)``
+                report_cmds, compensate_cmds, pose_cmds, study_cmds):  # each defines ``register(group)``
     _module.register(cli)
 
 # One whole phrase per command in ``kincal --help`` (click would cut the docstring's first line mid-phrase).
@@ -41,6 +41,7 @@ SHORT_HELP = {
     "export": "Write a model as URDF, DH, controller offsets or JSON.",
     "fk": "Tool pose for one joint configuration.",
     "import": "Read a URDF chain into a kincal model file.",
+    "markers-to-pose": "Markers data set -> fitted poses with their covariance.",
     "model": "Inspect robot models (built-in names or files).",
     "plot": "PNG plots of a calibration already written.",
     "report": "One self-contained HTML report of a calibration.",

@@ -4,17 +4,24 @@ Residual (N, 6): ``[p_pred - p_meas, log(R_pred R_meas^T)]`` in the tracker fram
 stated), with ``T_pred = T_world_tracker^-1 T_world_tool(q)`` and ``T_meas = T_tracker_tool``. A rigid motion
 of the whole arm together with the tracker is then an exact null direction. Optional ``wrench_tool`` loads
 deflect compliant joints (``Experiment._kin``).
+
+Optional ``pose_cov`` (N, 6, 6): the covariance of the measured pose's error ``e = (p_meas - p, log(R_meas R^T))``
+(true pose p, R), both parts in the tracker frame: a position error and a left rotation increment, as the
+residual's. At the true parameters ``r = -e`` (the rotation part exactly: ``log(R R^T exp(-e_w)^) = -e_w``), so
+``pose_cov`` is the residual's covariance and whitening uses it in place of the stated position and orientation
+noise (docs/calibration.md "Pose data with a full covariance"). ``weighted`` drops it for comparisons.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from kincal.errors import DataFormatError
+from kincal.data import Dataset
+from kincal.errors import DataFormatError, ModelError, ShapeError
 from kincal.experiments._kernel import pose_gap, pose_mean
 from kincal.experiments.base import WRENCH, Experiment, Residual
 from kincal.experiments.handeye import hand_eye
-from kincal.noise import ORIENTATION, POSITION
+from kincal.noise import ORIENTATION, POSITION, effective
 from kincal.lie import se3, so3
 from kincal.schema import LENGTH, NONE, WORLD, Field, Role, Schema, covariance_problem
 
@@ -59,10 +66,8 @@ class PoseExperiment(Experiment):
         cov = self.covariance()
         bad = None if cov is None else covariance_problem(cov)
         if bad:
-            lines = self.dataset.meta.get("lines")
-            at = f" (line {lines[bad[0]]} of {self.dataset.meta.get('file')})" if lines is not None else ""
-            raise DataFormatError(f"data set '{self.name}': sample {bad[0]}{at}, field pose_cov: expected a "
-                                  f"symmetric positive definite 6x6 covariance, found {bad[1]}")
+            raise DataFormatError(f"data set '{self.name}': sample {bad[0]}{file_line(self.dataset, bad[0])}, field "
+                                  f"pose_cov: expected a symmetric positive definite 6x6 covariance, found {bad[1]}")
 
     def initial(self, state, known):
         if "tracker" in known:
@@ -81,3 +86,39 @@ class PoseExperiment(Experiment):
         if X is None or np.linalg.norm(so3.log(X[:3, :3])) < CORRECT_ABOVE_RAD:
             return {}
         return {f"{arm}.tool": X}
+
+
+def file_line(dataset: Dataset, i: int) -> str:
+    """`` (line L of FILE)`` for sample ``i`` of a data set read from a file, else empty."""
+    lines = dataset.meta.get("lines")
+    return f" (line {lines[i]} of {dataset.meta.get('file', 'the file')})" if lines is not None else ""
+
+
+WEIGHTS = ("full", "diagonal", "equal")
+
+
+def weighted(dataset: Dataset, how: str, sigma: float | None = None) -> Dataset:
+    """A ``pose`` data set with ``pose_cov`` (``pose_from_markers.markers_to_pose``) weighted another way.
+
+    ``"full"``: as it is (whitened by ``pose_cov``); ``"diagonal"``: ``pose_cov`` without its correlations
+    (each component by its own variance); ``"equal"``: the partial-pose paper's unweighted approach 1,
+    1 m = 1 rad: no ``pose_cov``, stated noise ``position = sigma`` m and ``orientation = sigma`` rad
+    (default: the data set's stated position noise, else ``kincal.noise.DEFAULT``'s).
+    """
+    where = f"data set '{dataset.name}'"
+    if how not in WEIGHTS:
+        raise ModelError(f"{where}: weights: expected one of {', '.join(WEIGHTS)}, found {how!r}")
+    cov = dataset.measured.get("pose_cov")
+    if dataset.kind != "pose" or cov is None:
+        raise ShapeError(f"{where}: expected a pose data set with pose_cov to reweight, found kind "
+                         f"'{dataset.kind}'{'' if cov is None else ' with pose_cov'}")
+    measured, meta = dict(dataset.measured), dict(dataset.meta)
+    if how == "diagonal":
+        measured["pose_cov"] = cov * np.eye(6)
+    elif how == "equal":
+        del measured["pose_cov"]
+        noise = dict(meta.get("noise") or {})
+        s = effective(None, noise).position if sigma is None else sigma
+        meta["noise"] = {**noise, "position_m": float(s), "orientation_rad": float(s)}
+    return Dataset(dataset.kind, dataset.robot, dataset.arms, dict(dataset.q), measured, dict(dataset.known),
+                   dataset.name, meta, dict(dataset.frames))

@@ -19,6 +19,7 @@ import numpy as np
 
 from kincal.data import Dataset
 from kincal.errors import DegenerateExperimentError, ShapeError
+from kincal.experiments.pose import file_line
 from kincal.lie import se3, so3
 from kincal.noise import effective
 
@@ -42,7 +43,7 @@ def markers_to_pose(dataset: Dataset, p_tool_marker=None, sigma: float | None = 
         raise ShapeError(f"{where}: rows have {y.shape[1]} markers, the layout p_tool_marker has {len(x)}")
     bad = np.flatnonzero(~np.isfinite(y).all(axis=(1, 2)))
     if bad.size:
-        raise ShapeError(f"{where}: sample {bad[0]}{_line(dataset, bad[0])}, field p_tracker_marker: expected "
+        raise ShapeError(f"{where}: sample {bad[0]}{file_line(dataset, bad[0])}, field p_tracker_marker: expected "
                          f"finite marker positions, found {y[bad[0]].tolist()}")
     if sigma is None:
         sigma = effective(None, dataset.meta.get("noise")).position
@@ -103,7 +104,3 @@ def _layout(where: str, dataset: Dataset, p_tool_marker) -> np.ndarray:
                                         f"about that line is not measured")
     return x
 
-
-def _line(dataset: Dataset, i: int) -> str:
-    lines = dataset.meta.get("lines")
-    return f" (line {lines[i]} of {dataset.meta.get('file', 'the file')})" if lines is not None else ""

@@ -8,7 +8,8 @@ for frames shared with other data sets). The CSV header names its columns:
 
 - joints ``<arm>.<joint>`` (e.g. ``left.j1``), every joint of every arm;
 - the measured entries of the kind, as its schema declares them (``kincal.schema``, one generic codec per
-  form): a pose ``<prefix>.x, .y, .z, .qw, .qx, .qy, .qz``; points ``<prefix>1.x, <prefix>1.y, ...``; a vector
+  form): a pose ``<prefix>.x, .y, .z, .qw, .qx, .qy, .qz``; a pose covariance ``<prefix>.<a>.<b>`` (a <= b in
+  x y z rx ry rz: 21 columns, position in ``units.length``, orientation in ``units.angle``); points ``<prefix>1.x, <prefix>1.y, ...``; a vector
   its named columns; an index one integer column. Optional entries are read when their columns are present;
 - optional ``t`` (s) in any kind, kept in ``Dataset.meta["t"]``.
 
@@ -42,7 +43,7 @@ from kincal.io.yamlfile import clip, quote, read_yaml
 from kincal.kinematics import PRISMATIC, Robot
 from kincal.lie import se3
 from kincal.lie.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix
-from kincal.schema import ANGLE, LENGTH, SCHEMAS, Field, Schema
+from kincal.schema import ANGLE, LENGTH, SCHEMAS, Field, Schema, covariance_problem
 from kincal.simulate.generators import OPTIONS as GENERATOR_OPTIONS
 from kincal.simulate.perturb import LEVELS as PERTURBATION_LEVELS
 from kincal.simulate.perturb import Perturbation
@@ -53,6 +54,9 @@ QUAT_TOL = 1e-6
 _TOP_KEYS = {"format", "version", "name", "kind", "model", "arms", "data", "units", "known", "noise", "description",
              "meta", "frames"}
 POSE_SUFFIXES = ("x", "y", "z", "qw", "qx", "qy", "qz")
+# a pose covariance's components (position, orientation) and its 21 CSV entries (a <= b)
+COV_AXES = ("x", "y", "z", "rx", "ry", "rz")
+COV_TRIU = np.triu_indices(6)
 
 
 def _fmt(x: float) -> str:
@@ -205,6 +209,8 @@ def _columns(f: Field, table: Table | None = None, count: int = 0) -> list[str]:
     """The CSV columns of a measured entry (points: as many as ``table``'s header lists, else ``count``)."""
     if f.form == "pose":
         return [f"{f.columns[0]}.{c}" for c in POSE_SUFFIXES]
+    if f.form == "covariance":
+        return [f"{f.columns[0]}.{COV_AXES[i]}.{COV_AXES[j]}" for i, j in zip(*COV_TRIU)]
     if f.form == "points":
         while table is not None and f"{f.columns[0]}{count + 1}.x" in table.col:
             count += 1
@@ -277,8 +283,27 @@ def _read_index_column(ctx, f: Field, table: Table, cols, known) -> np.ndarray:
     return idx
 
 
+def _cov_scale(length: float, angle: float) -> np.ndarray:
+    """SI / file factor of each entry of a pose covariance: position in ``length``, orientation in ``angle``."""
+    f = np.array([length] * 3 + [angle] * 3)
+    return np.outer(f, f)
+
+
+def _read_covariance_columns(ctx, f: Field, table: Table, cols, known) -> np.ndarray:
+    v = table.take(cols)
+    C = np.zeros((len(v), 6, 6))
+    C[:, COV_TRIU[0], COV_TRIU[1]] = v
+    C[:, COV_TRIU[1], COV_TRIU[0]] = v
+    bad = covariance_problem(C)
+    if bad:
+        raise DataFormatError(f"{table.path}: line {table.lines[bad[0]]}, columns '{cols[0]}'..'{cols[-1]}': expected "
+                              f"a positive definite 6x6 covariance, found {bad[1]}")
+    return C * _cov_scale(ctx.length, ctx.angle)
+
+
 _READ_COLUMNS = {
     "pose": _read_pose_columns,
+    "covariance": _read_covariance_columns,
     "points": lambda ctx, f, table, cols, known: table.take(cols).reshape(-1, len(cols) // 3, 3) * _factor(ctx, f.unit),
     "vector": lambda ctx, f, table, cols, known: table.take(cols) * _factor(ctx, f.unit),
     "index": _read_index_column,
@@ -372,6 +397,7 @@ def dataset_to_dict(ds: Dataset, model: str, data_file: str, angle: str = "rad",
 
 _WRITE_COLUMNS = {
     "pose": lambda T, f: np.concatenate([T[:, :3, 3] / f, matrix_to_quat_wxyz(T[:, :3, :3])], axis=1),
+    "covariance": lambda C, f: (C / _cov_scale(*f))[:, COV_TRIU[0], COV_TRIU[1]],
     "points": lambda p, f: p.reshape(len(p), -1) / f,
     "vector": lambda v, f: v / f,
     "index": lambda k, f: k[:, None].astype(float),
@@ -415,7 +441,8 @@ def write_dataset(
         if f.key in ds.measured:
             v = np.asarray(ds.measured[f.key])
             header += _columns(f, count=v.shape[1] if f.form == "points" else 0)
-            cols.append(_WRITE_COLUMNS[f.form](v, {LENGTH: fl, ANGLE: fa}.get(f.unit, 1.0)))
+            factor = (fl, fa) if f.form == "covariance" else {LENGTH: fl, ANGLE: fa}.get(f.unit, 1.0)
+            cols.append(_WRITE_COLUMNS[f.form](v, factor))
             is_int += [f.form == "index"] * cols[-1].shape[1]
     table = np.concatenate(cols, axis=1)
     _new_file(manifest, overwrite)
