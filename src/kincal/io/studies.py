@@ -26,7 +26,7 @@ _KEYS = {"format", "version", "name", "description", "model", "seed", "repeats",
 _TRUTH_EXTRA = {"errors", "redraw"}
 CONFIGURATIONS = ("fixed", "redrawn")
 DATA = ("markers", "pose")
-WEIGHTING = ("covariance", "unit")
+WEIGHTING = ("full", "diagonal", "equal")  # kincal.experiments.pose.WEIGHTS
 # Calibration options a variant passes on to ``kincal.estimation.calibrate`` (checked there by their meaning);
 # "stages" reaches calibrate as written when the installed kincal solves in stages.
 CALIBRATE_OPTIONS = {"free", "fixed", "gauge", "loss", "f_scale", "max_outer", "outliers", "stages"}
@@ -133,12 +133,12 @@ def _variants(ctx, data: Any) -> list[dict]:
             raise ctx.fail(f"{where}.name", f"expected a new variant name, found {quote(name)}")
         seen.add(name)
         data_kind = ctx.one_of(f"{where}.data", v.get("data", "markers"), DATA)
-        weighting = ctx.one_of(f"{where}.weighting", v.get("weighting", "covariance"), WEIGHTING)
-        if weighting == "unit" and data_kind != "pose":
-            raise ctx.fail(f"{where}.weighting", "'unit' weighting (1 m = 1 rad) applies to data: pose only")
-        scale = v.get("length_per_radian", 1.0)  # unit weighting: this length (file units) weighs as 1 rad
-        if "length_per_radian" in v and weighting != "unit":
-            raise ctx.fail(f"{where}.length_per_radian", "applies to weighting: unit only")
+        weighting = ctx.one_of(f"{where}.weighting", v.get("weighting", "full"), WEIGHTING)
+        if "weighting" in v and data_kind != "pose":
+            raise ctx.fail(f"{where}.weighting", "applies to data: pose only (markers are weighted by their noise)")
+        scale = v.get("length_per_radian", 1.0)  # equal weighting: this length (file units) weighs as 1 rad
+        if "length_per_radian" in v and weighting != "equal":
+            raise ctx.fail(f"{where}.length_per_radian", "applies to weighting: equal only")
         scale = _number(ctx, scale, f"{where}.length_per_radian") * (ctx.length if "length_per_radian" in v else 1.0)
         if scale <= 0:
             raise ctx.fail(f"{where}.length_per_radian", f"expected a length > 0, found {quote(v['length_per_radian'])}")

@@ -19,6 +19,7 @@ import numpy as np
 from kincal.data import Dataset
 from kincal.errors import DataFormatError, KincalError
 from kincal.estimation import calibrate
+from kincal.experiments.pose import weighted
 from kincal.experiments.pose_from_markers import markers_to_pose
 from kincal.io import units
 from kincal.io.atomic import output_directory
@@ -39,14 +40,14 @@ FAILED = "failed"
 @dataclass(frozen=True)
 class Variant:
     """One way to calibrate every repeat: ``data`` (``markers`` as measured, or ``pose`` computed from them),
-    ``weighting`` of pose data (``covariance``: the full covariance of the fitted pose; ``unit``: 1 m = 1 rad)
-    (``length_per_radian`` sets the normalization) and ``options``, keywords of ``kincal.estimation.calibrate`` (``free``, ``fixed``, ``gauge``, ...)."""
+    ``weighting`` of pose data (``full``: the fitted pose's 6x6 covariance; ``diagonal``; ``equal``: 1 m = 1 rad,
+    ``length_per_radian`` sets the normalization) and ``options``, keywords of ``kincal.estimation.calibrate`` (``free``, ``fixed``, ``gauge``, ...)."""
 
     name: str
     data: str = "markers"
-    weighting: str = "covariance"
+    weighting: str = "full"
     options: Mapping[str, Any] = field(default_factory=dict)
-    length_per_radian: float = 1.0  # ``unit`` weighting: this many metres weigh as one radian
+    length_per_radian: float = 1.0  # ``equal`` weighting: this many metres weigh as one radian
 
 
 @dataclass(frozen=True, eq=False)
@@ -183,16 +184,14 @@ def calibrate_variant(study: Study, variant: Variant, ds: Dataset):
 
 
 def pose_data(ds: Dataset, noise: Noise, weighting: str, length_per_radian: float = 1.0) -> tuple[Dataset, Noise]:
-    """Approach 1: the pose fitted to each row's markers (``markers_to_pose``), weighted by the 6x6 covariance
-    of the fit (``covariance``), or unweighted as the paper does (``unit``: the covariance dropped, an
-    orientation error of 1 rad weighs as ``length_per_radian`` metres of position error, 1 m = 1 rad by
-    default; the variance factor then scales one common sigma)."""
-    pose = markers_to_pose(ds, sigma=noise.position)
-    if weighting == "covariance":
-        return pose, noise
-    unit = Noise(position=1.0, orientation=1.0 / length_per_radian, joint=0.0, backlash=0.0)
-    measured = {k: v for k, v in pose.measured.items() if k != "pose_cov"}
-    return replace(pose, measured=measured, meta={**pose.meta, "noise": unit.as_si()}), unit
+    """Approach 1: the pose fitted to each row's markers (``markers_to_pose``), weighted as
+    ``kincal.experiments.pose.weighted`` says: ``full`` (its 6x6 covariance), ``diagonal`` (without the
+    correlations) or ``equal`` (the paper's: no covariance, an orientation error of 1 rad weighs as
+    ``length_per_radian`` metres of position error, 1 m = 1 rad by default)."""
+    pose = weighted(markers_to_pose(ds, sigma=noise.position), weighting, noise.position)
+    if weighting == "equal":
+        noise = replace(noise, orientation=noise.position / length_per_radian)
+    return pose, noise
 
 
 def calibration_noise(study: Study) -> Noise:
