@@ -5,6 +5,8 @@ e.g. turning a last joint together with a clamp's fixture). Each is confirmed st
 
 from __future__ import annotations
 
+import hashlib
+from collections import OrderedDict
 from dataclasses import replace
 from typing import Sequence
 
@@ -133,6 +135,52 @@ def consistent_nulls(lin: Linearization, layout: Layout, experiments: Sequence, 
     enough = 0.1 * rtol * np.max(np.linalg.norm(lin.Rf, axis=0), initial=0.0)
     if np.linalg.norm(lin.r) <= enough:
         return None
+    key = structure_key(lin, layout, experiments, rtol)
+    if key in _FULL_RANK:
+        _FULL_RANK.move_to_end(key)
+        return np.zeros((len(lin.free), 0))
+    null = _consistent_nulls(lin, layout, experiments, rtol, enough)
+    if null is not None and null.shape[1] == 0:
+        _FULL_RANK[key] = None
+        while len(_FULL_RANK) > FULL_RANK_ENTRIES:
+            _FULL_RANK.popitem(last=False)
+    return null
+
+
+# Structures whose noise-free problem had no exact null direction (``consistent_nulls``). Full rank is an open
+# condition: the same free coordinates, experiments and joint readings with other measurements (the
+# next outer iteration, another repeat of a Monte Carlo study) have none either, so the consistent linearization
+# (a third of a small calibration's cost) is skipped for them. Only "none" is remembered: a structure with exact
+# gauges recomputes their basis at every state. ``clear_structure_cache`` forgets everything.
+FULL_RANK_ENTRIES = 256
+_FULL_RANK: OrderedDict[bytes, None] = OrderedDict()
+
+
+def clear_structure_cache() -> None:
+    _FULL_RANK.clear()
+
+
+def structure_key(lin: Linearization, layout: Layout, experiments: Sequence, rtol: float) -> bytes:
+    """A digest of what the noise-free problem's null space depends on besides the measured values: the layout
+    and free coordinates, each experiment's kind, frames, known values and joint readings, the prior and
+    constraint rows. Not the whitening's values: an invertible W leaves the null space of ``W J`` that of J."""
+    h = hashlib.blake2b(digest_size=20)
+    h.update(repr((layout.names, lin.free.tolist(), rtol, lin.every)).encode())
+    m = 0
+    for e, W, r in zip(experiments, lin.W, lin.residuals):
+        m += r.size
+        h.update(repr((type(e).__name__, e.kind, e.arms, sorted(dict(e.frames).items()))).encode())
+        for a in e.arms:
+            h.update(np.ascontiguousarray(e.dataset.q[a], dtype=float).tobytes())
+        for name, value in sorted(e.dataset.known.items()):  # known frames enter the Jacobian
+            h.update(name.encode() + np.ascontiguousarray(value, dtype=float).tobytes())
+        h.update(repr(np.shape(W)).encode())  # W is invertible: it moves no exact null direction
+    h.update(np.ascontiguousarray(lin.J[m:]).tobytes())
+    return h.digest()
+
+
+def _consistent_nulls(lin: Linearization, layout: Layout, experiments: Sequence, rtol: float,
+                      enough: float) -> np.ndarray | None:
     want = {b.name for b in layout.blocks if np.any((lin.free >= b.start) & (lin.free < b.stop))}
     rows, m = [], 0
     for e, W, r in zip(experiments, lin.W, lin.residuals):

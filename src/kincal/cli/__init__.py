@@ -13,7 +13,7 @@ from threadpoolctl import threadpool_limits
 
 from kincal import __version__
 from kincal.cli import (analyze_cmds, calibrate_cmds, compensate_cmds, design_cmds, export_cmds, list_cmds, model_cmds,
-                        pose_cmds, report_cmds, simulate_cmds)
+                        pose_cmds, report_cmds, simulate_cmds, study_cmds)
 from kincal.errors import KincalError
 
 
@@ -26,11 +26,12 @@ def cli(ctx: click.Context) -> None:
 
 
 for _module in (model_cmds, list_cmds, simulate_cmds, calibrate_cmds, analyze_cmds, design_cmds, export_cmds,
-                report_cmds, compensate_cmds, pose_cmds):  # each defines ``register(group)``
+                report_cmds, compensate_cmds, pose_cmds, study_cmds):  # each defines ``register(group)``
     _module.register(cli)
 
 # One whole phrase per command in ``kincal --help`` (click would cut the docstring's first line mid-phrase).
 SHORT_HELP = {
+    "batch": "Calibrate many jobs (a fleet) in parallel; one summary.",
     "analyze": "Before measuring: what an experiment identifies, how well.",
     "calibrate": "Calibrate as a job file describes; write model and result.",
     "compensate": "Joint targets the calibrated robot needs for a program.",
@@ -47,6 +48,8 @@ SHORT_HELP = {
     "robots": "List the built-in robots.",
     "scenarios": "List the built-in simulation scenarios.",
     "simulate": "Simulate a scenario: data set, truth, validation.",
+    "studies": "List the built-in Monte Carlo studies.",
+    "study": "Monte Carlo study of calibration variants (on Dask).",
 }
 for _name, _text in SHORT_HELP.items():
     if _name in cli.commands:

@@ -108,6 +108,9 @@ def _print_arm(console: Console, robot_name: str, key: str, arm: ArmModel) -> No
         parts = [f"{n} {c:.4g} {'rad/(N m)' if t == REVOLUTE else 'm/N'}"
                  for n, c, t in zip(arm.joint_names, arm.compliance, arm.joint_types) if c]
         console.print(f"joint compliance: {', '.join(parts)}")
+    for name, nodes in arm.compliance_nodes.items():  # (angle rad, compliance) rows: docs/model-format.md
+        table_text = ", ".join(f"{np.degrees(a):g} deg: {c:.4g}" for a, c in nodes)
+        console.print(f"joint compliance of {name} by its angle, rad/(N m), linear between nodes: {table_text}")
     poses = (("base  T_world_base", arm.base), ("home  T_base_flange(0)", arm.home), ("tool  T_flange_tool", arm.tool))
     for label, T in poses:
         p = _pose_lines(T)

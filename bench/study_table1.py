@@ -1,0 +1,72 @@
+"""Paper Table I (partial-pose calibration, seed 001) with ``kincal study``: the shipped study ``table1`` with
+1000 repeats and two variants (approach 2, markers; approach 1, the pose fitted to them with its covariance) on
+a local Dask cluster, timed from the call to the table (the cluster's start included). Prints kincal's
+standard deviations next to the paper's and, with --profile, one klimchik3r calibration's cost with the
+structure cache cold and warm (docs/partial-pose.md "Speed").
+
+Run: python bench/study_table1.py [--workers 2] [--repeats 1000] [--variants approach2,approach1] [--profile]
+The target (issue #13): under 10 s on a 2-core machine for 1000 repeats and two variants.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from dataclasses import replace
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from kincal.analysis import symmetries  # noqa: E402
+from kincal.workflow import study as S  # noqa: E402
+
+# Table I of the paper: standard deviations (dl in mm, dq in mdeg).
+PAPER = {"approach1": {"dl1": 0.069, "dl2": 0.019, "dl3": 0.009, "dq1": 0.187, "dq2": 3.742, "dq3": 1.432},
+         "approach2": {"dl1": 0.018, "dl2": 0.006, "dl3": 0.004, "dq1": 0.185, "dq2": 1.123, "dq3": 0.866}}
+
+
+def profile_one(study: S.Study, n: int = 50) -> None:
+    fixed = S.fixed_parts(study)
+    ds = S.repeat_data(study, fixed.true, fixed, np.random.default_rng(0))
+    v = study.variants[0]
+    S.calibrate_variant(study, v, ds)  # imports, first-call costs
+    for label, entries in (("structure cache off", 0), ("structure cache on", 256)):
+        symmetries.FULL_RANK_ENTRIES = entries
+        symmetries.clear_structure_cache()
+        t = time.perf_counter()
+        for _ in range(n):
+            S.calibrate_variant(study, v, ds)
+        print(f"one klimchik3r calibration ({v.name}), {label}: {(time.perf_counter() - t) / n * 1e3:.1f} ms")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--repeats", type=int, default=1000)
+    ap.add_argument("--variants", default="approach2,approach1")
+    ap.add_argument("--profile", action="store_true")
+    args = ap.parse_args()
+    study = S.load("table1")
+    wanted = args.variants.split(",")
+    study = replace(study, repeats=args.repeats, variants=tuple(v for v in study.variants if v.name in wanted))
+    if args.profile:
+        profile_one(study)
+    t = time.perf_counter()
+    result = S.run_study(study, workers=args.workers)
+    wall = time.perf_counter() - t
+    print(f"table1: {study.repeats} repeats x {len(study.variants)} variants on {args.workers} workers: {wall:.2f} s")
+    print(f"{'variant':22s} {'param':6s} {'kincal std':>11s} {'paper std':>10s} {'reported/MC':>12s} {'bias':>10s}")
+    for r in result.rows:
+        f, unit = (1e3, "mm") if r.unit == "m" else (np.degrees(1.0) * 1e3, "mdeg")
+        paper = PAPER.get(r.variant, {}).get(r.quantity)
+        print(f"{r.variant:22s} {r.quantity:6s} {r.std * f:8.4f} {unit:4s} {paper if paper else '':>8} "
+              f"{r.ratio:10.3f} {r.bias * f:10.4f}")
+    for v in result.validation:
+        print(f"{v.variant}: validation RMS position error median {v.median * 1e3:.4f} mm, p95 {v.p95 * 1e3:.4f} mm; "
+              f"{v.used} used, {v.not_converged} not converged, {v.failed} failed")
+
+
+if __name__ == "__main__":  # Dask's worker processes import this file again
+    main()
