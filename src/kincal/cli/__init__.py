@@ -38,7 +38,7 @@ SHORT_HELP = {
     "convert-log": "Controller motor log -> joint readings at standstills.",
     "demo": "Calibrate Frida's clamped arms from built-in data.",
     "design": "Choose the configurations to measure (or to add).",
-    "export": "Write a model as URDF, DH, controller offsets, JSON or UR ROS.",
+    "export": "Model as URDF, DH, controller offsets, JSON or UR ROS file.",
     "fk": "Tool pose for one joint configuration.",
     "import": "Read a URDF chain or a DH table into a kincal model file.",
     "markers-to-pose": "Markers data set -> fitted poses with their covariance.",
