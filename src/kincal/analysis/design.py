@@ -17,6 +17,11 @@ Adding candidate i to M: with ``L L^T = M``, ``Y = X_i L^-T``, ``G = Y Y^T`` (k,
 ``Z = X_i M^-1``, ``log det`` grows by ``log det(I + G)`` and ``M^-1`` shrinks by ``Z^T H Z`` (Woodbury), so
 D, A, I and G are scored for every candidate at once from (N, k, r) arrays; spectral criteria take one batched
 eigen-decomposition per step.
+
+D (also the start of A, I and G) is fast on large pools: a stochastic greedy start (each step scores a random
+sample of the pool), then the exchange finds each position's best swap by branch and bound (``_LogDet.best``:
+bounds of every candidate's gain from one skinny product with the pool, exact scores only for the few that could
+win), first on a shortlist of the candidates that add most to the design, then checked on the whole pool.
 """
 
 from __future__ import annotations
@@ -44,7 +49,8 @@ D_GAIN = 1e-4
 # precision of the bounds' projections.
 FIRST_BLOCK = 256
 GREEDY_EPS = 0.01
-SHORTLIST = 1000
+NEAR = 8  # per search, the best candidates scored that the exchange's shortlist keeps
+SHORTLIST = (500, 100)  # the exchange's shortlist: at least 500 candidates, or 1 % of the pool
 REFER_FRACTION = 0.25
 REFER_RANK = 2
 BOUND_SLACK = 1e-4
@@ -191,6 +197,7 @@ class _LogDet:
 
     def __init__(self, X: np.ndarray, M: np.ndarray):
         self.X, self._ref = X, None
+        self.near: set[int] = set()  # candidates that scored best in some search: the exchange's shortlist keeps them
         self.norms = np.square(X).sum(axis=(1, 2))  # |X_j|_F^2
         self.X32 = X.astype(np.float32)  # the bounds' projections: single precision, covered by BOUND_SLACK
         self.reset(M)
@@ -251,6 +258,7 @@ class _LogDet:
             m = int(np.argmax(g))
             if g[m] > gain:
                 j, gain = int(idx[m]), float(g[m])
+            self.near.update(idx[np.argsort(-g)[:NEAR]].tolist())
             done, block = done + len(idx), 2 * block
         if done > REFER_FRACTION * len(order) or rank > REFER_RANK * self.X.shape[1]:
             self._ref = None  # the bound has grown loose: the next call makes its base the reference
@@ -332,16 +340,20 @@ def _greedy_d(X, K, M0, rng=None) -> list[int]:
 def _exchange_d(X, chosen, M0) -> tuple[list[int], float, int]:
     """Fedorov exchange for D: each chosen configuration swapped for the best candidate (``_LogDet.best``) while
     log det rises. On a large pool the passes first run on a shortlist (the ``SHORTLIST`` candidates that add
-    most to the current design), then one pass on the whole pool checks the result; both repeat while that
-    pass still swaps, so the result is as final as with passes on the whole pool."""
-    chosen, swaps, large = list(chosen), 0, len(X) > 2 * SHORTLIST
+    most to the current design, and those that came out best in earlier searches on the whole pool: a swap's
+    partner is often close to the configuration it replaces, which adds little while that is chosen), then one
+    pass on the whole pool checks the result; both repeat while that pass still swaps, so the result is as final
+    as with passes on the whole pool."""
+    size = max(SHORTLIST[0], len(X) // SHORTLIST[1])
+    chosen, swaps, large = list(chosen), 0, len(X) > 2 * size
     st = _LogDet(X, M0 + information(X[chosen]))
     for _ in range(MAX_PASSES):
         st.reset(M0 + information(X[chosen]))
         if large:
             gains = st.refer(st.M, st.Minv)
-            gains[chosen] = np.inf
-            sub = np.sort(np.argpartition(-gains, SHORTLIST + len(chosen))[: SHORTLIST + len(chosen)])
+            gains[chosen + sorted(st.near)] = np.inf
+            top = size + len(chosen) + len(st.near)
+            sub = np.sort(np.argpartition(-gains, top)[:top]) if top < len(X) else np.arange(len(X))
             part, n = _passes(_LogDet(X[sub], st.M), list(np.searchsorted(sub, chosen)), MAX_PASSES)
             chosen, swaps = [int(sub[i]) for i in part], swaps + n
             st.reset(M0 + information(X[chosen]))

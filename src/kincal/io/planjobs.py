@@ -2,10 +2,10 @@
 data"): ``scenario:`` (a built-in scenario or a scenario file) or ``configurations:`` (a CSV of joint
 configurations with the experiment that will measure them).
 
-Either becomes a ``Dataset`` of the **nominal** robot's noise-free readings (a scenario's configurations as its
-generator draws them with its seed; a configurations file's as given), so ``kincal analyze`` and ``kincal
-design`` run on a job before anything is measured. The noise such a data set states is the scenario's (a
-configurations file states none: the entry's ``noise:`` or kincal's default applies, as for any data set).
+Either becomes a ``Dataset`` of the **nominal** robot's readings, so ``kincal analyze`` and ``kincal design`` run
+on a job before anything is measured: a scenario's configurations as its generator draws them with its seed,
+with its stated noise (``kincal analyze SCENARIO`` reads a scenario the same way); a configurations file's as
+given, noise-free, stating no noise (the entry's ``noise:`` or kincal's default applies, as for any data set).
 """
 
 from __future__ import annotations
@@ -81,9 +81,15 @@ def _scenario(where: str, job: Path, ref: Any, robot: Robot, root) -> Dataset:
     if spec["robot"].name != robot.name:
         raise DataFormatError(f"{where}.scenario: {ref} is a scenario for the model '{spec['robot'].name}'; the "
                               f"job's model is '{robot.name}'")
-    sc = replace(build_scenario(spec), robot=robot, perturbation=perturbation("none"))
-    _, ds, _, _ = run(sc)
-    return ds
+    return scenario_dataset(spec, robot)[1]
+
+
+def scenario_dataset(spec: Mapping, robot: Robot | None = None) -> tuple[Robot, Dataset]:
+    """(robot, data set) of a scenario read by ``load_scenario``, simulated on the nominal ``robot`` (default:
+    the scenario's own): its configurations and stated noise, its ``truth:`` ignored."""
+    sc = build_scenario(spec)
+    sc = replace(sc, robot=robot or sc.robot, perturbation=perturbation("none"))
+    return sc.robot, run(sc)[1]
 
 
 def _configurations(where: str, job: Path, entry: Mapping, robot: Robot, root) -> Dataset:
