@@ -84,7 +84,7 @@ def reference_exchange(X, K) -> float:
     for _ in range(MAX_PASSES):
         changed = False
         for pos in range(K):
-            _, Binv, logdet = st.removed(chosen[pos])
+            Binv, logdet = st.removed(chosen[pos])
             gains = _logdet_plus_identity(st.gram(Binv))
             gains[chosen] = -np.inf
             j = int(np.argmax(gains))

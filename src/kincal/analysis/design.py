@@ -188,12 +188,11 @@ class _LogDet:
     """D-optimal bookkeeping: ``M``, ``M^-1`` and ``log det M`` under rank-k (Woodbury) updates, and the best
     candidate to add to a base information ``B`` by branch and bound (``best``).
 
-    The gain of adding candidate j to B is ``log det(I + G_j)``, ``G_j = X_j B^-1 X_j^T`` (k, k). A reference
-    information ``R`` (Cholesky ``L``) with the eigenvalues ``mu_j`` of every ``X_j R^-1 X_j^T`` bounds it: with
-    ``c`` the largest eigenvalue of ``L^T B^-1 L``, ``B^-1 <= c R^-1``, so the gain is at most
-    ``sum log(1 + c mu_j)``. Candidates are scored exactly in blocks in the order of that bound until the next
-    bound cannot beat the best found: the same choice as scoring the whole pool, at a fraction of the cost when
-    B stays close to R (the reference moves when the bound has grown loose)."""
+    The gain of adding candidate j to B is ``log det(I + G_j)``, ``G_j = X_j B^-1 X_j^T`` (k, k). At a reference
+    ``R`` every gain is known (``refer``); at B each is bounded from above (``_bound``: one skinny product with
+    the pool), and candidates are scored exactly in blocks in the order of their bounds until no bound can beat
+    the best found: the same choice as scoring the whole pool, at a fraction of the cost while B stays close to
+    R (the reference moves to the next base when the bounds have grown loose)."""
 
     def __init__(self, X: np.ndarray, M: np.ndarray):
         self.X, self._ref = X, None
@@ -221,15 +220,15 @@ class _LogDet:
             out[s: s + CHUNK] = (x.reshape(-1, x.shape[-1]) @ Binv).reshape(x.shape) @ np.swapaxes(x, 1, 2)
         return out
 
-    def removed(self, i: int) -> tuple[np.ndarray, np.ndarray, float]:
-        """(B, B^-1, log det B) of M with candidate i taken out, not committed."""
+    def removed(self, i: int) -> tuple[np.ndarray, float]:
+        """(B^-1, log det B) of B = M with candidate i taken out, not committed."""
         Z = self.X[i] @ self.Minv
         C = np.linalg.inv(np.eye(len(Z)) - self.X[i] @ Z.T)
-        return self.M - self.X[i].T @ self.X[i], self.Minv + Z.T @ C @ Z, self.logdet - _logdet(C)
+        return self.Minv + Z.T @ C @ Z, self.logdet - _logdet(C)
 
     def without(self, i: int):
         """(G, logdet) of M with candidate i removed, not committed."""
-        _, Binv, logdet = self.removed(i)
+        Binv, logdet = self.removed(i)
         return self.gram(Binv), logdet
 
     def add(self, i: int, sign: float = 1.0) -> None:
@@ -240,11 +239,11 @@ class _LogDet:
         self.Minv = self.Minv - sign * (Z.T @ C @ Z)
         self.M = self.M + sign * (self.X[i].T @ self.X[i])
 
-    def best(self, B: np.ndarray, Binv: np.ndarray, exclude, threshold: float = -np.inf) -> tuple[int, float]:
-        """(j, gain): the candidate not in ``exclude`` whose addition to B raises log det most, if its gain
-        exceeds ``threshold``; else (-1, -inf)."""
+    def best(self, Binv: np.ndarray, exclude, threshold: float = -np.inf) -> tuple[int, float]:
+        """(j, gain): the candidate not in ``exclude`` whose addition to the base B (given as B^-1) raises
+        log det most, if its gain exceeds ``threshold``; else (-1, -inf)."""
         if self._ref is None:  # no reference: score every candidate, and make B the reference
-            gains = self.refer(B, Binv)
+            gains = self.refer(Binv)
             gains[list(exclude)] = -np.inf
             j = int(np.argmax(gains))
             return (j, float(gains[j])) if gains[j] > threshold else (-1, -np.inf)
@@ -264,8 +263,8 @@ class _LogDet:
             self._ref = None  # the bound has grown loose: the next call makes its base the reference
         return (j, gain) if gain > threshold else (-1, -np.inf)
 
-    def refer(self, B: np.ndarray, Binv: np.ndarray) -> np.ndarray:
-        """Make B the reference of the bounds; returns every candidate's gain at B."""
+    def refer(self, Binv: np.ndarray) -> np.ndarray:
+        """Make B (given as B^-1) the reference of the bounds; returns every candidate's gain at B."""
         G = self.gram(Binv)
         gains = _logdet_plus_identity(G)
         self._ref = (Binv, gains, np.trace(G, axis1=1, axis2=2))
@@ -350,7 +349,7 @@ def _exchange_d(X, chosen, M0) -> tuple[list[int], float, int]:
     for _ in range(MAX_PASSES):
         st.reset(M0 + information(X[chosen]))
         if large:
-            gains = st.refer(st.M, st.Minv)
+            gains = st.refer(st.Minv)
             gains[chosen + sorted(st.near)] = np.inf
             top = size + len(chosen) + len(st.near)
             sub = np.sort(np.argpartition(-gains, top)[:top]) if top < len(X) else np.arange(len(X))
@@ -371,8 +370,8 @@ def _passes(st: "_LogDet", chosen: list[int], limit: int) -> tuple[list[int], in
         changed = False
         for pos in range(len(chosen)):
             out = chosen[pos]
-            B, Binv, logdet = st.removed(out)
-            j, _ = st.best(B, Binv, chosen, st.logdet + D_GAIN - logdet)
+            Binv, logdet = st.removed(out)
+            j, _ = st.best(Binv, chosen, st.logdet + D_GAIN - logdet)
             if j >= 0:
                 st.add(out, -1.0)
                 st.add(j)
