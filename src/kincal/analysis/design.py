@@ -45,15 +45,15 @@ MAX_PASSES = 10
 # or not worth another pass over the pool.
 D_GAIN = 1e-4
 # Branch and bound of the D selection (``_LogDet.best``): candidates scored exactly in the first block (doubling
-# after), the share of the pool scored beyond which the reference moves, and a relative slack covering the single
-# precision of the bounds' projections.
+# after); the reference moves once a search scores this share of the pool, or once the bounds use this many
+# times k directions; a relative and absolute slack covering the single precision of the bounds.
 FIRST_BLOCK = 256
-GREEDY_EPS = 0.01
+REFER_FRACTION = 0.25
+REFER_RANK = 4
+BOUND_SLACK = 1e-4
+GREEDY_EPS = 0.01  # stochastic greedy: the sample per step is N / K ln(1 / GREEDY_EPS)
 NEAR = 8  # per search, the best candidates scored that the exchange's shortlist keeps
 SHORTLIST = (500, 100)  # the exchange's shortlist: at least 500 candidates, or 1 % of the pool
-REFER_FRACTION = 0.25
-REFER_RANK = 2
-BOUND_SLACK = 1e-4
 SPECTRAL = ("E", "O2", "O3", "O4", "O5")  # non-smooth in M: exchanged from random starts too
 RESTARTS = 8
 SMOOTHING = (1, 4, 16)  # exponents p of phi_p on the way to a spectral criterion
@@ -211,10 +211,13 @@ class _LogDet:
         """``X_i M^-1 X_i^T`` of every candidate (N, k, k)."""
         return self.gram(self.Minv)
 
-    def gram(self, Binv: np.ndarray, idx=None) -> np.ndarray:
-        """``X_i B^-1 X_i^T`` (n, k, k) of the candidates ``idx`` (default: all), in chunks."""
-        X = self.X if idx is None else self.X[idx]
-        out = np.empty((len(X), X.shape[1], X.shape[1]))
+    def gram(self, Binv: np.ndarray, idx=None, single: bool = False) -> np.ndarray:
+        """``X_i B^-1 X_i^T`` (n, k, k) of the candidates ``idx`` (default: all), in chunks; ``single``: in
+        single precision."""
+        X = self.X32 if single else self.X
+        X = X if idx is None else X[idx]
+        Binv = Binv.astype(X.dtype)
+        out = np.empty((len(X), X.shape[1], X.shape[1]), X.dtype)
         for s in range(0, len(X), CHUNK):
             x = X[s: s + CHUNK]
             out[s: s + CHUNK] = (x.reshape(-1, x.shape[-1]) @ Binv).reshape(x.shape) @ np.swapaxes(x, 1, 2)
@@ -242,11 +245,13 @@ class _LogDet:
     def best(self, Binv: np.ndarray, exclude, threshold: float = -np.inf) -> tuple[int, float]:
         """(j, gain): the candidate not in ``exclude`` whose addition to the base B (given as B^-1) raises
         log det most, if its gain exceeds ``threshold``; else (-1, -inf)."""
-        if self._ref is None:  # no reference: score every candidate, and make B the reference
+        if self._ref is None:  # no reference: score every candidate, make B the reference, rescore the best few
             gains = self.refer(Binv)
             gains[list(exclude)] = -np.inf
-            j = int(np.argmax(gains))
-            return (j, float(gains[j])) if gains[j] > threshold else (-1, -np.inf)
+            idx = np.argsort(-gains, kind="stable")[:NEAR]
+            g = _logdet_plus_identity(self.gram(Binv, idx))
+            j = int(np.argmax(g))
+            return (int(idx[j]), float(g[j])) if g[j] > threshold else (-1, -np.inf)
         bound, rank = self._bound(Binv)
         bound[list(exclude)] = -np.inf
         order = np.argsort(-bound, kind="stable")
@@ -264,9 +269,10 @@ class _LogDet:
         return (j, gain) if gain > threshold else (-1, -np.inf)
 
     def refer(self, Binv: np.ndarray) -> np.ndarray:
-        """Make B (given as B^-1) the reference of the bounds; returns every candidate's gain at B."""
-        G = self.gram(Binv)
-        gains = _logdet_plus_identity(G)
+        """Make B (given as B^-1) the reference of the bounds; returns every candidate's gain at B (single
+        precision, as the bounds)."""
+        G = self.gram(Binv, single=True)
+        gains = _logdet_plus_identity(G).astype(float)
         self._ref = (Binv, gains, np.trace(G, axis1=1, axis2=2))
         return gains.copy()
 
@@ -298,7 +304,7 @@ def _logdet_plus_identity(G: np.ndarray) -> np.ndarray:
     """log det(I + G_i) for symmetric positive semi-definite G (N, k, k); closed forms for k <= 3 (batched
     LAPACK calls on tiny matrices cost more than the arithmetic)."""
     k = G.shape[-1]
-    A = G + np.eye(k)
+    A = G + np.eye(k, dtype=G.dtype if k > 3 else float)  # single precision stays single for Cholesky
     if k == 1:
         det = A[:, 0, 0]
     elif k == 2:
