@@ -111,6 +111,7 @@ def _configurations(where: str, job: Path, entry: Mapping, robot: Robot, root) -
     path = resolve(job, str(entry["configurations"]), f"{where}.configurations", root)
     if not path.is_file():
         raise ctx.fail("configurations", f"{path}: no such file")
+    options = {k: v for k, v in options.items() if k != "n"}  # the file's rows are the configurations
     ds, truth, _ = GENERATORS[kind](robot, n=1, rng=0, noise=Noise(), n_validation=1, **options)
     table = read_table(path, "configurations file")
     q = {a: table.take([f"{a}.{j}" for j in robot[a].joint_names]) * ctx.angle for a in ds.arms}
