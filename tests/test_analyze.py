@@ -16,6 +16,7 @@ from kincal.cli import main
 from kincal.data import Dataset
 from kincal.errors import KincalError, ModelError
 from kincal.estimation import Noise, calibrate
+from kincal.io.jobs import load_job
 from kincal.lie import se3
 from kincal.simulate import generate_clamp, generate_dual, generate_markers
 from kincal.workflow.analyze import analyze
@@ -194,3 +195,83 @@ def test_cli_analyze_bad_error_spelling(capsys):
     assert main(["analyze", "src/kincal/scenarios/frida_dual_bracket.yaml", "--error", "clamp.v_x=10"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "unit mm, m, deg or rad" in err
+
+
+# ------------------------------------------------------------------ jobs without measured data (kincal.io.planjobs)
+
+def _plan_job(tmp_path, entry: str, model: str = "ur10", free: str = "kinematic", name: str = "plan.yaml"):
+    job = tmp_path / name
+    job.write_text(f"format: kincal-job\nmodel: {model}\nfree: {free}\ndata:\n  - {entry}\n")
+    return job
+
+
+def test_job_naming_a_scenario_analyses_like_the_scenario(tmp_path, capsys):
+    """`data: [{scenario: frida_clamp_one}]`: no data file anywhere; the CLI and Python give the scenario's
+    analysis (rank 11 of 13, j1 and j7 named)."""
+    job = _plan_job(tmp_path, "scenario: frida_clamp_one", "frida", "offsets")
+    assert main(["analyze", str(job), "--workspace", "20", "--json"]) == 0
+    from_job = json.loads(capsys.readouterr().out)
+    assert main(["analyze", "frida_clamp_one", "--workspace", "20", "--json"]) == 0
+    from_scenario = json.loads(capsys.readouterr().out)
+    assert (from_job["rank"], from_job["free"]) == (11, 13)
+    for key in ("rank", "free", "configurations", "unidentifiable", "observability"):
+        assert from_job[key] == from_scenario[key], key
+    job = load_job(job)
+    assert [d.name for d in job.datasets] == ["frida-clamp-one"] and job.datasets[0].size == 200
+    an = analyze(job.robot, job.datasets, job.free, noise=job.noise, workspace=20)
+    assert an.plan.rank == 11 and {"right.j1.offset", "right.j7.offset"} == {
+        e.name for e in an.plan.estimates if e.name.endswith(".offset") and not e.identifiable}
+
+
+def test_job_naming_configurations_predicts_with_the_stated_noise(tmp_path, capsys):
+    """A configurations file (kincal design's targets.csv) and the experiment that will measure it: the
+    predicted standard deviations scale with the stated noise (whitened Jacobian), from the CLI and Python."""
+    assert main(["design", "ur10_tracker_markers", "-n", "30", "--pool", "300", "-o", str(tmp_path / "d")]) == 0
+    capsys.readouterr()
+    exp = "experiment: {kind: markers, arm: arm, markers: 3}"
+    stds = {}
+    for sigma in (0.05, 0.1):
+        job = _plan_job(tmp_path, f"configurations: d/targets.csv\n    {exp}\n    noise: {{position_mm: {sigma}}}",
+                        name=f"plan{sigma}.yaml")
+        assert main(["analyze", str(job), "--workspace", "20", "--json"]) == 0
+        data = json.loads(capsys.readouterr().out)
+        assert (data["rank"], data["configurations"]) == (33, 30)
+        stds[sigma] = np.array([e["std"] for e in data["estimates"] if e["identifiable"]])
+        job = load_job(job)
+        assert job.datasets[0].name == "targets" and job.datasets[0].size == 30
+        assert job.noise["targets"].position == pytest.approx(sigma * 1e-3)
+    np.testing.assert_allclose(stds[0.1], 2 * stds[0.05], rtol=1e-6)
+    # the same file in degrees, with the frames the experiment needs given as known
+    q = np.loadtxt(tmp_path / "d" / "targets.csv", delimiter=",", skiprows=1)
+    header = (tmp_path / "d" / "targets.csv").read_text().splitlines()[0]
+    np.savetxt(tmp_path / "deg.csv", np.degrees(q), delimiter=",", header=header, comments="")
+    job = _plan_job(tmp_path, "configurations: deg.csv\n    units: {angle: deg, length: mm}\n    experiment: "
+                    "{kind: pose, arm: arm, known_tracker: true, T_world_tracker: {xyz: [2000, 0, 500]}}", name="deg.yaml")
+    ds = load_job(job).datasets[0]
+    np.testing.assert_allclose(ds.q["arm"], q, atol=1e-12)
+    np.testing.assert_allclose(ds.known["T_world_tracker"][:3, 3], [2.0, 0.0, 0.5])
+    assert analyze(load_job(job).robot, [ds], "offsets", workspace=10).plan.rank == 6
+
+
+@pytest.mark.parametrize("entry, words", [
+    ("configurations: nope.csv\n    experiment: {kind: markers, arm: arm}", "nope.csv: no such file"),
+    ("configurations: c.csv\n    experiment: {kind: laser, arm: arm}", "experiment.kind: expected one of"),
+    ("configurations: c.csv", "experiment: required with configurations"),
+    ("configurations: extra.csv\n    experiment: {kind: pose, arm: arm}", "column 'speed': not a joint"),
+    ("configurations: typo.csv\n    experiment: {kind: pose, arm: arm}", "column 'arm.elbow': missing"),
+    ("configurations: c.csv\n    experiment: {kind: camera, arm: arm}", "name a scenario instead"),
+    ("configurations: c.csv\n    experiment: {kind: pose, arm: arm}\n    colour: red", "unknown key(s) ['colour']"),
+    ("scenario: no_such_scenario", "not a built-in scenario"),
+    ("scenario: frida_clamp_one", "the job's model is 'ur10'"),
+    ("scenario: missing/s.yaml", "no such file"),
+])
+def test_plan_job_bad_input_one_line(tmp_path, capsys, entry, words):
+    cols = "arm.shoulder_pan,arm.shoulder_lift,arm.elbow,arm.wrist_1,arm.wrist_2,arm.wrist_3"
+    (tmp_path / "c.csv").write_text(f"{cols}\n0,-1,1,0,1,0\n")
+    (tmp_path / "extra.csv").write_text(f"{cols},speed\n0,-1,1,0,1,0,3\n")
+    (tmp_path / "typo.csv").write_text(f"{cols.replace('elbow', 'elbw')}\n0,-1,1,0,1,0\n")
+    job = _plan_job(tmp_path, entry)
+    for command in (["analyze", str(job)], ["design", str(job), "-n", "5", "-o", str(tmp_path / "o")]):
+        assert main(command) == 2
+        err = capsys.readouterr().err
+        assert words in err and err.count("\n") == 1, err

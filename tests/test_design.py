@@ -190,3 +190,29 @@ def test_cli_design_next_and_bad_input(tmp_path, capsys):
         assert main(["design", *args]) == 2
         err = capsys.readouterr().err
         assert words in err and err.count("\n") == 1
+
+
+def test_cli_design_from_a_job_without_measured_data(tmp_path, capsys):
+    """`kincal design JOB -n K`: a job naming a scenario draws the scenario's candidates; a job naming a
+    configurations file chooses among its configurations (every chosen row is one of them)."""
+    from kincal.cli import main
+    job = tmp_path / "scenario.yaml"
+    job.write_text("model: frida\nfree: offsets\ndata:\n  - scenario: frida_dual_bracket\n    noise: {joint_deg: 0.001}\n")
+    assert main(["design", str(job), "-n", "20", "--pool", "150", "-o", str(tmp_path / "a")]) == 0
+    assert "chose 20 of 150" in capsys.readouterr().out
+    targets = np.loadtxt(tmp_path / "a" / "targets.csv", delimiter=",", skiprows=1)
+    assert targets.shape == (20, 14)
+    pool = np.random.default_rng(3).uniform(-2, 2, size=(200, 6))
+    header = ",".join(f"{ARM}.{j}" for j in UR10[ARM].joint_names)
+    np.savetxt(tmp_path / "cell.csv", pool, delimiter=",", header=header, comments="")
+    job = tmp_path / "configs.yaml"
+    job.write_text("model: ur10\nfree: kinematic\ndata:\n  - configurations: cell.csv\n    experiment: {kind: markers, "
+                   f"arm: {ARM}, markers: 3}}\n    noise: {{position_mm: 0.05}}\n")
+    assert main(["design", str(job), "-n", "25", "-o", str(tmp_path / "b")]) == 0
+    out = capsys.readouterr().out
+    assert "choosing from the 200 configurations of data set 'cell'" in out and "chose 25 of 200" in out
+    chosen = np.loadtxt(tmp_path / "b" / "targets.csv", delimiter=",", skiprows=1)
+    assert all(np.abs(pool - row).max(axis=1).min() < 1e-12 for row in chosen)
+    assert main(["design", str(job), "-n", "25", "--box", "0,0,0,1,1,1", "-o", str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err
+    assert "this job's data set gives the candidates" in err and err.count("\n") == 1

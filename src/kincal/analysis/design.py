@@ -17,6 +17,11 @@ Adding candidate i to M: with ``L L^T = M``, ``Y = X_i L^-T``, ``G = Y Y^T`` (k,
 ``Z = X_i M^-1``, ``log det`` grows by ``log det(I + G)`` and ``M^-1`` shrinks by ``Z^T H Z`` (Woodbury), so
 D, A, I and G are scored for every candidate at once from (N, k, r) arrays; spectral criteria take one batched
 eigen-decomposition per step.
+
+D (also the start of A, I and G) is fast on large pools: a stochastic greedy start (each step scores a random
+sample of the pool), then the exchange finds each position's best swap by branch and bound (``_LogDet.best``:
+bounds of every candidate's gain from one skinny product with the pool, exact scores only for the few that could
+win), first on a shortlist of the candidates that add most to the design, then checked on the whole pool.
 """
 
 from __future__ import annotations
@@ -39,6 +44,16 @@ MAX_PASSES = 10
 # A D-exchange swap must raise log det by this much (0.01 % of the determinant): smaller gains are round-off's
 # or not worth another pass over the pool.
 D_GAIN = 1e-4
+# Branch and bound of the D selection (``_LogDet.best``): candidates scored exactly in the first block (doubling
+# after); the reference moves once a search scores this share of the pool, or once the bounds use this many
+# times k directions; a relative and absolute slack covering the single precision of the bounds.
+FIRST_BLOCK = 256
+REFER_FRACTION = 0.25
+REFER_RANK = 4
+BOUND_SLACK = 1e-4
+GREEDY_EPS = 0.01  # stochastic greedy: the sample per step is N / K ln(1 / GREEDY_EPS)
+NEAR = 8  # per search, the best candidates scored that the exchange's shortlist keeps
+SHORTLIST = (500, 100)  # the exchange's shortlist: at least 500 candidates, or 1 % of the pool
 SPECTRAL = ("E", "O2", "O3", "O4", "O5")  # non-smooth in M: exchanged from random starts too
 RESTARTS = 8
 SMOOTHING = (1, 4, 16)  # exponents p of phi_p on the way to a spectral criterion
@@ -91,13 +106,15 @@ def select(X: np.ndarray, K: int, criterion: str = "D", *, workspace: np.ndarray
         raise ModelError(f"cannot choose {K} of {N} candidates")
     eps = RIDGE * max(np.trace(information(X)) / (N * r), 1e-300)
     M0 = eps * np.eye(r) + (0.0 if base is None else base)
-    chosen = _greedy(X, K, criterion, workspace, M0, eps)
+    # the exchange that follows repairs a sampled greedy start (``_greedy_d``); alone, the greedy scores the whole pool
+    chosen = _greedy(X, K, criterion, workspace, M0, eps, np.random.default_rng(seed) if exchange else None)
     greedy = criterion_value(M0 + information(X[chosen]), criterion, workspace, K)
     if not exchange:
         return Selection(np.array(chosen), criterion, greedy, greedy, 0)
     best, value, swaps = _exchange_smoothed(X, chosen, criterion, workspace, M0)
     if criterion in ("A", "I", "G"):  # also from the D-optimal design: a good start for variance criteria
-        other, v, n = _exchange(X, _exchange_d(X, _greedy_d(X, K, M0), M0)[0], criterion, workspace, M0)
+        start = _exchange_d(X, _greedy_d(X, K, M0, np.random.default_rng(seed)), M0)[0]
+        other, v, n = _exchange(X, start, criterion, workspace, M0)
         swaps += n
         if v > value:
             best, value = other, v
@@ -111,11 +128,11 @@ def select(X: np.ndarray, K: int, criterion: str = "D", *, workspace: np.ndarray
     return Selection(np.array(best), criterion, value, greedy, swaps)
 
 
-def _greedy(X, K, criterion, workspace, M0, eps) -> list[int]:
+def _greedy(X, K, criterion, workspace, M0, eps, rng=None) -> list[int]:
     """Add the best candidate K times; until the design has full rank every criterion but D is flat in the
     missing directions, so D chooses until then."""
     if criterion in ("D", "O1"):
-        return _greedy_d(X, K, M0)
+        return _greedy_d(X, K, M0, rng)
     M = M0
     chosen: list[int] = []
     for _ in range(K):
@@ -168,58 +185,126 @@ def _exchange(X, chosen, criterion, workspace, M0) -> tuple[list[int], float, in
 
 
 class _LogDet:
-    """D-optimal bookkeeping with rank-k updates: ``M``, ``M^-1``, ``log det M`` and, for every candidate,
-    ``G_i = X_i M^-1 X_i^T`` (k, k), kept current as candidates are added and removed (Woodbury), so that
-    scoring all candidates costs O(N k^2 r) per step instead of O(N k r^2)."""
+    """D-optimal bookkeeping: ``M``, ``M^-1`` and ``log det M`` under rank-k (Woodbury) updates, and the best
+    candidate to add to a base information ``B`` by branch and bound (``best``).
+
+    The gain of adding candidate j to B is ``log det(I + G_j)``, ``G_j = X_j B^-1 X_j^T`` (k, k). At a reference
+    ``R`` every gain is known (``refer``); at B each is bounded from above (``_bound``: one skinny product with
+    the pool), and candidates are scored exactly in blocks in the order of their bounds until no bound can beat
+    the best found: the same choice as scoring the whole pool, at a fraction of the cost while B stays close to
+    R (the reference moves to the next base when the bounds have grown loose)."""
 
     def __init__(self, X: np.ndarray, M: np.ndarray):
-        self.X, self.flat = X, X.reshape(-1, X.shape[-1])
+        self.X, self._ref = X, None
+        self.near: set[int] = set()  # candidates that scored best in some search: the exchange's shortlist keeps them
+        self.norms = np.square(X).sum(axis=(1, 2))  # |X_j|_F^2
+        self.X32 = X.astype(np.float32)  # the bounds' projections: single precision, covered by BOUND_SLACK
         self.reset(M)
 
     def reset(self, M: np.ndarray) -> None:
         """Recompute from ``M`` (also against drift after many updates)."""
         self.M, self.Minv = M, np.linalg.inv(M)
-        self.logdet = float(np.linalg.slogdet(M)[1])
-        Y = (self.flat @ self.Minv).reshape(self.X.shape)
-        self.G = Y @ np.swapaxes(self.X, 1, 2)
+        self.logdet = _logdet(M)
 
-    def scores(self, G=None, logdet=None) -> np.ndarray:
-        """log det of M (or the ``G``, ``logdet`` given) with each candidate added."""
-        G = self.G if G is None else G
-        return (self.logdet if logdet is None else logdet) + _logdet_plus_identity(G)
+    @property
+    def G(self) -> np.ndarray:
+        """``X_i M^-1 X_i^T`` of every candidate (N, k, k)."""
+        return self.gram(self.Minv)
 
-    def _cross(self, i: int, sign: float):
-        """(Z_i, U, C): Z_i = X_i M^-1, U = X Z_i^T per candidate (N, k, k), C = (I + sign G_i)^-1."""
+    def gram(self, Binv: np.ndarray, idx=None, single: bool = False) -> np.ndarray:
+        """``X_i B^-1 X_i^T`` (n, k, k) of the candidates ``idx`` (default: all), in chunks; ``single``: in
+        single precision."""
+        X = self.X32 if single else self.X
+        X = X if idx is None else X[idx]
+        Binv = Binv.astype(X.dtype)
+        out = np.empty((len(X), X.shape[1], X.shape[1]), X.dtype)
+        for s in range(0, len(X), CHUNK):
+            x = X[s: s + CHUNK]
+            out[s: s + CHUNK] = (x.reshape(-1, x.shape[-1]) @ Binv).reshape(x.shape) @ np.swapaxes(x, 1, 2)
+        return out
+
+    def removed(self, i: int) -> tuple[np.ndarray, float]:
+        """(B^-1, log det B) of B = M with candidate i taken out, not committed."""
         Z = self.X[i] @ self.Minv
-        U = (self.flat @ Z.T).reshape(self.X.shape[0], -1, Z.shape[0])
-        C = np.linalg.inv(np.eye(Z.shape[0]) + sign * self.G[i])
-        return Z, U, C
+        C = np.linalg.inv(np.eye(len(Z)) - self.X[i] @ Z.T)
+        return self.Minv + Z.T @ C @ Z, self.logdet - _logdet(C)
 
     def without(self, i: int):
         """(G, logdet) of M with candidate i removed, not committed."""
-        _, U, C = self._cross(i, -1.0)
-        return self.G + _sandwich(U, C), self.logdet + float(np.linalg.slogdet(np.linalg.inv(C))[1])
+        Binv, logdet = self.removed(i)
+        return self.gram(Binv), logdet
 
     def add(self, i: int, sign: float = 1.0) -> None:
         """Commit adding (sign 1) or removing (sign -1) candidate i."""
-        Z, U, C = self._cross(i, sign)
-        self.logdet -= float(np.linalg.slogdet(C)[1])
-        self.G = self.G - sign * _sandwich(U, C)
+        Z = self.X[i] @ self.Minv
+        C = np.linalg.inv(np.eye(len(Z)) + sign * self.X[i] @ Z.T)
+        self.logdet -= _logdet(C)
         self.Minv = self.Minv - sign * (Z.T @ C @ Z)
         self.M = self.M + sign * (self.X[i].T @ self.X[i])
 
+    def best(self, Binv: np.ndarray, exclude, threshold: float = -np.inf) -> tuple[int, float]:
+        """(j, gain): the candidate not in ``exclude`` whose addition to the base B (given as B^-1) raises
+        log det most, if its gain exceeds ``threshold``; else (-1, -inf)."""
+        if self._ref is None:  # no reference: score every candidate, make B the reference, rescore the best few
+            gains = self.refer(Binv)
+            gains[list(exclude)] = -np.inf
+            idx = np.argsort(-gains, kind="stable")[:NEAR]
+            g = _logdet_plus_identity(self.gram(Binv, idx))
+            j = int(np.argmax(g))
+            return (int(idx[j]), float(g[j])) if g[j] > threshold else (-1, -np.inf)
+        bound, rank = self._bound(Binv)
+        bound[list(exclude)] = -np.inf
+        order = np.argsort(-bound, kind="stable")
+        j, gain, done, block = -1, -np.inf, 0, FIRST_BLOCK
+        while done < len(order) and bound[order[done]] > max(gain, threshold):
+            idx = order[done: done + block]
+            g = _logdet_plus_identity(self.gram(Binv, idx))
+            m = int(np.argmax(g))
+            if g[m] > gain:
+                j, gain = int(idx[m]), float(g[m])
+            self.near.update(idx[np.argsort(-g)[:NEAR]].tolist())
+            done, block = done + len(idx), 2 * block
+        if done > REFER_FRACTION * len(order) or rank > REFER_RANK * self.X.shape[1]:
+            self._ref = None  # the bound has grown loose: the next call makes its base the reference
+        return (j, gain) if gain > threshold else (-1, -np.inf)
 
-def _sandwich(U: np.ndarray, C: np.ndarray) -> np.ndarray:
-    """U_i C U_i^T for every i: (N, k, k) (batched matmul: several times faster than einsum here)."""
-    N, k, _ = U.shape
-    return (U.reshape(-1, k) @ C).reshape(N, k, k) @ np.swapaxes(U, 1, 2)
+    def refer(self, Binv: np.ndarray) -> np.ndarray:
+        """Make B (given as B^-1) the reference of the bounds; returns every candidate's gain at B (single
+        precision, as the bounds)."""
+        G = self.gram(Binv, single=True)
+        gains = _logdet_plus_identity(G).astype(float)
+        self._ref = (Binv, gains, np.trace(G, axis1=1, axis2=2))
+        return gains.copy()
+
+    def _bound(self, Binv: np.ndarray) -> tuple[np.ndarray, int]:
+        """Upper bounds of every candidate's gain at base B from the reference R, and the rank they used.
+
+        Split ``B^-1 - R^-1 = P - Q`` by the signs of its eigenvalues (``P = sum delta_a d_a d_a^T``) and let
+        ``U_j = X_j P X_j^T``, ``V_j = X_j Q X_j^T``: ``log det(I + G_j(R) + U_j) <= log det(I + G_j(R)) +
+        sum_a log(1 + delta_a |X_j d_a|^2)``, and taking V away lowers that by at least
+        ``tr V_j / (1 + tr G_j(R) + tr U_j)`` (``log(1 - w) <= -w``). Eigenvalues below 1e-12 of the largest are
+        bounded together through ``|X_j|_F^2`` (positive) or left out (negative)."""
+        Rinv, gains, traces = self._ref
+        delta, d = np.linalg.eigh(Binv - Rinv)
+        tiny = 1e-12 * max(np.abs(delta).max(), 1e-300)
+        pos, neg = delta > tiny, delta < -tiny
+        tail = delta[(delta > 0) & ~pos].sum() * self.norms
+        D = np.hstack([d[:, pos] * np.sqrt(delta[pos]), d[:, neg] * np.sqrt(-delta[neg])]).astype(np.float32)
+        out, p = gains + tail, int(pos.sum())
+        for s in range(0, len(out) if D.shape[1] else 0, CHUNK):
+            x = self.X32[s: s + CHUNK]
+            proj = np.square(x.reshape(-1, x.shape[-1]) @ D).reshape(len(x), -1, D.shape[1]).sum(axis=1)
+            up = proj[:, :p].sum(axis=1)
+            out[s: s + CHUNK] += np.log1p(proj[:, :p]).sum(axis=1) - proj[:, p:].sum(axis=1) * (1 - BOUND_SLACK) / (
+                1 + traces[s: s + CHUNK] + up + tail[s: s + CHUNK])
+        return out * (1 + BOUND_SLACK) + BOUND_SLACK, D.shape[1]
 
 
 def _logdet_plus_identity(G: np.ndarray) -> np.ndarray:
     """log det(I + G_i) for symmetric positive semi-definite G (N, k, k); closed forms for k <= 3 (batched
     LAPACK calls on tiny matrices cost more than the arithmetic)."""
     k = G.shape[-1]
-    A = G + np.eye(k)
+    A = G + np.eye(k, dtype=G.dtype if k > 3 else float)  # single precision stays single for Cholesky
     if k == 1:
         det = A[:, 0, 0]
     elif k == 2:
@@ -235,32 +320,65 @@ def _logdet_plus_identity(G: np.ndarray) -> np.ndarray:
     return np.log(np.maximum(det, 1e-300))  # round-off can leave a chosen candidate's downdate at <= 0
 
 
-def _greedy_d(X, K, M0) -> list[int]:
+def _logdet(A: np.ndarray) -> float:
+    return float(np.linalg.slogdet(A)[1])
+
+
+def _greedy_d(X, K, M0, rng=None) -> list[int]:
+    """Greedy for D. With ``rng`` each step scores only a random sample of ``N / K ln(1 / GREEDY_EPS)`` of the N
+    candidates (stochastic greedy, Mirzasoleiman et al. 2015: within ``GREEDY_EPS`` of the greedy's guarantee
+    in expectation) when that is fewer than the pool: a start for the exchange, which searches the whole pool."""
     st = _LogDet(X, M0.copy())
+    N = len(X)
+    sample = N if rng is None else int(np.ceil(N / K * np.log(1 / GREEDY_EPS)))
     chosen: list[int] = []
     for _ in range(K):
-        sc = st.scores()
-        sc[chosen] = -np.inf
-        i = int(np.argmax(sc))
+        free = np.setdiff1d(np.arange(N), chosen)
+        idx = free if sample >= len(free) else np.sort(rng.choice(free, sample, replace=False))
+        g = _logdet_plus_identity(st.gram(st.Minv, idx))
+        i = int(idx[np.argmax(g)])
         chosen.append(i)
         st.add(i)
     return chosen
 
 
 def _exchange_d(X, chosen, M0) -> tuple[list[int], float, int]:
-    """Fedorov exchange for D with the rank-k bookkeeping of ``_LogDet``."""
-    chosen = list(chosen)
+    """Fedorov exchange for D: each chosen configuration swapped for the best candidate (``_LogDet.best``) while
+    log det rises. On a large pool the passes first run on a shortlist (the ``SHORTLIST`` candidates that add
+    most to the current design, and those that came out best in earlier searches on the whole pool: a swap's
+    partner is often close to the configuration it replaces, which adds little while that is chosen), then one
+    pass on the whole pool checks the result; both repeat while that pass still swaps, so the result is as final
+    as with passes on the whole pool."""
+    size = max(SHORTLIST[0], len(X) // SHORTLIST[1])
+    chosen, swaps, large = list(chosen), 0, len(X) > 2 * size
     st = _LogDet(X, M0 + information(X[chosen]))
-    swaps = 0
     for _ in range(MAX_PASSES):
+        st.reset(M0 + information(X[chosen]))
+        if large:
+            gains = st.refer(st.Minv)
+            gains[chosen + sorted(st.near)] = np.inf
+            top = size + len(chosen) + len(st.near)
+            sub = np.sort(np.argpartition(-gains, top)[:top]) if top < len(X) else np.arange(len(X))
+            part, n = _passes(_LogDet(X[sub], st.M), list(np.searchsorted(sub, chosen)), MAX_PASSES)
+            chosen, swaps = [int(sub[i]) for i in part], swaps + n
+            st.reset(M0 + information(X[chosen]))
+        chosen, n = _passes(st, chosen, 1 if large else MAX_PASSES)
+        swaps += n
+        if n == 0 or not large:
+            break
+    return chosen, _logdet(M0 + information(X[chosen])), swaps
+
+
+def _passes(st: "_LogDet", chosen: list[int], limit: int) -> tuple[list[int], int]:
+    """Up to ``limit`` exchange passes over the chosen positions: (design, swaps)."""
+    chosen, swaps = [int(i) for i in chosen], 0
+    for _ in range(limit):
         changed = False
         for pos in range(len(chosen)):
             out = chosen[pos]
-            G, logdet = st.without(out)
-            sc = st.scores(G, logdet)
-            sc[chosen] = -np.inf
-            j = int(np.argmax(sc))
-            if sc[j] > st.logdet + D_GAIN:
+            Binv, logdet = st.removed(out)
+            j, _ = st.best(Binv, chosen, st.logdet + D_GAIN - logdet)
+            if j >= 0:
                 st.add(out, -1.0)
                 st.add(j)
                 chosen[pos] = j
@@ -269,7 +387,7 @@ def _exchange_d(X, chosen, M0) -> tuple[list[int], float, int]:
         st.reset(st.M)
         if not changed:
             break
-    return chosen, st.logdet, swaps
+    return chosen, swaps
 
 
 def _check(criterion: str, workspace) -> None:

@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import math
 import re
-from dataclasses import replace
 
 import click
 from rich.table import Table
@@ -16,9 +15,8 @@ from kincal.cli.calibrate_cmds import DEG, _console, _num, _shown
 from kincal.errors import DataFormatError
 from kincal.io.datasets import load_scenario, scenario_path
 from kincal.io.jobs import load_job
+from kincal.io.planjobs import scenario_dataset
 from kincal.io.yamlfile import read_yaml
-from kincal.simulate.perturb import perturbation
-from kincal.simulate.scenario import build_scenario, run
 from kincal.workflow.analyze import WORKSPACE_SAMPLES, Analysis, analyze
 
 _ERROR = re.compile(r"^\s*([^=\s]+)\s*=\s*([-+0-9.eE]+)\s*(mm|m|deg|rad)\s*$")
@@ -44,9 +42,8 @@ def _inputs(source: str, free: str | None):
     path = scenario_path(source)
     top = read_yaml(path, "job or scenario file")
     if isinstance(top, dict) and top.get("format") == "kincal-scenario":
-        sc = build_scenario(load_scenario(path))
-        _, ds, _, _ = run(replace(sc, perturbation=perturbation("none")))
-        return sc.robot, [ds], {"free": free or "offsets"}
+        robot, ds = scenario_dataset(load_scenario(path))
+        return robot, [ds], {"free": free or "offsets"}
     job = load_job(path)
     return job.robot, list(job.datasets), {"free": free or job.free, "fixed": job.fixed, "priors": job.priors,
                                            "noise": job.noise, "constraints": job.constraints}

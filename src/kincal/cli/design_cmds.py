@@ -16,13 +16,14 @@ from kincal.cli.calibrate_cmds import _console
 from kincal.errors import DataFormatError
 from kincal.io.datasets import load_scenario, scenario_path
 from kincal.io.jobs import load_job
+from kincal.io.planjobs import is_planned, planned_source, scenario_file
 from kincal.io.models import load_robot
 from kincal.io.targets import write_targets
 from kincal.io.yamlfile import read_yaml
 from kincal.simulate.scenario import build_scenario
 from kincal.workflow.augment import next_configurations
 from kincal.workflow import run_job
-from kincal.workflow.design import Candidates, design
+from kincal.workflow.design import Candidates, choose, design
 
 
 def _floats(text: str | None, n: int, option: str) -> np.ndarray | None:
@@ -57,17 +58,19 @@ def _limits(box: str | None, cone: float | None) -> Candidates:
 @click.option("--free", default=None, help="What the calibration will free (default: the job's, or 'offsets').")
 @click.option("--criterion", type=click.Choice(CRITERIA), default="D", show_default=True,
               help="D, A, E, O1-O5, or I / G: mean / max predicted tool error over the workspace.")
-@click.option("--pool", type=click.IntRange(1, None), default=2000, show_default=True, help="Candidates to draw.")
+@click.option("--pool", type=click.IntRange(1, None), default=2000, show_default=True, help="Candidates to draw (a job whose data set gives the configurations: ignored).")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--box", default=None, help="Tracker experiments: tool position box xmin,ymin,zmin,xmax,ymax,zmax (m).")
 @click.option("--cone", type=float, default=None, help="Tracker experiments: line-of-sight half-angle (deg).")
 @click.option("--overwrite", is_flag=True, help="Replace a previous design in the output folder.")
 def design_cmd(source, count, next_count, result, output, free, criterion, pool, seed, box, cone, overwrite) -> None:
-    """Choose configurations to measure for the experiment of SOURCE (a scenario file or built-in name), or
-    with --next the ones that most improve the calibration of a job. Writes joint targets in model order and in
+    """Choose configurations to measure for the experiment of SOURCE (a scenario file or built-in name, or a job
+    with one data set: a scenario it names, or its configurations as the candidates), or with --next the ones
+    that most improve the calibration of a job. Writes joint targets in model order and in
     controller order (motor units) and design.yaml."""
     if (count is None) == (next_count is None):
-        raise DataFormatError("give either -n K (a new experiment from a scenario) or --next K (a job to extend)")
+        raise DataFormatError("give either -n K (a new experiment: a scenario, or a job with one data set) or --next K "
+                              "(a job to extend)")
     console = _console()
     if next_count is not None:
         robot, q, summary = _next(source, next_count, result, free, pool, seed, console)
@@ -78,20 +81,48 @@ def design_cmd(source, count, next_count, result, output, free, criterion, pool,
 
 
 def _design(source, K, free, criterion, pool, seed, limits, console):
-    sc = build_scenario(load_scenario(scenario_path(source)))
-    free = free or "offsets"
-    d = design(sc.robot, sc.kind, sc.options, K, free=free, pool=pool, criterion=criterion, noise=sc.noise,
-               seed=seed, limits=limits)
+    robot, kind, options, given, job_free, noise = _experiment_source(source)
+    free = free or job_free
+    if given is None:
+        d = design(robot, kind, options, K, free=free, pool=pool, criterion=criterion, noise=noise, seed=seed,
+                   limits=limits)
+    else:
+        if limits != Candidates():
+            raise DataFormatError("--box and --cone filter the candidates kincal draws; this job's data set gives "
+                                  "the candidates (name a scenario in the job to draw them)")
+        console.print(f"choosing from the {given.size} configurations of data set '{given.name}'")
+        d = choose(robot, given, K, free=free, criterion=criterion, noise=noise, seed=seed)
     console.print(f"chose {K} of {d.pool} candidates by {criterion}: criterion {d.selection.value:.6g} against "
                   f"{d.random:.6g} for the median of 20 random designs; rank {d.rank} of {d.free}")
     console.print(f"predicted tool position std over the workspace: {d.tool_rms * 1e3:.4g} mm RMS "
                   f"(max {d.tool_max * 1e3:.4g}); random designs of {K}: {d.random_tool_rms * 1e3:.4g} mm RMS")
-    summary = _common(source, criterion, free, pool, seed) | {
-        "experiment": sc.kind, "configurations": K, "candidates": d.pool, "rank": d.rank, "free_parameters": d.free,
+    summary = _common(source, criterion, free, pool if given is None else d.pool, seed) | {
+        "experiment": kind, "configurations": K, "candidates": d.pool, "rank": d.rank, "free_parameters": d.free,
         "criterion_value": d.selection.value, "criterion_random_median": d.random,
         "exchanges": d.selection.exchanges, "tool_position_std_rms_m": d.tool_rms,
         "tool_position_std_max_m": d.tool_max, "tool_position_std_rms_random_m": d.random_tool_rms}
-    return sc.robot, dict(d.dataset.q), summary
+    return robot, dict(d.dataset.q), summary
+
+
+def _experiment_source(source):
+    """(robot, kind, generator options, candidates given or None, free, noise) of a scenario, or of a job with
+    one data set: a job entry naming a scenario draws candidates like the scenario; any other data set (measured,
+    or a configurations file) is itself the pool."""
+    path = scenario_path(source)
+    top = read_yaml(path, "job or scenario file")
+    if isinstance(top, dict) and top.get("format") == "kincal-scenario":
+        sc = build_scenario(load_scenario(path))
+        return sc.robot, sc.kind, sc.options, None, "offsets", sc.noise
+    job = load_job(path)
+    if len(job.datasets) != 1:
+        raise DataFormatError(f"{path}: design -n chooses configurations for one experiment; the job has "
+                              f"{len(job.datasets)} data sets (keep one, or use --next to extend them)")
+    (ds,) = job.datasets
+    entry = top["data"][0]
+    if is_planned(entry) and planned_source(entry) == "scenario":
+        sc = build_scenario(load_scenario(scenario_file(f"{path}: data[0]", path, entry["scenario"])))
+        return job.robot, sc.kind, sc.options, None, job.free, job.noise[ds.name]
+    return job.robot, ds.kind, {}, ds, job.free, job.noise[ds.name]
 
 
 def _next(source, K, result, free, pool, seed, console):

@@ -26,6 +26,7 @@ from kincal.io import units
 from kincal.io.datasets import load_dataset
 from kincal.io.jobschema import check_job_types
 from kincal.io.models import load_robot
+from kincal.io.planjobs import is_planned, planned_dataset
 from kincal.io.references import model_reference, resolve
 from kincal.io.yamlfile import quote, read_yaml
 from kincal.kinematics import Robot
@@ -184,9 +185,14 @@ def _data(f, refs: tuple, entries, key, robot, required):
         where = f"{f}: {key}[{i}]"
         if isinstance(e, str):
             e = {"manifest": e}
+        if is_planned(e):  # a scenario or configurations file instead of measured data (kincal.io.planjobs)
+            ds = planned_dataset(where, job, e, robot, root)
+            datasets.append(ds if e.get("frames") is None else _frames(where, e["frames"], ds, robot))
+            noise[ds.name] = _noise(where, e.get("noise"), ds)
+            continue
         if not isinstance(e, dict) or "manifest" not in e or set(e) - {"manifest", "noise", "frames"}:
-            raise DataFormatError(f"{where}: expected a manifest path or {{manifest: path, noise: {{...}}, "
-                                  f"frames: {{...}}}}, found {quote(e)}")
+            raise DataFormatError(f"{where}: expected a manifest path, {{manifest: path, noise: {{...}}, frames: "
+                                  f"{{...}}}}, {{scenario: ...}} or {{configurations: ...}}, found {quote(e)}")
         manifest = resolve(job, str(e["manifest"]), f"{where}.manifest", root)
         ds = load_dataset(manifest, robot, job_model=model, root=root)
         if e.get("frames") is not None:
