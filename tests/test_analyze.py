@@ -275,3 +275,12 @@ def test_plan_job_bad_input_one_line(tmp_path, capsys, entry, words):
         assert main(command) == 2
         err = capsys.readouterr().err
         assert words in err and err.count("\n") == 1, err
+
+
+def test_calibrate_refuses_a_plan_job(tmp_path, capsys):
+    """A plan holds the nominal robot's own readings: calibrating it would 'converge' on nothing measured."""
+    job = _plan_job(tmp_path, "scenario: frida_clamp_one", "frida", "offsets")
+    assert main(["calibrate", str(job), "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "is a plan (scenario: frida_clamp_one), not measured data" in err and err.count("\n") == 1
+    assert not (tmp_path / "out").exists()

@@ -55,8 +55,11 @@ def planned_dataset(where: str, job: Path, entry: Mapping, robot: Robot, root: P
         raise DataFormatError(f"{where}: unknown key(s) {sorted(extra)} for a {source} entry; expected some of "
                               f"{sorted(KEYS[source])}")
     if source == "scenario":
-        return _scenario(where, job, entry["scenario"], robot, root)
-    return _configurations(where, job, entry, robot, root)
+        ds = _scenario(where, job, entry["scenario"], robot, root)
+    else:
+        ds = _configurations(where, job, entry, robot, root)
+    # marked, so that calibrate refuses it: the nominal robot's own readings fit the nominal model exactly
+    return replace(ds, meta={**ds.meta, "planned": f"{source}: {entry[source]}"})
 
 
 def scenario_file(where: str, job: Path, ref: Any, root: Path | None = None) -> Path:

@@ -9,12 +9,24 @@ from kincal.io.jobs import Job
 
 
 def run_job(job: Job, progress=None):
-    """Run the job's solver: kincal's (a ``Result``) or the thesis baseline (a ``BaselineResult``)."""
+    """Run the job's solver: kincal's (a ``Result``) or the thesis baseline (a ``BaselineResult``). Refuses a
+    job whose data are a plan (``kincal.io.planjobs``): the nominal robot's readings, not measurements."""
+    _require_measured(job)
     if job.method == "thesis":
         return _thesis(job)
     return calibrate(job.robot, job.datasets, job.free, fixed=job.fixed, priors=job.priors, noise=job.noise,
                      gauge=job.gauge, validation=job.validation, constraints=job.constraints, progress=progress,
                      outliers=job.outliers, **job.options)
+
+
+def _require_measured(job: Job) -> None:
+    for ds in job.datasets + job.validation:
+        if "planned" in ds.meta:
+            raise DataFormatError(
+                f"{job.path}: data set '{ds.name}' is a plan ({ds.meta['planned']}), not measured data: it holds the "
+                "nominal model's own readings, which any calibration fits exactly; plans are for `kincal analyze` "
+                "and `kincal design`. Calibrate measured data, or `kincal simulate` the scenario and calibrate its "
+                "job to try the calibration")
 
 
 def _thesis(job: Job):
