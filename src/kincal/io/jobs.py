@@ -146,14 +146,14 @@ def _stages(f: str, top: dict, job: Job) -> Job:
                                   f"required), found {quote(st)}")
         free = _free(f, st["free"], f"{where}.free")
         if not free:
-            raise DataFormatError(f"{f}: field '{where}.free' is empty: a stage frees at least one parameter")
+            raise DataFormatError(f"{f}: field {where}.free: empty; a stage frees at least one parameter")
         if not isinstance(st.get("name", ""), str):
-            raise DataFormatError(f"{f}: field '{where}.name' must be text, found {quote(st['name'])}")
+            raise DataFormatError(f"{f}: field {where}.name: expected text, found {quote(st['name'])}")
         stages.append(Stage(free, _strings(f, st.get("fixed") or [], f"{where}.fixed"), st.get("name", "")))
     try:
         stage_problems(job.robot, job.datasets, stages, job.priors, job.noise, job.constraints)
     except StageError as exc:
-        raise DataFormatError(f"{f}: field '{exc.field}': {exc.reason}") from None
+        raise DataFormatError(f"{f}: field {exc.field}: {exc.reason}") from None
     return replace(job, stages=tuple(stages))
 
 
