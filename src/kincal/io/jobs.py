@@ -57,7 +57,7 @@ class Job:
     constraints: tuple = ()  # FrameDistance
     outliers: str | float = "reject"  # reject | keep | a tail probability (``calibrate(outliers=...)``)
     model: str = ""  # the model reference as resolved: a built-in name or the model file's path
-    stages: tuple[Stage, ...] = ()  # a staged solve (``calibrate(stages=...)``): then ``free``/``fixed`` unused
+    stages: tuple[Stage, ...] = ()  # a staged solve (``calibrate(stages=...)``); ``free`` is then the last stage's
 
 
 def load_job(path, confine: bool = False) -> Job:
@@ -154,7 +154,7 @@ def _stages(f: str, top: dict, job: Job) -> Job:
         stage_problems(job.robot, job.datasets, stages, job.priors, job.noise, job.constraints)
     except StageError as exc:
         raise DataFormatError(f"{f}: field {exc.field}: {exc.reason}") from None
-    return replace(job, stages=tuple(stages))
+    return replace(job, stages=tuple(stages), free=stages[-1].free)  # free: what `kincal analyze` plans by default
 
 
 def write_job(path, *, name: str, model: str, data, validation=(), free: str | list[str] = "offsets") -> Path:
