@@ -129,7 +129,7 @@ def _job(folder, name="job.yaml", **changes):
 
 
 @pytest.mark.parametrize("stages, match", [
-    ([{"free": ["tracker"], "frozen": ["arm.*"]}], r"field stages\[0\]: expected \{free: \.\.\., fixed"),
+    ([{"free": ["tracker"], "frozen": ["arm.*"]}], r"field stages\[0\]: unknown key\(s\) \['frozen'\]; expected free"),
     ([{"fixed": ["tracker"]}], r"field stages\[0\]: expected .*\(free required\)"),
     ([{"free": ["tracker"]}, {"free": []}], r"field stages\[1\]\.free: empty; a stage frees at least one"),
     ([{"free": ["tracker"]}, {"free": ["tracker"], "fixed": ["tracker", "markers"]}],
@@ -210,3 +210,12 @@ def test_thesis_offsets_then_kinematics_example(tmp_path):
     assert not any(e.name.endswith(".offset") for e in res.estimates)
     note = next(m for m in res.messages if m.startswith("staged solve, 2 stage(s)"))
     assert "conditional on" in note and "left.offsets" in note and "right.offsets" in note
+
+
+def test_gauge_list_and_cross_validation_with_stages():
+    _, ds, _, _ = _simulate(LOADED, 5)
+    # the priority glob matches no free coordinate of the first stage: that stage uses min-change
+    res = calibrate(LOADED.robot, [ds], stages=PAPER, gauge=["arm.*.offset"], cv=3)
+    assert res.status == "converged" and len(res.stages) == 2
+    assert res.cross_validation is not None and len(res.cross_validation.folds) == 3
+    assert all(f.status == "converged" for f in res.cross_validation.folds)

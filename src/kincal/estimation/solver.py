@@ -61,8 +61,8 @@ def calibrate(
     """Calibrate ``robot`` from ``datasets``: ``solve(Problem.build(...), SolverOptions(...))``, then
     ``validate`` on the held-out ``validation`` sets.
 
-    ``free``: ``"offsets"`` (thesis level 1, the default), ``"kinematic"`` (full POE: offsets, twists, home; level 2) or a
-    list of names/globs (level words allowed inside the list). Frames absent from a data set's ``known``
+    ``free``: ``"offsets"`` (the default; thesis level 1), ``"kinematic"`` (full POE: offsets, twists, home;
+    level 2) or a list of names/globs (level words allowed inside the list). Frames absent from a data set's ``known``
     (fixture pose, clamp, tracker, markers, ...) are always estimated; known ones only when freed by name.
     ``noise``: one ``Noise`` for all data sets or a mapping data set name -> Noise; per quantity it goes over
     each data set's stated noise (``Dataset.meta["noise"]``), over ``kincal.noise.DEFAULT`` (the one noise rule,

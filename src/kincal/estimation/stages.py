@@ -80,7 +80,7 @@ def stage_problems(robot: Robot, datasets: Sequence[Dataset], stages: Sequence[S
 
 def stage_layout(base: Problem, stages: Sequence[Stage], i: int) -> Layout:
     """The layout of stage ``i`` over ``base``'s coordinates: its free set minus its fixed set, the unknown
-    frames (unless a later stage holds them) and every coordinate with a prior."""
+    frames (unless the stage holds them; not the first) and every coordinate with a prior."""
     stage, where = stages[i], f"stages[{i}]"
     arms = list(dict.fromkeys(b.arm for b in base.layout.blocks if b.arm is not None))
     field = "free"
@@ -106,9 +106,10 @@ def _spec(free) -> str:
 
 
 def solve_stages(problems: Sequence[Problem], stages: Sequence[Stage], options: SolverOptions, solve) -> Result:
-    """Solve ``problems`` (``stage_problems``) in turn with ``solve(problem, options)``, each from the previous
-    stage's final state; the last stage's ``Result`` with the record of every stage (``Result.stages``), the
-    residual statistics at stage 1's start as ``before`` and the outer iterations and evaluations of all."""
+    """Solve ``problems`` (``stage_problems``) in turn with ``solve(problem, options)`` (``kincal.estimation.solve``,
+    passed in: the solver module imports this one), each from the previous stage's final state. Returns the last
+    stage's ``Result`` with the record of every stage (``Result.stages``), the residual statistics at stage 1's
+    start as ``before`` and the outer iterations and evaluations of all stages."""
     results: list[Result] = []
     for i, problem in enumerate(problems):
         if results:
@@ -128,7 +129,8 @@ def solve_stages(problems: Sequence[Problem], stages: Sequence[Stage], options: 
 
 
 def _stage_gauge(problem: Problem, gauge):
-    """A gauge priority list keeps, in each stage, the patterns that match one of its free coordinates."""
+    """A gauge priority list keeps, in each stage, the patterns that match one of its free coordinates (none:
+    ``min-change``)."""
     if isinstance(gauge, str):
         return gauge
     layout = problem.layout

@@ -141,9 +141,12 @@ def _stages(f: str, top: dict, job: Job) -> Job:
     stages = []
     for i, st in enumerate(spec):
         where = f"stages[{i}]"
-        if not isinstance(st, dict) or "free" not in st or set(st) - {"name", "free", "fixed"}:
+        if not isinstance(st, dict) or "free" not in st:
             raise DataFormatError(f"{f}: field {where}: expected {{free: ..., fixed: [...], name: ...}} (free "
                                   f"required), found {quote(st)}")
+        if set(st) - {"name", "free", "fixed"}:
+            raise DataFormatError(f"{f}: field {where}: unknown key(s) {sorted(set(st) - {'name', 'free', 'fixed'})}; "
+                                  "expected free, fixed, name")
         free = _free(f, st["free"], f"{where}.free")
         if not free:
             raise DataFormatError(f"{f}: field {where}.free: empty; a stage frees at least one parameter")
