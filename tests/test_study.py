@@ -254,3 +254,27 @@ def test_structure_cache_gives_the_same_estimates_and_rank(monkeypatch):
     before = len(symmetries._FULL_RANK)
     res = calibrate(s.robot, [ds], "kinematic", noise=s.noise.over(S.Noise(joint=0.0)))
     assert res.identifiability.deficiency > 0 and len(symmetries._FULL_RANK) == before
+
+
+def test_staged_variant_matches_the_simultaneous_one(tmp_path):
+    """A variant with `stages:` (parsed as in a job file): offsets first, then the same final free set as the
+    simultaneous variant; both reach the same optimum (the problem is nearly linear), so the same table to well
+    within the noise (the solver stops once a step is negligible against the noise: 1e-4 of a std here)."""
+    text = _builtin_text().replace(
+        "  - name: approach1\n",
+        "  - name: staged\n    data: markers\n    stages:\n      - {name: offsets, free: [arm.*.offset]}\n"
+        "      - {free: [arm.*.offset, arm.base.v_z, arm.j3.xi.shift_2, arm.home.v_x]}\n  - name: approach1\n", 1)
+    p = tmp_path / "staged.yaml"
+    p.write_text(text)
+    s = S.load(p)
+    s = replace(s, repeats=6, variants=tuple(v for v in s.variants if v.name in ("approach2", "staged")))
+    rows = {(r.variant, r.quantity): r for r in S.run_study(s, workers=0).rows}
+    for (variant, q), r in rows.items():
+        if variant == "staged":
+            ref = rows["approach2", q]
+            assert r.std == pytest.approx(ref.std, rel=1e-4)
+            assert r.bias == pytest.approx(ref.bias, abs=1e-4 * ref.std)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(text.replace("{name: offsets, free: [arm.*.offset]}", "{name: offsets, frees: [arm.*.offset]}"))
+    with pytest.raises(DataFormatError, match=r"variants\[1\]\.stages\[0\]: expected \{free: \.\.\., fixed"):
+        S.load(bad)

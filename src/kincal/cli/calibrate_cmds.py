@@ -17,7 +17,7 @@ from kincal.errors import DataFormatError
 from kincal.estimation import validation_stats
 from kincal.io.datasets import load_scenario
 from kincal.io.jobs import load_job
-from kincal.io.results import cross_validation_dict, data_warnings, prediction_rows, result_to_dict
+from kincal.io.results import cross_validation_dict, data_warnings, prediction_rows, result_to_dict, stage_rows
 from kincal.simulate.perturb import perturbation
 from kincal.simulate.scenario import build_scenario, run
 from kincal.workflow import run_job
@@ -77,6 +77,16 @@ def print_summary(console: Console, result, title: str) -> None:
         t.add_row(b.experiment, b.kind, str(b.samples), _num(b.position_rms, 1e3),
                   _num(a.position_rms, 1e3), _num(b.orientation_rms, DEG), _num(a.orientation_rms, DEG))
     console.print(t)
+    if result.stages:  # a staged solve: each stage from the previous one's estimates (docs/calibration.md)
+        t = Table(title="stages (position mm, orientation deg; the result is the last stage's)")
+        for c in ("stage", "free", "fixed", "params", "rank", "chi2", "var factor", "pos RMS", "rot RMS", "status"):
+            t.add_column(c)
+        for r in stage_rows(result):
+            t.add_row(r["name"], r["free"] if isinstance(r["free"], str) else ", ".join(r["free"]),
+                      ", ".join(r["fixed"]), str(r["free_parameters"]), str(r["rank"]), _num(r["chi2"]),
+                      _num(r["residual_variance_factor"]), _num(r["position_mm_rms"]), _num(r["orientation_deg_rms"]),
+                      r["status"])
+        console.print(t)
     _print_outliers(console, result.outliers)
     for w in data_warnings(result):
         console.print(f"warning: {w}", markup=False, highlight=False)
@@ -216,7 +226,8 @@ def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool,
             raise DataFormatError(f"{job}: --cv needs kincal's solver (solver.method 'kincal'), not 'thesis'")
         j = replace(j, options={**j.options, "cv": cv})
     if not (quiet or as_json):
-        console.print(f"calibrating '{j.name}': {len(j.datasets)} data set(s), free: {j.free}, method: {j.method}")
+        console.print(f"calibrating '{j.name}': {len(j.datasets)} data set(s), "
+                      f"{f'{len(j.stages)} stages' if j.stages else f'free: {j.free}'}, method: {j.method}")
     result = run_job(j, _progress(console, quiet or as_json))
     if j.method == "thesis":
         _write_thesis(result, j, out, console, quiet or as_json, as_json, overwrite)

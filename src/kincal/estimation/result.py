@@ -46,6 +46,29 @@ class TwistEstimate:
     std: float
 
 
+@dataclass(frozen=True)
+class StageRecord:
+    """One stage of a staged solve (``kincal.estimation.stages``): its free set as given, its free coordinates
+    and their rank, whitened chi^2 (``cost``), residual variance factor, status, outer iterations and residual
+    statistics per data set at its end."""
+
+    name: str
+    free: str | tuple[str, ...]
+    fixed: tuple[str, ...]
+    parameters: int
+    rank: int
+    cost: float
+    sigma2: float
+    status: str
+    iterations: int
+    after: tuple[ResidualStats, ...]
+
+    def rms(self, part: str) -> float | None:
+        """``position`` or ``orientation`` RMS over the samples of every data set that has it (m, rad)."""
+        rows = [(s.samples, getattr(s, f"{part}_rms")) for s in self.after if getattr(s, f"{part}_rms") is not None]
+        return float(np.sqrt(sum(n * v**2 for n, v in rows) / sum(n for n, _ in rows))) if rows else None
+
+
 @dataclass(frozen=True, eq=False)
 class Result:
     """What ``solve`` returns. Reports, never raises, on non-convergence or rank deficiency (see ``status`` and
@@ -80,6 +103,7 @@ class Result:
     validation_outliers: tuple[Outlier, ...] = ()  # validation rows beyond the outlier rule (not in ``validation``)
     validation_all: tuple[ValidationStats, ...] = ()  # validation sets with such rows: their errors with every row
     covariance_scale: float | None = None  # what scaled ``covariance`` (None: ``sigma2``; ``finalize.covariance_scale``)
+    stages: tuple[StageRecord, ...] = ()  # a staged solve's stages, the last one's being this result
 
     @property
     def scale(self) -> float:

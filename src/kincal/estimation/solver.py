@@ -19,7 +19,7 @@ import numpy as np
 from kincal.analysis import Prediction, validation_predictions
 from kincal.analysis.prediction import understated, with_doubts
 from kincal.data import Dataset
-from kincal.errors import DataFormatError, DegenerateExperimentError
+from kincal.errors import DataFormatError, DegenerateExperimentError, ModelError
 from kincal.estimation.constraints import FrameDistance
 from kincal.estimation.crossval import cross_validate, with_cross_validation
 from kincal.estimation.finalize import finalize, untrusted_note
@@ -30,6 +30,7 @@ from kincal.estimation.outliers import (ROBUST_F_SCALE, ROBUST_LOSS, any_beyond,
 from kincal.estimation.plausibility import implausible_units
 from kincal.estimation.problem import Problem
 from kincal.estimation.result import Result
+from kincal.estimation.stages import Stage, solve_stages, stage_problems
 from kincal.estimation.stats import ResidualStats, ValidationStats
 from kincal.kinematics import Robot
 from kincal.noise import Noise, effective
@@ -39,7 +40,7 @@ from kincal.params import Prior
 def calibrate(
     robot: Robot,
     datasets: Sequence[Dataset],
-    free: str | Sequence[str] = "offsets",
+    free: str | Sequence[str] | None = None,
     *,
     fixed: Sequence[str] = (),
     priors: Mapping[str, Prior] | None = None,
@@ -55,12 +56,13 @@ def calibrate(
     progress: Callable[[int, float], None] | None = None,
     outliers: str | float = "reject",
     cv: int | None = None,
+    stages: Sequence[Stage] = (),
 ) -> Result:
     """Calibrate ``robot`` from ``datasets``: ``solve(Problem.build(...), SolverOptions(...))``, then
     ``validate`` on the held-out ``validation`` sets.
 
-    ``free``: ``"offsets"`` (thesis level 1), ``"kinematic"`` (full POE: offsets, twists, home; level 2) or a
-    list of names/globs (level words allowed inside the list). Frames absent from a data set's ``known``
+    ``free``: ``"offsets"`` (the default; thesis level 1), ``"kinematic"`` (full POE: offsets, twists, home;
+    level 2) or a list of names/globs (level words allowed inside the list). Frames absent from a data set's ``known``
     (fixture pose, clamp, tracker, markers, ...) are always estimated; known ones only when freed by name.
     ``noise``: one ``Noise`` for all data sets or a mapping data set name -> Noise; per quantity it goes over
     each data set's stated noise (``Dataset.meta["noise"]``), over ``kincal.noise.DEFAULT`` (the one noise rule,
@@ -71,34 +73,50 @@ def calibrate(
     same rule flags validation rows (``validate``).
     ``cv``: K-fold cross-validation by configuration (``estimation.crossval``, ``Result.cross_validation``);
     its model error replaces the variance factor's in the predictions.
+    ``stages``: solve in turn with each ``Stage``'s free set, each stage from the previous one's final state
+    (``estimation.stages``); then ``free`` and ``fixed`` are not given. The result is the last stage's, with
+    ``Result.stages``; outliers are looked for at its end, and the stages run again without them.
     The other keywords are ``SolverOptions``.
     """
     if not datasets:
         raise DegenerateExperimentError("no data sets given: nothing to calibrate from")
+    threshold = outlier_threshold(outliers)
+    options = SolverOptions(gauge, loss, f_scale, max_outer, rank_rtol, correlation_threshold, progress)
+    run = partial(_fit, robot, free=free, fixed=fixed, priors=priors, noise=noise, constraints=constraints,
+                  options=options, stages=tuple(stages))
+    result = run(datasets)
+    if threshold is not None and any_beyond(result.problem, result.state, threshold):
+        result = _without_outliers(result, options, threshold, run)
+    if cv:
+        fit = partial(calibrate, robot, free=free, fixed=fixed, priors=priors, noise=noise, gauge=gauge, loss=loss,
+                      f_scale=f_scale, max_outer=max_outer, rank_rtol=rank_rtol,
+                      correlation_threshold=correlation_threshold, constraints=constraints, outliers=outliers,
+                      stages=stages)
+        result = with_cross_validation(result, cross_validate(datasets, cv, fit, threshold=threshold))
+    return validate(result, validation, noise, outliers) if validation else result
+
+
+def _fit(robot: Robot, datasets: Sequence[Dataset], *, free, fixed, priors, noise, constraints,
+         options: SolverOptions, stages: tuple[Stage, ...]) -> Result:
+    """One solve of ``datasets`` with ``free`` and ``fixed``, or the staged solve of ``stages``."""
+    if stages:
+        if free is not None or fixed:
+            raise ModelError("give 'free' and 'fixed' in each stage, not beside 'stages'")
+        problems = stage_problems(robot, datasets, stages, priors, noise, constraints)
+        return solve_stages(problems, stages, options, solve)
+    free = "offsets" if free is None else free
     problem = Problem.build(robot, datasets, free, fixed, priors, noise, constraints)
     if len(problem.free_idx) == 0:
         raise DegenerateExperimentError(
             f"every parameter is fixed: nothing to estimate (free={free!r}, fixed={list(fixed)!r})"
         )
-    threshold = outlier_threshold(outliers)
-    options = SolverOptions(gauge, loss, f_scale, max_outer, rank_rtol, correlation_threshold, progress)
-    result = solve(problem, options)
-    if threshold is not None and any_beyond(problem, result.state, threshold):
-        result = _without_outliers(result, options, threshold,
-                                   lambda kept_sets: Problem.build(robot, kept_sets, free, fixed, priors, noise,
-                                                                   constraints))
-    if cv:
-        fit = partial(calibrate, robot, free=free, fixed=fixed, priors=priors, noise=noise, gauge=gauge, loss=loss,
-                      f_scale=f_scale, max_outer=max_outer, rank_rtol=rank_rtol,
-                      correlation_threshold=correlation_threshold, constraints=constraints, outliers=outliers)
-        result = with_cross_validation(result, cross_validate(datasets, cv, fit, threshold=threshold))
-    return validate(result, validation, noise, outliers) if validation else result
+    return solve(problem, options)
 
 
-def _without_outliers(result: Result, options: SolverOptions, threshold: float, rebuild) -> Result:
+def _without_outliers(result: Result, options: SolverOptions, threshold: float, refit) -> Result:
     """The solve of ``result.problem`` again without its outlying rows: found at a robust pass (Cauchy loss,
-    unless the solve's own loss is robust already), then the solve with ``options`` on the rest (``rebuild``
-    makes the problem from the kept data sets). ``result`` itself when no row is beyond ``threshold``."""
+    unless the solve's own loss is robust already), then ``refit`` (the whole solve, every stage of a staged one)
+    on the kept data sets. ``result`` itself when no row is beyond ``threshold``."""
     problem = result.problem
     robust = result
     if options.loss == "linear":
@@ -106,7 +124,7 @@ def _without_outliers(result: Result, options: SolverOptions, threshold: float, 
     found = find_outliers(problem, robust.state, threshold)
     if not found:
         return result
-    final = solve(rebuild(kept([e.dataset for e in problem.experiments], found)), options)
+    final = refit(kept([e.dataset for e in problem.experiments], found))
     note = (f"{len(found)} configuration(s) left out as outliers (standardized residual beyond a tail probability "
             f"of {threshold:.3g}; listed in 'outliers'): the estimates and statistics are of the other rows")
     return replace(final, outliers=tuple(found), messages=(note,) + final.messages)

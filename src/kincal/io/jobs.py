@@ -21,6 +21,7 @@ import yaml
 from kincal.data import Dataset, frames_problem
 from kincal.errors import DataFormatError
 from kincal.estimation import FrameDistance
+from kincal.estimation.stages import Stage, StageError, stage_problems
 from kincal.noise import Noise, effective
 from kincal.io import units
 from kincal.io.datasets import load_dataset
@@ -33,7 +34,7 @@ from kincal.kinematics import Robot
 from kincal.params import LEVELS, Prior
 
 _TOP = {"format", "version", "name", "model", "data", "validation", "free", "fixed", "priors", "gauge", "solver",
-        "description", "constraints", "outliers", "confine"}
+        "description", "constraints", "outliers", "confine", "stages"}
 _SOLVER = {"method", "loss", "f_scale", "max_outer", "rank_rtol", "correlation_threshold", "cv"}
 _LOSSES = ("linear", "huber", "soft_l1", "cauchy", "arctan")
 
@@ -57,6 +58,7 @@ class Job:
     constraints: tuple = ()  # FrameDistance
     outliers: str | float = "reject"  # reject | keep | a tail probability (``calibrate(outliers=...)``)
     model: str = ""  # the model reference as resolved: a built-in name or the model file's path
+    stages: tuple[Stage, ...] = ()  # a staged solve (``calibrate(stages=...)``); ``free`` is then the last stage's
 
 
 def load_job(path, confine: bool = False) -> Job:
@@ -83,15 +85,7 @@ def load_job(path, confine: bool = False) -> Job:
     refs = (path, model, root)
     datasets, noise = _data(f, refs, top.get("data"), "data", robot, required=True)
     validation, _ = _data(f, refs, top.get("validation") or [], "validation", robot, required=False)
-    free = top.get("free", "offsets")
-    if isinstance(free, str):
-        if free not in LEVELS:
-            raise DataFormatError(f"{f}: field 'free' is {quote(free)}; expected {' or '.join(LEVELS)} or a list of "
-                                  "names")
-    elif isinstance(free, list) and all(isinstance(x, str) for x in free):
-        free = tuple(free)
-    else:
-        raise DataFormatError(f"{f}: field 'free' must be a level word or a list of names/globs, found {quote(free)}")
+    free = _free(f, top.get("free", "offsets"), "free")
     fixed = _strings(f, top.get("fixed") or [], "fixed")
     gauge = top.get("gauge", "min-change")
     if not (gauge == "min-change" or isinstance(gauge, list)):
@@ -116,8 +110,62 @@ def load_job(path, confine: bool = False) -> Job:
     if not isinstance(constraints, list):
         raise DataFormatError(f"{f}: field 'constraints' must be a list, found {quote(constraints)}")
     constraints = tuple(_constraint(f"{f}: constraints[{i}]", c) for i, c in enumerate(constraints))
-    return Job(path, str(top.get("name", path.stem)), robot, datasets, validation, free, fixed, priors, noise, gauge,
-               method, options, constraints, _outliers(f, top.get("outliers", "reject")), model)
+    job = Job(path, str(top.get("name", path.stem)), robot, datasets, validation, free, fixed, priors, noise, gauge,
+              method, options, constraints, _outliers(f, top.get("outliers", "reject")), model)
+    return _stages(f, top, job) if "stages" in top else job
+
+
+def _free(f: str, free, key: str) -> str | tuple[str, ...]:
+    """A ``free`` field: a level word or a list of names/globs."""
+    if isinstance(free, str):
+        if free not in LEVELS:
+            raise DataFormatError(f"{f}: field '{key}' is {quote(free)}; expected {' or '.join(LEVELS)} or a list of "
+                                  "names")
+        return free
+    if isinstance(free, list) and all(isinstance(x, str) for x in free):
+        return tuple(free)
+    raise DataFormatError(f"{f}: field '{key}' must be a level word or a list of names/globs, found {quote(free)}")
+
+
+def parse_stages(f: str, spec, key: str = "stages") -> list[Stage]:
+    """``[{name, free, fixed}, ...]`` -> Stage objects (names not yet checked against a model: ``stage_problems``);
+    ``key`` names the field in errors."""
+    if not isinstance(spec, list) or not spec:
+        raise DataFormatError(f"{f}: field '{key}' must be a non-empty list of {{name, free, fixed}}, found "
+                              f"{quote(spec)}")
+    stages = []
+    for i, st in enumerate(spec):
+        where = f"{key}[{i}]"
+        if not isinstance(st, dict) or "free" not in st:
+            raise DataFormatError(f"{f}: field {where}: expected {{free: ..., fixed: [...], name: ...}} (free "
+                                  f"required), found {quote(st)}")
+        if set(st) - {"name", "free", "fixed"}:
+            raise DataFormatError(f"{f}: field {where}: unknown key(s) {sorted(set(st) - {'name', 'free', 'fixed'})}; "
+                                  "expected free, fixed, name")
+        free = _free(f, st["free"], f"{where}.free")
+        if not free:
+            raise DataFormatError(f"{f}: field {where}.free: empty; a stage frees at least one parameter")
+        if not isinstance(st.get("name", ""), str):
+            raise DataFormatError(f"{f}: field {where}.name: expected text, found {quote(st['name'])}")
+        stages.append(Stage(free, _strings(f, st.get("fixed") or [], f"{where}.fixed"), st.get("name", "")))
+    return stages
+
+
+def _stages(f: str, top: dict, job: Job) -> Job:
+    """``stages: [{name, free, fixed}, ...]`` (docs/job-format.md "Staged solves"), every stage's free set
+    checked against the job's model and data."""
+    spec = top["stages"]
+    for key in ("free", "fixed"):
+        if key in top:
+            raise DataFormatError(f"{f}: field '{key}': with 'stages', give '{key}' in each stage instead")
+    if job.method != "kincal":
+        raise DataFormatError(f"{f}: field 'stages' needs kincal's solver (solver.method 'kincal')")
+    stages = parse_stages(f, spec)
+    try:
+        stage_problems(job.robot, job.datasets, stages, job.priors, job.noise, job.constraints)
+    except StageError as exc:
+        raise DataFormatError(f"{f}: field {exc.field}: {exc.reason}") from None
+    return replace(job, stages=tuple(stages), free=stages[-1].free)  # free: what `kincal analyze` plans by default
 
 
 def write_job(path, *, name: str, model: str, data, validation=(), free: str | list[str] = "offsets") -> Path:

@@ -93,9 +93,23 @@ def result_to_dict(result: Result | BaselineResult) -> dict:
         "validation_outliers": [_outlier(o) for o in result.validation_outliers],
         "validation_all_rows": [_validation(v) for v in result.validation_all],
         "cross_validation": cross_validation_dict(result.cross_validation),
+        "stages": stage_rows(result),
         "frames": {k: np.asarray(v.as_array() if hasattr(v, "as_array") else v).tolist()
                    for k, v in result.extras.items()},
     }
+
+
+def stage_rows(result: Result) -> list[dict]:
+    """A staged solve's stages in order (docs/calibration.md "Staged solves"): the free set as given, free
+    coordinates and rank, whitened chi^2, residual variance factor, status, outer iterations, position and
+    orientation RMS over every data set (mm, deg) and the residual statistics per data set at the stage's end.
+    Empty for a single solve."""
+    return [{"name": s.name, "free": s.free if isinstance(s.free, str) else list(s.free), "fixed": list(s.fixed),
+             "free_parameters": s.parameters, "rank": s.rank, "chi2": _f(s.cost),
+             "residual_variance_factor": _f(s.sigma2), "status": s.status, "iterations": s.iterations,
+             "position_mm_rms": None if s.rms("position") is None else _f(s.rms("position") * 1e3),
+             "orientation_deg_rms": None if s.rms("orientation") is None else _f(s.rms("orientation") * DEG),
+             "residuals": [_stats(x) for x in s.after]} for s in result.stages]
 
 
 def _outlier(o) -> dict:

@@ -15,6 +15,7 @@ from typing import Any
 from kincal.errors import DataFormatError, KincalError
 from kincal.io import units
 from kincal.io.datasets import VERSION, _experiment, _truth
+from kincal.io.jobs import parse_stages
 from kincal.io.models import _Ctx, _mapping, _number, load_robot
 from kincal.io.references import model_reference
 from kincal.io.yamlfile import quote, read_yaml
@@ -28,7 +29,7 @@ CONFIGURATIONS = ("fixed", "redrawn")
 DATA = ("markers", "pose")
 WEIGHTING = ("full", "diagonal", "equal")  # kincal.experiments.pose.WEIGHTS
 # Calibration options a variant passes on to ``kincal.estimation.calibrate`` (checked there by their meaning);
-# "stages" reaches calibrate as written when the installed kincal solves in stages.
+# "stages" as in a job file (``kincal.io.jobs.parse_stages``).
 CALIBRATE_OPTIONS = {"free", "fixed", "gauge", "loss", "f_scale", "max_outer", "outliers", "stages"}
 
 
@@ -144,6 +145,10 @@ def _variants(ctx, data: Any) -> list[dict]:
             raise ctx.fail(f"{where}.length_per_radian", f"expected a length > 0, found {quote(v['length_per_radian'])}")
         options = {k: v[k] for k in CALIBRATE_OPTIONS if k in v}
         _check_patterns(ctx, options, where)
+        if "stages" in options:
+            if {"free", "fixed"} & set(options):
+                raise ctx.fail(f"{where}.stages", "with stages, give free and fixed in each stage instead")
+            options["stages"] = tuple(parse_stages(ctx.file, options["stages"], f"{where}.stages"))
         out.append({"name": name, "data": data_kind, "weighting": weighting, "length_per_radian": scale,
                     "options": options})
     return out

@@ -14,9 +14,10 @@ def run_job(job: Job, progress=None):
     _require_measured(job)
     if job.method == "thesis":
         return _thesis(job)
-    return calibrate(job.robot, job.datasets, job.free, fixed=job.fixed, priors=job.priors, noise=job.noise,
+    free, fixed = (None, ()) if job.stages else (job.free, job.fixed)
+    return calibrate(job.robot, job.datasets, free, fixed=fixed, priors=job.priors, noise=job.noise,
                      gauge=job.gauge, validation=job.validation, constraints=job.constraints, progress=progress,
-                     outliers=job.outliers, **job.options)
+                     outliers=job.outliers, stages=job.stages, **job.options)
 
 
 def _require_measured(job: Job) -> None:

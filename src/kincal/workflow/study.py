@@ -96,7 +96,7 @@ def load(path) -> Study:
             raise DataFormatError(f"{spec['file']}: quantities.{q}: mixes units ({', '.join(names[t] for t in terms)})")
     accepted = set(inspect.signature(calibrate).parameters)
     for i, v in enumerate(spec["variants"]):
-        for key in set(v["options"]) - accepted:  # e.g. stages, before the solver has staged solves
+        for key in set(v["options"]) - accepted:
             raise DataFormatError(f"{spec['file']}: variants[{i}].{key}: this kincal's calibrate has no option "
                                   f"{key!r}")
     variants = tuple(Variant(v["name"], v["data"], v["weighting"], v["options"], v["length_per_radian"])
