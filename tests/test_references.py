@@ -150,8 +150,8 @@ def test_joint_readings_past_their_limits_are_warned_and_past_4_pi_refused_unles
     lines[4] = ",".join(cells)
     csv.write_text("\n".join(lines) + "\n")
     (warning,) = [w for w in load_job(job).datasets[0].meta["warnings"] if "limit" in w]
-    assert re.search(r"m\.csv: line\(s\) 5, column 'arm\.elbow': reading 6\.5 rad is past the joint limit "
-                     r"6\.28319 rad of model 'ur10'", warning)
+    assert re.search(r"m\.csv: line\(s\) 5, column 'arm\.elbow': reading 6\.5 rad \(372\.4 deg\) is past the joint "
+                     r"limit 6\.28319 rad \(360 deg\) of model 'ur10'", warning)
     cells[2] = "13"  # beyond 4 pi: not an angle in radians
     lines[4] = ",".join(cells)
     csv.write_text("\n".join(lines) + "\n")

@@ -170,8 +170,10 @@ def _limit_warnings(ctx, table: Table, robot: Robot, q: dict, u: dict) -> tuple[
         column = f"{a}.{robot[a].joint_names[j]}"
         lines = ", ".join(str(table.lines[r]) for r in rows[:MAX_ROW_WARNINGS])
         more = f" and {len(rows) - MAX_ROW_WARNINGS} more" if len(rows) > MAX_ROW_WARNINGS else ""
-        out.append(f"{table.path}: line(s) {lines}{more}, column '{column}': reading {q[a][rows[0], j] / f:.6g} "
-                   f"{unit} is past the joint limit {limit / f:.6g} {unit} of model '{robot.name}'")
+        value, lim = q[a][rows[0], j], limit
+        in_file = lambda x: f"{x / f:.6g} {unit}" + ("" if prismatic or unit == "deg" else f" ({math.degrees(x):.4g} deg)")  # noqa: E731
+        out.append(f"{table.path}: line(s) {lines}{more}, column '{column}': reading {in_file(value)} is past the "
+                   f"joint limit {in_file(lim)} of model '{robot.name}'")
     return tuple(out)
 
 
