@@ -9,8 +9,9 @@ pool's readings get the scenario's stated noise (joint readings, tracker positio
 configurations and random subsets of N = 15 ... 100 configurations are calibrated and validated on the held-out
 configurations, noise-free: the experiment's own position residual with its unknown frames (tracker and markers,
 clamp, plate, fixture) refitted. Not the scenario's tool-pose validation: one clamp cannot identify joint 1
-about its axis nor the tool, so the tool's world position keeps millimetres of error whatever is measured. Per seed, the random curve (median of ``--draws`` subsets per N, made non-increasing in N) is
-interpolated log-log at the designed error: "worth" N random. Reported: the median over the seeds.
+about its axis nor the tool, so the tool's world position keeps millimetres of error whatever is measured.
+Per seed, the random curve (median of ``--draws`` subsets per N, made non-increasing in N) is interpolated
+log-log at the designed error: "worth" N random. Reported: the median over the seeds.
 
 Error sizes: ``thesis`` (0.01 m, 2.4 deg twists and home, 0.07 rad offsets) and ``fine`` (1 mm, 0.1 deg,
 0.01 rad), ``kincal.simulate.perturb``. The dual clamp calibrates offsets only (at level kinematic it has 61
