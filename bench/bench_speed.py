@@ -30,6 +30,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy loads OpenBLAS
 
 import argparse  # noqa: E402
+import copyreg  # noqa: E402
 import importlib  # noqa: E402
 import json  # noqa: E402
 import pickle  # noqa: E402
@@ -37,6 +38,7 @@ import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
+import types  # noqa: E402
 from contextlib import contextmanager  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -51,6 +53,16 @@ import bench_figaroh  # noqa: E402
 import reference_solver  # noqa: E402
 from kincal.estimation import Noise as StatedNoise  # noqa: E402
 from kincal.estimation import calibrate  # noqa: E402
+
+
+
+def _read_only(d: dict) -> types.MappingProxyType:
+    return types.MappingProxyType(d)
+
+
+# Data sets hold read-only mappings (meta, noise): pickled as the dict they wrap, to hand data to a worker
+# (which runs this script as __main__ too, so it finds ``_read_only``).
+copyreg.pickle(types.MappingProxyType, lambda m: (_read_only, (dict(m),)))
 
 SIGMA_M = 5e-5  # tracker noise per axis (0.05 mm)
 N_VALIDATION = bench_figaroh.N_VALIDATION
