@@ -74,8 +74,9 @@ class Run:
 # ------------------------------------------------------------------------------------------------- data
 
 
-def make_data(seed: int, sizes):
-    """True robot, tracker, marker; one calibration set per size; validation readings and true positions."""
+def make_data(seed: int, sizes, sigma: float = SIGMA_M):
+    """True robot, tracker, marker; one calibration set per size (``sigma``: tracker noise per axis, m);
+    validation readings and true positions."""
     rng = np.random.default_rng(seed)
     nominal = load("ur10")
     true = perturb_robot(nominal, "fine", rng=rng)
@@ -84,7 +85,7 @@ def make_data(seed: int, sizes):
     sets = {}
     for n in sizes:
         ds, truth, _ = generate_markers(
-            true, ARM, n=n, rng=rng, noise=Noise(position=SIGMA_M), markers=p_tool_marker,
+            true, ARM, n=n, rng=rng, noise=Noise(position=sigma), markers=p_tool_marker,
             T_world_tracker=T_world_tracker, n_validation=1,
         )
         sets[n] = ds

@@ -1,0 +1,187 @@
+"""Scale (issue 15): Frida's dual arm at N = 1,000 and 10,000 clamped configurations (100,000 with ``--big``),
+and the import time of ``import kincal; import kincal.estimation``.
+
+Problem: the ``frida_dual_bracket`` scenario (thesis-level errors, joint noise 0.005 deg, backlash 0.01 deg)
+with the clamp unknown; ``calibrate(frida, [ds], ["kinematic", "clamp"])``: both arms' full POE and the
+clamp, 88 free coordinates, rank 55.
+
+Each size runs in two fresh subprocesses: one simulates the data and pickles it to ``--cache`` (kept, so a
+second run skips it), the other loads it and calibrates once and reports its own peak RSS
+(``getrusage(RUSAGE_SELF)``: the parent's RUSAGE_CHILDREN would be the largest child so far, the simulations
+included), so the peak is per size and the solve's. "RSS before" is that process's resident set after importing
+kincal and loading the data; "per configuration" is (peak - before) / N, also
+counted in copies of the final whitened Jacobian (free columns, float64). Wall and CPU are of ``calibrate``
+alone (BLAS on one thread: threadpoolctl and OPENBLAS_NUM_THREADS=1).
+
+Import time: ``python -c "import kincal; import kincal.estimation"`` in ``--import-runs`` fresh subprocesses
+(median, wall, timed inside the child), then one run with ``-X importtime`` for the modules with the largest
+cumulative import times.
+
+Run: python bench/bench_scale.py [--sizes 1000 10000] [--big] [--cache DIR] [--import-runs 5]
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy loads OpenBLAS
+
+import argparse  # noqa: E402
+import copyreg  # noqa: E402
+import json  # noqa: E402
+import pickle  # noqa: E402
+import resource  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+import types  # noqa: E402
+from dataclasses import replace  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+from threadpoolctl import threadpool_limits  # noqa: E402
+
+from kincal.estimation import calibrate  # noqa: E402
+from kincal.io.datasets import load_scenario, scenario_path  # noqa: E402
+from kincal.simulate.scenario import build_scenario, run  # noqa: E402
+
+
+
+def _read_only(d: dict) -> types.MappingProxyType:
+    return types.MappingProxyType(d)
+
+
+# Data sets hold read-only mappings (meta, noise): pickled as the dict they wrap, to hand data to a worker
+# (which runs this script as __main__ too, so it finds ``_read_only``).
+copyreg.pickle(types.MappingProxyType, lambda m: (_read_only, (dict(m),)))
+
+SCENARIO = "frida_dual_bracket"
+FREE = ["kinematic", "clamp"]
+BIG = 100_000
+IMPORTS = "import kincal; import kincal.estimation"
+MiB = 1024 * 1024
+
+
+def simulate(n: int, path: Path) -> None:
+    """The scenario with ``n`` configurations and the clamp unknown, pickled with its nominal robot."""
+    scenario = build_scenario(load_scenario(scenario_path(SCENARIO)))
+    scenario = replace(scenario, options=dict(scenario.options, n=n, known_clamp=False), n_validation=1)
+    ds = run(scenario)[1]
+    path.write_bytes(pickle.dumps((scenario.robot, ds)))
+
+
+def resident() -> int:
+    """This process's resident set now (bytes)."""
+    return int(Path("/proc/self/statm").read_text().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+def solve(path: Path) -> None:
+    """Calibrate the pickled problem once; prints one JSON line (times, rank, RSS before the solve)."""
+    robot, ds = pickle.loads(path.read_bytes())
+    before = resident()
+    with threadpool_limits(limits=1, user_api="blas"):
+        t0, c0 = time.perf_counter(), time.process_time()
+        res = calibrate(robot, [ds], FREE)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    ana, J = res.identifiability, res.linearization.J
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # this process's peak: the solve's
+    print(json.dumps({"n": ds.size, "wall": wall, "cpu": cpu, "before": before, "peak": peak, "jacobian": J.nbytes, "rank": ana.rank,
+                      "free": len(ana.names), "status": res.status, "iterations": res.iterations}))
+
+
+def child(*args: str) -> dict | None:
+    """Run this script with ``args`` in a fresh process: its last JSON line, or None."""
+    done = subprocess.run([sys.executable, str(Path(__file__).resolve()), *args], capture_output=True, text=True,
+                          env=dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1"))
+    if done.returncode != 0:
+        raise SystemExit(f"{' '.join(args)} failed:\n{done.stderr}")
+    lines = done.stdout.strip().splitlines()
+    return json.loads(lines[-1]) if lines else None
+
+
+def scale_rows(sizes, cache: Path):
+    """One row per size: simulate (cached), then solve in a fresh process that reports its own peak RSS
+    (``getrusage(RUSAGE_SELF)`` at its end: the parent's RUSAGE_CHILDREN is a maximum over every child, the
+    simulations included)."""
+    rows = []
+    for n in sorted(sizes):
+        path = cache / f"{SCENARIO}-{n}.pkl"
+        if not path.exists():
+            t0 = time.perf_counter()
+            child("--simulate", str(n), str(path))
+            print(f"simulated N = {n} in {time.perf_counter() - t0:.0f} s ({path})", flush=True)
+        out = child("--solve", str(path))
+        rows.append(out)
+        print(f"N = {n}: {out}", flush=True)
+    return rows
+
+
+def import_times(runs: int):
+    """(median wall s of the imports in fresh processes, [(cumulative s, module)] of one -X importtime run)."""
+    code = f"import time; t = time.perf_counter(); {IMPORTS}; print(time.perf_counter() - t)"
+    walls = [float(subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout)
+             for _ in range(runs)]
+    err = subprocess.run([sys.executable, "-X", "importtime", "-c", IMPORTS], capture_output=True, text=True,
+                         check=True).stderr
+    mods = []
+    for line in err.splitlines()[1:]:
+        parts = line.split("|")
+        if len(parts) == 3 and parts[1].strip().isdigit():
+            mods.append((int(parts[1]) * 1e-6, parts[2].rstrip()))
+    return float(np.median(walls)), mods
+
+
+def markdown(head, rows) -> str:
+    rows = [tuple(head)] + [tuple(r) for r in rows]
+    widths = [max(len(r[i]) for r in rows) for i in range(len(head))]
+    fmt = lambda r: "| " + " | ".join(c.ljust(w) for c, w in zip(r, widths)) + " |"  # noqa: E731
+    return "\n".join([fmt(rows[0]), "|" + "|".join("-" * (w + 2) for w in widths) + "|"] + [fmt(r) for r in rows[1:]])
+
+
+def scale_table(rows) -> str:
+    out = []
+    for r in rows:
+        per = (r["peak"] - r["before"]) / r["n"]
+        out.append([f"{r['n']:,}", f"{r['wall']:.2f} s", f"{r['cpu']:.2f} s", f"{r['peak'] / MiB:.0f} MiB",
+                    f"{r['before'] / MiB:.0f} MiB", f"{per / 1024:.1f} KiB", f"{per * r['n'] / r['jacobian']:.1f}",
+                    f"{r['rank']} of {r['free']}", f"{r['status']}, {r['iterations']} outer"])
+    head = ["N", "wall", "CPU", "peak RSS", "RSS before", "per configuration", "in whitened Jacobians", "rank",
+            "status"]
+    return markdown(head, out)
+
+
+def import_table(median: float, mods, top: int) -> str:
+    """The slowest imports by cumulative time, with their nesting depth as -X importtime prints it."""
+    rows = [[str((len(name) - len(name.lstrip())) // 2), name.strip(), f"{t * 1e3:.0f} ms"]
+            for t, name in sorted(mods, key=lambda m: -m[0])[:top]]
+    return (f"`{IMPORTS}`: {median * 1e3:.0f} ms (median of fresh processes)\n"
+            + markdown(["depth", "module", "cumulative"], rows))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--sizes", type=int, nargs="+", default=[1000, 10_000])
+    ap.add_argument("--big", action="store_true", help=f"also N = {BIG:,} (minutes, several GiB today)")
+    ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "kincal-bench-scale")
+    ap.add_argument("--import-runs", type=int, default=5)
+    ap.add_argument("--top", type=int, default=15, help="rows of the import table")
+    ap.add_argument("--simulate", nargs=2, help=argparse.SUPPRESS)
+    ap.add_argument("--solve", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.simulate:
+        return simulate(int(args.simulate[0]), Path(args.simulate[1]))
+    if args.solve:
+        return solve(Path(args.solve))
+    args.cache.mkdir(parents=True, exist_ok=True)
+    median, mods = import_times(args.import_runs)
+    rows = scale_rows(args.sizes + ([BIG] if args.big else []), args.cache)
+    print(f"\nFrida dual arm, {SCENARIO}, clamp unknown, free {FREE}; BLAS on one thread; one call per size; "
+          f"load average {os.getloadavg()[0]:.1f}")
+    print(scale_table(rows))
+    print()
+    print(import_table(median, mods, args.top))
+
+
+if __name__ == "__main__":
+    main()
