@@ -136,6 +136,21 @@ def test_escapes_beyond_unicode_and_nul_in_file_names_are_kincal_errors(tmp_path
         read_text(tmp_path / "a\0b.yaml", "data set manifest")
 
 
+def test_a_file_name_with_a_newline_stays_on_one_line(tmp_path):
+    """Found by the 2000-example job fuzz: a data entry of blanks and newlines named a manifest whose error
+    message broke over two lines; file names that are not printable are quoted."""
+    with pytest.raises(DataFormatError) as exc:
+        read_text(tmp_path / "\n\n  ", "data set manifest")
+    assert "\n" not in str(exc.value) and "cannot read data set manifest: No such file" in str(exc.value)
+    job = tmp_path / "job.yaml"
+    job.write_text("format: kincal-job\nversion: 1\nmodel: ur10\ndata:\n- '\n\n  '\n")
+    from kincal.io.jobs import load_job
+
+    with pytest.raises(DataFormatError) as exc:
+        load_job(job)
+    assert "\n" not in str(exc.value)
+
+
 def test_a_byte_order_mark_in_a_log_or_data_csv_keeps_the_first_column(tmp_path):
     """A BOM used to turn the header's first name into '\\ufefft': the time column was dropped silently."""
     ur = robots.load("ur10")

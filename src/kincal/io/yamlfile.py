@@ -130,19 +130,26 @@ def quote(x) -> str:
     return clip(repr(x))
 
 
+def shown(path) -> str:
+    """A path as an error message names it: as it is, or quoted where it holds characters that would break the
+    message's one line (a newline, a NUL, other control characters)."""
+    text = str(path)
+    return text if text.isprintable() else repr(text)
+
+
 def _checked(path, what: str) -> Path:
     """``path`` if it names a regular file no larger than ``MAX_TEXT_BYTES``, else a DataFormatError."""
     path = Path(path)
     if "\0" in str(path):
-        raise DataFormatError(f"{str(path)!r}: cannot read {what}: the file name contains a NUL character")
+        raise DataFormatError(f"{shown(path)}: cannot read {what}: the file name contains a NUL character")
     try:
         info = path.stat()
     except OSError as exc:
-        raise DataFormatError(f"{path}: cannot read {what}: {exc.strerror or exc}") from None
+        raise DataFormatError(f"{shown(path)}: cannot read {what}: {exc.strerror or exc}") from None
     if not stat.S_ISREG(info.st_mode):
-        raise DataFormatError(f"{path}: cannot read {what}: not a regular file")
+        raise DataFormatError(f"{shown(path)}: cannot read {what}: not a regular file")
     if info.st_size > MAX_TEXT_BYTES:
-        raise DataFormatError(f"{path}: cannot read {what}: {info.st_size} bytes, more than the limit of "
+        raise DataFormatError(f"{shown(path)}: cannot read {what}: {info.st_size} bytes, more than the limit of "
                               f"{MAX_TEXT_BYTES} bytes")
     return path
 
