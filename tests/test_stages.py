@@ -219,3 +219,23 @@ def test_gauge_list_and_cross_validation_with_stages():
     assert res.status == "converged" and len(res.stages) == 2
     assert res.cross_validation is not None and len(res.cross_validation.folds) == 3
     assert all(f.status == "converged" for f in res.cross_validation.folds)
+
+
+def test_html_report_lists_the_stages():
+    from html.parser import HTMLParser
+
+    from kincal.report.html import report_html
+
+    _, ds, _, _ = _simulate(LOADED, 5)
+    res = calibrate(LOADED.robot, [ds], stages=PAPER)
+    page = report_html(res, title="staged")
+    cells = []
+
+    class Cells(HTMLParser):
+        def handle_data(self, data):
+            cells.append(data.strip())
+
+    Cells().feed(page)
+    assert "Stages" in cells and "1 base-and-tool" in cells and "2 geometry-and-compliance" in cells
+    assert "tracker, markers" in cells and "kinematic, elastic" in cells and "misfit" in cells
+    assert "Stages" not in report_html(calibrate(LOADED.robot, [ds], GEOMETRY), title="simultaneous")

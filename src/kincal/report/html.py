@@ -42,6 +42,9 @@ def report_html(result, *, title: str, workspace: Mapping[str, np.ndarray] | Non
     parts = [f"<h1>{_e(title)}</h1>", _verdict(result, next_steps)]
     parts += ["<h2>Estimates</h2>", _estimates(result), _image(plt, _uncertainty(plt, result))]
     parts += ["<h2>Residuals before and after</h2>", _residual_table(result), _image(plt, _residuals(plt, result))]
+    if result.stages:
+        parts += ["<h2>Stages</h2>", "<p>Each stage started from the one before; the estimates, standard deviations "
+                  "and verdicts above are the last stage's.</p>", _stage_table(result)]
     if result.validation:
         parts += ["<h2>Validation on held-out configurations</h2>", _validation(result)]
         if result.predictions:
@@ -143,6 +146,17 @@ def _residual_table(result) -> str:
         rows.append(f"<tr><td>{_e(b.experiment)}</td><td>{_e(b.kind)}</td><td>{b.samples}</td>"
                     f"<td>{_num(b.position_rms, 1e3)}</td><td>{_num(a.position_rms, 1e3)}</td>"
                     f"<td>{_num(b.orientation_rms, DEG)}</td><td>{_num(a.orientation_rms, DEG)}</td></tr>")
+    return "<table>" + "".join(rows) + "</table>"
+
+
+def _stage_table(result) -> str:
+    rows = ["<tr><th>stage</th><th>free</th><th>held</th><th>parameters</th><th>rank</th><th>status</th>"
+            "<th>variance factor</th><th>position RMS (mm)</th><th>orientation RMS (deg)</th></tr>"]
+    for i, st in enumerate(result.stages, 1):
+        free = st.free if isinstance(st.free, str) else ", ".join(st.free)
+        rows.append(f"<tr><td>{i} {_e(st.name)}</td><td>{_e(free)}</td><td>{_e(', '.join(st.fixed)) or '-'}</td>"
+                    f"<td>{st.parameters}</td><td>{st.rank}</td><td>{_e(st.status)}</td><td>{_num(st.sigma2)}</td>"
+                    f"<td>{_num(st.rms('position'), 1e3)}</td><td>{_num(st.rms('orientation'), DEG)}</td></tr>")
     return "<table>" + "".join(rows) + "</table>"
 
 
