@@ -561,16 +561,11 @@ def scenario_path(name_or_path) -> Path:
     raise DataFormatError(f"{name_or_path}: no such scenario file, and not a built-in scenario ({names})")
 
 
-def load_scenario(path) -> dict:
-    """Read and check a scenario file (docs/simulation.md): plain data in SI units, for
-    ``kincal.simulate.scenario.build_scenario``. The ``experiment:`` keys are the options its generator
-    declares (``kincal.simulate.generators.OPTIONS``), each read by its type."""
-    path = scenario_path(path)
-    data = read_yaml(path, "scenario")
-    ctx = _Ctx(str(path))
-    top = _mapping(ctx, data, "(top level)", _SCENARIO_KEYS, ("format", "version", "model", "experiment"))
-    if top["format"] != SCENARIO_FORMAT:
-        raise ctx.fail("format", f"expected {quote(SCENARIO_FORMAT)}, found {quote(top['format'])}")
+def file_header(ctx: _Ctx, path: Path, top: Mapping, fmt: str) -> tuple[Robot, str]:
+    """The head of a scenario or study file: ``format`` and ``version`` checked, ``units`` read into ``ctx``
+    (file units to SI), the model loaded: (robot, model reference)."""
+    if top["format"] != fmt:
+        raise ctx.fail("format", f"expected {quote(fmt)}, found {quote(top['format'])}")
     if top["version"] != VERSION:
         raise ctx.fail("version", f"expected {VERSION}, found {quote(top['version'])}")
     u = _mapping(ctx, top.get("units", {"length": "m", "angle": "rad"}), "units", {"length", "angle"},
@@ -579,9 +574,20 @@ def load_scenario(path) -> dict:
     ctx.angle = units.factor("angle", u["angle"], f"{path}: units.angle")
     model = model_reference(path, str(top["model"]), f"{path}: model")
     try:
-        robot = load_robot(model)
+        return load_robot(model), model
     except KincalError as exc:
         raise ctx.fail("model", str(exc)) from None
+
+
+def load_scenario(path) -> dict:
+    """Read and check a scenario file (docs/simulation.md): plain data in SI units, for
+    ``kincal.simulate.scenario.build_scenario``. The ``experiment:`` keys are the options its generator
+    declares (``kincal.simulate.generators.OPTIONS``), each read by its type."""
+    path = scenario_path(path)
+    data = read_yaml(path, "scenario")
+    ctx = _Ctx(str(path))
+    top = _mapping(ctx, data, "(top level)", _SCENARIO_KEYS, ("format", "version", "model", "experiment"))
+    robot, model = file_header(ctx, path, top, SCENARIO_FORMAT)
     kind, options = _experiment(ctx, top["experiment"], robot)
     out = _mapping(ctx, top.get("output") or {"angle": "rad", "length": "m"}, "output", {"angle", "length"})
     for q in ("angle", "length"):

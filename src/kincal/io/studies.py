@@ -12,12 +12,11 @@ import csv
 from pathlib import Path
 from typing import Any
 
-from kincal.errors import DataFormatError, KincalError
+from kincal.errors import DataFormatError
 from kincal.io import units
-from kincal.io.datasets import VERSION, _experiment, _truth
+from kincal.io.datasets import _experiment, _truth, file_header
 from kincal.io.jobs import parse_stages
-from kincal.io.models import _Ctx, _mapping, _number, load_robot
-from kincal.io.references import model_reference
+from kincal.io.models import _Ctx, _mapping, _number
 from kincal.io.yamlfile import quote, read_yaml
 
 STUDY_FORMAT = "kincal-study"
@@ -54,19 +53,8 @@ def load_study(path) -> dict:
     ctx = _Ctx(str(path))
     top = _mapping(ctx, read_yaml(path, "study"), "(top level)", _KEYS,
                    ("format", "version", "model", "experiment", "variants"))
-    if top["format"] != STUDY_FORMAT:
-        raise ctx.fail("format", f"expected {quote(STUDY_FORMAT)}, found {quote(top['format'])}")
-    if top["version"] != VERSION:
-        raise ctx.fail("version", f"expected {VERSION}, found {quote(top['version'])}")
-    u = _mapping(ctx, top.get("units", {"length": "m", "angle": "rad"}), "units", {"length", "angle"},
-                 ("length", "angle"))
-    ctx.length = units.factor("length", u["length"], f"{path}: units.length")
-    ctx.angle = units.factor("angle", u["angle"], f"{path}: units.angle")
-    model = model_reference(path, str(top["model"]), f"{path}: model")
-    try:
-        robot = load_robot(model)
-    except KincalError as exc:
-        raise ctx.fail("model", str(exc)) from None
+    robot, model = file_header(ctx, path, top, STUDY_FORMAT)
+    u = top.get("units", {"length": "m", "angle": "rad"})  # checked by file_header
     exp = top["experiment"]
     if not isinstance(exp, dict):
         raise ctx.fail("experiment", f"expected a mapping with a kind, found {quote(exp)}")
