@@ -14,5 +14,5 @@ from kincal.estimation.stats import ResidualStats, ValidationStats
 from kincal.noise import Noise
 
 __all__ = ["Estimate", "FrameDistance", "Iteration", "Noise", "Outlier", "Problem", "ResidualStats", "Result",
-           "SolverOptions", "Stage", "StageRecord", "TwistEstimate", "ValidationStats", "calibrate", "evaluate", "finalize", "iterate",
-           "solve", "validate", "validation_stats"]
+           "SolverOptions", "Stage", "StageRecord", "TwistEstimate", "ValidationStats", "calibrate", "evaluate",
+           "finalize", "iterate", "solve", "validate", "validation_stats"]

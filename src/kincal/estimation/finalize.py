@@ -11,7 +11,7 @@ from kincal.estimation.gauge import gauge_basis
 from kincal.estimation.iterate import Iteration, scale_test_needed
 from kincal.estimation.options import SolverOptions
 from kincal.estimation.problem import Problem
-from kincal.estimation.result import Estimate, Result, TwistEstimate
+from kincal.estimation.result import Estimate, Result, TwistEstimate, low_redundancy
 from kincal.params import HOME, TWISTS, displacement, twist_coordinates
 
 # Residual variance factor above which the fit is reported as not explaining the data (RMS 10x the noise).
@@ -72,12 +72,6 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
         twists=_twists(problem, run.state, cov), weights=None if options.loss == "linear" else weights,
         covariance_scale=scale,
     )
-
-
-def low_redundancy(dof: int, rank: int) -> bool:
-    """Fewer redundant equations than identifiable parameters (but some): the residual variance rests on few
-    degrees of freedom and the fit barely checks the model."""
-    return 0 < dof < rank
 
 
 def covariance_scale(sigma2: float, dof: int, rank: int) -> float:

@@ -46,6 +46,12 @@ class TwistEstimate:
     std: float
 
 
+def low_redundancy(dof: int, rank: int) -> bool:
+    """Fewer redundant equations than identifiable parameters (but some): the residual variance rests on few
+    degrees of freedom and the fit barely checks the model."""
+    return 0 < dof < rank
+
+
 @dataclass(frozen=True)
 class StageRecord:
     """One stage of a staged solve (``kincal.estimation.stages``): its free set as given, its free coordinates
@@ -115,11 +121,8 @@ class Result:
     def low_redundancy(self) -> bool:
         """Fewer redundant equations than identifiable parameters: the fit barely checks the model, so the
         result is trusted only where validation data confirm it."""
-        lin = self.linearization
-        if lin is None:
-            return False
-        dof = len(lin.r) - self.identifiability.rank
-        return 0 < dof < self.identifiability.rank
+        lin, rank = self.linearization, self.identifiability.rank
+        return lin is not None and low_redundancy(len(lin.r) - rank, rank)
 
     @property
     def trusted(self) -> bool:
