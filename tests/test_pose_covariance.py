@@ -12,7 +12,8 @@ from kincal.data import Dataset
 from kincal.errors import DataFormatError, DegenerateExperimentError, KincalError, ShapeError
 from kincal.estimation import Problem, calibrate
 from kincal.experiments.pose import weighted
-from kincal.experiments.pose_from_markers import fit_poses, layout_covariance, markers_to_pose
+from kincal.experiments._kernel import fit_transform
+from kincal.experiments.pose_from_markers import layout_covariance, markers_to_pose
 from kincal.io.datasets import load_dataset, write_dataset
 from kincal.lie import se3, so3
 from kincal.noise import Noise
@@ -44,7 +45,7 @@ def test_fit_recovers_noise_free_poses():
     ds = markers_to_pose(_markers(T, LAYOUT, 0.0, rng), sigma=1e-5)
     assert ds.kind == "pose" and ds.measured["pose_cov"].shape == (50, 6, 6)
     np.testing.assert_allclose(ds.measured["T_tracker_tool"], T, atol=1e-12)
-    np.testing.assert_allclose(fit_poses(LAYOUT, se3.transform_points(T[:, None], LAYOUT[None])), T, atol=1e-12)
+    np.testing.assert_allclose(fit_transform(LAYOUT, se3.transform_points(T[:, None], LAYOUT[None])), T, atol=1e-12)
 
 
 def test_covariance_matches_monte_carlo_of_the_fit():

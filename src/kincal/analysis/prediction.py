@@ -184,8 +184,9 @@ def understated(pred: Prediction, set_name: str, position: float | None, orienta
             ("position", position, pred.position_rms_predicted, 1e3, "mm"),
             ("orientation", orientation, pred.orientation_rms_predicted, 180 / np.pi, "deg")):
         if actual is not None and np.isfinite(predicted) and actual > max(UNDERSTATED_RATIO * predicted, ROUNDOFF):
+            times = actual / predicted if predicted > 0 else np.inf
             out.append(f"on '{set_name}' the actual {part} error ({actual * scale:.3g} {unit} RMS) is "
-                       f"{actual / predicted if predicted > 0 else np.inf:.3g} times the predicted ({predicted * scale:.3g} {unit}): the model "
+                       f"{times:.3g} times the predicted ({predicted * scale:.3g} {unit}): the model "
                        "error seen at the calibration configurations does not carry to these, so the predicted "
                        f"{part} error is not to be relied on")
     return out

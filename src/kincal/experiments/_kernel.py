@@ -72,9 +72,11 @@ def pose_mean(T: np.ndarray) -> np.ndarray:
 
 
 def fit_transform(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """Rigid T minimizing sum |T src - dst|^2 (Kabsch), points (K, 3)."""
-    cs, cd = src.mean(axis=0), dst.mean(axis=0)
-    U, _, Vt = np.linalg.svd((dst - cd).T @ (src - cs))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    R = U @ D @ Vt
-    return se3.make(R, cd - R @ cs)
+    """Rigid T minimizing sum |T src - dst|^2 (Kabsch): points (..., K, 3), batches broadcast (one layout
+    against many rows of measured points), -> (..., 4, 4)."""
+    src, dst = np.broadcast_arrays(src, dst)
+    cs, cd = src.mean(axis=-2), dst.mean(axis=-2)
+    U, _, Vt = np.linalg.svd(np.swapaxes(dst - cd[..., None, :], -1, -2) @ (src - cs[..., None, :]))
+    U[..., :, 2] *= np.sign(np.linalg.det(U @ Vt))[..., None]  # a proper rotation even for a reflected best fit
+    R = U @ Vt
+    return se3.make(R, cd - np.einsum("...ij,...j->...i", R, cs))

@@ -19,8 +19,9 @@ import numpy as np
 
 from kincal.data import Dataset
 from kincal.errors import DegenerateExperimentError, ShapeError
+from kincal.experiments._kernel import fit_transform
 from kincal.experiments.pose import file_line
-from kincal.lie import se3, so3
+from kincal.lie import so3
 from kincal.noise import effective
 
 # Below this ratio of the layout's second to first singular value, the markers are taken as collinear.
@@ -49,7 +50,7 @@ def markers_to_pose(dataset: Dataset, p_tool_marker=None, sigma: float | None = 
         sigma = effective(None, dataset.meta.get("noise")).position
     if not (np.isfinite(sigma) and sigma > 0):
         raise ShapeError(f"{where}: expected a marker noise sigma > 0 (m), found {sigma!r}")
-    T = fit_poses(x, y)
+    T = fit_transform(x, y)  # Kabsch per row
     B = np.zeros(T.shape[:1] + (6, 6))
     B[:, :3, :3] = B[:, 3:, 3:] = T[:, :3, :3]
     cov = B @ layout_covariance(x, sigma) @ np.swapaxes(B, -1, -2)
@@ -60,18 +61,6 @@ def markers_to_pose(dataset: Dataset, p_tool_marker=None, sigma: float | None = 
     frames = {k: v for k, v in dataset.frames.items() if k == "tracker"}
     return Dataset("pose", dataset.robot, dataset.arms, dict(dataset.q), measured, known, dataset.name,
                    dict(dataset.meta), frames)
-
-
-def fit_poses(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Per row, the rigid T (N, 4, 4) minimizing ``sum_j |T x_j - y_ij|^2``: layout ``x`` (m, 3), points
-    ``y`` (N, m, 3). Kabsch, vectorized over rows."""
-    cx, cy = x.mean(axis=0), y.mean(axis=1)
-    H = np.einsum("nmi,mj->nij", y - cy[:, None], x - cx)
-    U, _, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(U @ Vt))
-    U[:, :, 2] *= d[:, None]  # a proper rotation even for a reflected best fit
-    R = U @ Vt
-    return se3.make(R, cy - R @ cx)
 
 
 def layout_covariance(x: np.ndarray, sigma: float) -> np.ndarray:
