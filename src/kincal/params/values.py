@@ -106,12 +106,12 @@ def _compliance_fields(a: ArmValues) -> dict:
     k = np.maximum(a.joint_compliance, 0.0)
     if not a.compliance_nodes:
         return {"compliance": k}
-    c, nodes, i = np.zeros(a.dof), {}, 0
-    for j, x in enumerate(a.compliance_nodes):
-        if x is None:
-            c[j], i = k[i], i + 1
+    c, nodes = np.zeros(a.dof), {}
+    for (j, at), value in zip(a.compliance_columns(), k):
+        if at is None:
+            c[j] = value
         else:
-            nodes[a.joint_names[j]], i = np.stack([x, k[i: i + len(x)]], axis=-1), i + len(x)
+            nodes.setdefault(a.joint_names[j], []).append((at, value))
     return {"compliance": c, "compliance_nodes": nodes}
 
 
