@@ -170,11 +170,16 @@ def _limit_warnings(ctx, table: Table, robot: Robot, q: dict, u: dict) -> tuple[
         column = f"{a}.{robot[a].joint_names[j]}"
         lines = ", ".join(str(table.lines[r]) for r in rows[:MAX_ROW_WARNINGS])
         more = f" and {len(rows) - MAX_ROW_WARNINGS} more" if len(rows) > MAX_ROW_WARNINGS else ""
-        value, lim = q[a][rows[0], j], limit
-        in_file = lambda x: f"{x / f:.6g} {unit}" + ("" if prismatic or unit == "deg" else f" ({math.degrees(x):.4g} deg)")  # noqa: E731
-        out.append(f"{table.path}: line(s) {lines}{more}, column '{column}': reading {in_file(value)} is past the "
-                   f"joint limit {in_file(lim)} of model '{robot.name}'")
+        shown = [_in_file_units(x, f, unit, prismatic) for x in (q[a][rows[0], j], limit)]
+        out.append(f"{table.path}: line(s) {lines}{more}, column '{column}': reading {shown[0]} is past the "
+                   f"joint limit {shown[1]} of model '{robot.name}'")
     return tuple(out)
+
+
+def _in_file_units(x: float, factor: float, unit: str, prismatic: bool) -> str:
+    """``x`` (SI) in the file's unit, with degrees beside an angle the file gives in another unit."""
+    text = f"{x / factor:.6g} {unit}"
+    return text if prismatic or unit == "deg" else f"{text} ({math.degrees(x):.4g} deg)"
 
 
 def _unit_hint(ratio: float, length: float) -> str:
