@@ -12,15 +12,11 @@ from rich.console import Console
 from rich.table import Table
 
 from kincal.errors import ShapeError
-from kincal.cli.console import make_console
+from kincal.cli.calibrate_cmds import _console
 from kincal.io.models import load_robot, select_arm
 from kincal.lie.rotations import matrix_to_quat_wxyz, matrix_to_rpy
 from kincal.kinematics import forward_kinematics
 from kincal.kinematics.model import REVOLUTE, ArmModel
-
-
-def _console() -> Console:
-    return make_console(highlight=False, markup=False)
 
 
 def _fmt(x: float, digits: int = 4) -> str:

@@ -11,6 +11,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from kincal.cli.console import make_console
 from kincal.io.studies import study_names
 from kincal.workflow import batch as batch_flow
 from kincal.workflow import study as study_flow
@@ -60,7 +61,7 @@ def study(study_file: str, output: Path, workers, scheduler, repeats, seed, plot
     paths = study_flow.write_study(result, output, overwrite=overwrite, plots=plots)
     if quiet:
         return
-    out = _wide()
+    out = make_console()
     shown = [{k: v for k, v in r.items() if k not in ("truth", "repeats")} for r in study_flow.table(result)]
     out.print(_table(f"{s.name}: {s.repeats} repeats, seed {s.seed}", shown))
     out.print(_table("validation RMS position error", [{k: v for k, v in r.items() if k != "first_failure"}
@@ -91,7 +92,7 @@ def batch(jobs, output: Path, workers, scheduler, overwrite: bool, quiet: bool) 
     if not quiet:
         shown = [{"job": Path(r["folder"]).name, **{k: v for k, v in r.items() if k not in ("job", "folder")}}
                  for r in rows]
-        _wide().print(_table(f"{len(rows)} jobs -> {output}", shown))
+        make_console().print(_table(f"{len(rows)} jobs -> {output}", shown))
     if any(r["status"] == batch_flow.FAILED for r in rows):
         raise SystemExit(1)
 
@@ -103,16 +104,11 @@ def studies() -> None:
         click.echo(name)
 
 
-def _wide() -> Console:
-    """The tables' console: a pipe or a file gets 120 columns, not rich's 80."""
-    c = Console()
-    return c if c.is_terminal else Console(width=120)
-
-
 def _table(title: str, rows: list[dict]) -> Table:
     t = Table(title=title)
     for key in (rows[0] if rows else {}):
-        t.add_column(key.replace("_", " "), no_wrap=key != "message", justify="left" if key in ("variant", "quantity", "job", "status", "message") else "right")
+        left = key in ("variant", "quantity", "job", "status", "message")
+        t.add_column(key.replace("_", " "), no_wrap=key != "message", justify="left" if left else "right")
     for r in rows:
         t.add_row(*[f"{v:.3g}" if isinstance(v, float) else str(v) for v in r.values()])
     return t
