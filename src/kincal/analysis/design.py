@@ -206,11 +206,6 @@ class _LogDet:
         self.M, self.Minv = M, np.linalg.inv(M)
         self.logdet = _logdet(M)
 
-    @property
-    def G(self) -> np.ndarray:
-        """``X_i M^-1 X_i^T`` of every candidate (N, k, k)."""
-        return self.gram(self.Minv)
-
     def gram(self, Binv: np.ndarray, idx=None, single: bool = False) -> np.ndarray:
         """``X_i B^-1 X_i^T`` (n, k, k) of the candidates ``idx`` (default: all), in chunks; ``single``: in
         single precision."""
@@ -228,11 +223,6 @@ class _LogDet:
         Z = self.X[i] @ self.Minv
         C = np.linalg.inv(np.eye(len(Z)) - self.X[i] @ Z.T)
         return self.Minv + Z.T @ C @ Z, self.logdet - _logdet(C)
-
-    def without(self, i: int):
-        """(G, logdet) of M with candidate i removed, not committed."""
-        Binv, logdet = self.removed(i)
-        return self.gram(Binv), logdet
 
     def add(self, i: int, sign: float = 1.0) -> None:
         """Commit adding (sign 1) or removing (sign -1) candidate i."""
