@@ -31,6 +31,7 @@ import yaml
 
 from kincal.errors import ModelError
 from kincal.kinematics import ArmModel, forward_kinematics
+from kincal.kinematics.dh import axis_frame
 from kincal.kinematics.model import REVOLUTE
 from kincal.lie import se3, so3
 from kincal.lie.rotations import matrix_to_rpy, rpy_to_matrix
@@ -59,10 +60,10 @@ def ur_frames(a: ArmModel) -> tuple[np.ndarray, np.ndarray]:
     frames, origin, x = [], np.zeros(3), np.array([1.0, 0.0, 0.0])
     for i, (p, z) in enumerate(lines[:5]):
         origin = _foot(p, z, *lines[i + 1], origin)
-        x = _perpendicular(x, z)
-        frames.append(_frame(origin, x, z))
+        frames.append(axis_frame(origin, x, z))
+        x = frames[-1][:3, 0]
     p, z = lines[5]
-    last = _frame(p + np.dot(flange[:3, 3] - p, z) * z, _perpendicular(flange[:3, 0], z), z)  # tool0 on the axis
+    last = axis_frame(p + np.dot(flange[:3, 3] - p, z) * z, flange[:3, 0], z)  # tool0 on the axis
     rest = se3.inverse(last) @ flange
     if np.abs(rest - np.eye(4)).max() < ON_AXIS_TOL:
         last, rest = flange, np.eye(4)
@@ -77,17 +78,6 @@ def _foot(p, z, p_next, z_next, previous) -> np.ndarray:
         return p + np.dot(previous - p, z) * z
     t, _, _ = np.linalg.solve(np.column_stack([z, -z_next, c]), p_next - p)
     return p + t * z
-
-
-def _frame(origin, x, z) -> np.ndarray:
-    return se3.make(np.column_stack([x, np.cross(z, x), z]), origin)
-
-
-def _perpendicular(x, z) -> np.ndarray:
-    x = x - np.dot(x, z) * z
-    if np.linalg.norm(x) < 1e-6:
-        x = np.array([0.0, 0.0, 1.0]) - z[2] * z
-    return x / np.linalg.norm(x)
 
 
 def ur_rpy(R: np.ndarray) -> np.ndarray:

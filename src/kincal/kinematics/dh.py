@@ -159,17 +159,17 @@ def _frames(lines, model, modified: bool, limit: float) -> list[np.ndarray]:
     line is the flange's z axis."""
     n = len(lines) - 1
     p, z = lines[0]
-    x0 = _perpendicular(np.array([1.0, 0, 0]), z)
+    x0 = perpendicular(np.array([1.0, 0, 0]), z)
     origin = p + np.dot(-p, z) * z  # the point of line 1 closest to the base origin
-    frames = [_frame(origin, x0, z)]
+    frames = [axis_frame(origin, x0, z)]
     for i in range(n):
         (pa, za), (pb, zb) = lines[i], lines[i + 1]
         prev = frames[-1]
         foot_a, foot_b, x = _common_normal(pa, za, pb, zb, prev[:3, 3], prev[:3, 0], model, i, limit)
         if modified:
-            frames.append(_frame(foot_a, x, za))
+            frames.append(axis_frame(foot_a, x, za))
         else:
-            frames.append(_frame(foot_b, x, zb))
+            frames.append(axis_frame(foot_b, x, zb))
     if modified:
         frames[0] = frames[1].copy()  # {0} = {1} at zero angle: alpha_0 = a_0 = 0
         frames[0][:3, 3] = frames[1][:3, 3]
@@ -205,15 +205,17 @@ def _common_normal(pa, za, pb, zb, o_prev, x_prev, model, i, limit):
     return foot_a, foot_b, x
 
 
-def _perpendicular(x: np.ndarray, z: np.ndarray) -> np.ndarray:
+def perpendicular(x: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """The unit vector along the part of ``x`` perpendicular to the unit ``z`` (y's part where x is along z)."""
     x = x - np.dot(x, z) * z
     if np.linalg.norm(x) < 1e-6:
         x = np.array([0.0, 1.0, 0.0]) - z[1] * z
     return x / np.linalg.norm(x)
 
 
-def _frame(origin, x, z) -> np.ndarray:
-    x = _perpendicular(x, z)
+def axis_frame(origin, x, z) -> np.ndarray:
+    """The frame at ``origin`` with z axis ``z`` and x axis ``x`` made perpendicular to it."""
+    x = perpendicular(x, z)
     return se3.make(np.column_stack([x, np.cross(z, x), z]), origin)
 
 
