@@ -29,3 +29,7 @@ class DegenerateExperimentError(KincalError, ValueError):
 
 class ResourceError(KincalError, ValueError):
     """A job needs more memory (or other resources) than the machine offers; refused before it starts."""
+
+
+class KincalWarning(UserWarning):
+    """Input kincal accepts but changed, in one line naming file and field (a rounded rotation it projected)."""

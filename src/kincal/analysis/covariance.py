@@ -5,7 +5,8 @@ from __future__ import annotations
 from typing import Sequence
 
 import numpy as np
-import scipy.linalg
+
+from kincal.analysis.linalg import svd
 
 
 def right_svd(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -17,10 +18,7 @@ def right_svd(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     m, p = A.shape
     if m > 2 * p:
         A = np.linalg.qr(A, mode="r")
-    try:
-        _, S, Vt = np.linalg.svd(A, full_matrices=False)
-    except np.linalg.LinAlgError:  # LAPACK's divide-and-conquer (gesdd) fails to converge on rare matrices
-        _, S, Vt = scipy.linalg.svd(A, full_matrices=False, lapack_driver="gesvd")
+    _, S, Vt = svd(A, full_matrices=False)
     return S, Vt
 
 

@@ -30,6 +30,7 @@ from typing import Callable
 import numpy as np
 
 from kincal.analysis.identifiability import Identifiability
+from kincal.analysis.linalg import lstsq
 from kincal.analysis.linearization import Linearization
 from kincal.analysis.naming import block_of
 from kincal.params import Layout, State, displacement, recentre, retract
@@ -95,7 +96,7 @@ def min_change(change: np.ndarray, D: np.ndarray, null: np.ndarray, covariance: 
 def _gauge_coefficients(change: np.ndarray, M: np.ndarray, w: np.ndarray) -> np.ndarray:
     """``a`` minimizing ``|change - M a|_W``: the gauge move is ``M a``."""
     s = np.sqrt(w)
-    return np.linalg.lstsq(s[:, None] * M, s * change, rcond=None)[0]
+    return lstsq(s[:, None] * M, s * change)
 
 
 def representative(state: State, nominal: State, layout: Layout, free: np.ndarray, w: np.ndarray,
@@ -112,7 +113,7 @@ def representative(state: State, nominal: State, layout: Layout, free: np.ndarra
         D = D[np.ix_(free, free)]
         N, R = ana.null_space, ana.range_space
         a = _gauge_coefficients(d[free], D @ N, w) if N.shape[1] else np.zeros(0)
-        z = np.linalg.lstsq(lin.Rf @ R, -lin.qtr, rcond=None)[0]
+        z = lstsq(lin.Rf @ R, -lin.qtr)
         gain = float(np.sum((lin.Rf @ R @ z) ** 2))  # whitened chi^2 the Gauss-Newton step would still win
         if np.linalg.norm(D @ N @ a) < REPRESENTATIVE_TOL and gain < FIT_TOL:
             return s, lin, ana

@@ -24,6 +24,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from kincal.analysis.covariance import right_svd
+from kincal.analysis.linalg import svd
 from kincal.analysis.linearization import Linearization, unit_columns
 from kincal.analysis.naming import context, degenerate, describer
 from kincal.analysis.symmetries import consistent_nulls, rotation_nulls, scale_null
@@ -144,7 +145,7 @@ def _spectrum(J: np.ndarray, rtol: float) -> _Spectrum:
     """Singular values and vectors of J with every column scaled to unit norm, and the rank at ``rtol``."""
     m, p = J.shape
     Js, c_safe = unit_columns(J)
-    S, Vt = right_svd(Js) if m >= p else np.linalg.svd(Js, full_matrices=True)[1:]  # all p rows of Vt
+    S, Vt = right_svd(Js) if m >= p else svd(Js, full_matrices=True)[1:]  # all p rows of Vt
     S_full = np.zeros(p)
     S_full[: len(S)] = S
     smax = S_full[0] if p else 0.0
@@ -183,7 +184,7 @@ def _outside(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """Orthonormal directions of span(A) (orthonormal columns) that are new dimensions outside span(B)."""
     if A.shape[1] == 0:
         return A
-    U, S, _ = np.linalg.svd(A - B @ (B.T @ A), full_matrices=False)
+    U, S, _ = svd(A - B @ (B.T @ A), full_matrices=False)
     return U[:, S > 0.5]
 
 
@@ -297,7 +298,7 @@ def _rref(M: np.ndarray, order: Sequence[int]) -> list[np.ndarray]:
 def _orth(A: np.ndarray, drop: int = 0) -> np.ndarray:
     if A.shape[1] == 0:
         return A
-    U, S, _ = np.linalg.svd(A, full_matrices=False)
+    U, S, _ = svd(A, full_matrices=False)
     k = A.shape[1] - drop
     return U[:, :k]
 

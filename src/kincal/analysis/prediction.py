@@ -28,6 +28,7 @@ from kincal._validate import as_array
 from kincal.errors import ModelError, ShapeError
 from kincal.analysis.columns import scatter_columns
 from kincal.analysis.error_budget import measurement_noise, model_error
+from kincal.analysis.linalg import svd
 from kincal.experiments._kernel import point_jacobian
 from kincal.kinematics import chain, tool_jacobians
 from kincal.lie import se3
@@ -256,14 +257,14 @@ def _unregistered_part(E: np.ndarray, P: np.ndarray) -> np.ndarray:
 
 def _spectral(D: np.ndarray) -> np.ndarray:
     """Largest singular value per configuration of D (N, 3, k): worst unit-norm combination; 0 when k = 0."""
-    return np.linalg.svd(D, compute_uv=False)[:, 0] if D.shape[-1] else np.zeros(len(D))
+    return svd(D, compute_uv=False)[:, 0] if D.shape[-1] else np.zeros(len(D))
 
 
 def _moving(D: np.ndarray) -> int:
     """How many independent directions of D (N, 6, k) move the poses: singular values of the stack >= NULL_TOL."""
     if D.shape[-1] == 0:
         return 0
-    return int(np.sum(np.linalg.svd(D.reshape(-1, D.shape[-1]), compute_uv=False) >= NULL_TOL))
+    return int(np.sum(svd(D.reshape(-1, D.shape[-1]), compute_uv=False) >= NULL_TOL))
 
 
 def _arm_coordinates(result) -> np.ndarray:
@@ -282,7 +283,7 @@ def _named_directions(ana, W, arm):
     if ana.scale_unidentifiable:
         V = np.stack([v for *_, v in out], axis=-1) if out else np.zeros((len(ana.names), 0))
         Q = np.linalg.qr(V)[0]
-        s = np.linalg.svd(ana.null_space - Q @ (Q.T @ ana.null_space), full_matrices=False)[0][:, 0]
+        s = svd(ana.null_space - Q @ (Q.T @ ana.null_space), full_matrices=False)[0][:, 0]
         top, rest = _by_size(s, ana.names, arm)
         out.append(("scale", "scale", ((top, 1.0),) + rest, s))
     out += [("weak", *_by_size(w, ana.names, arm), w) for w in W.T]

@@ -14,6 +14,7 @@ import numpy as np
 
 from kincal.analysis.columns import scatter_columns
 from kincal.analysis.covariance import right_svd
+from kincal.analysis.linalg import lstsq, svd
 from kincal.analysis.linearization import Linearization, unit_columns
 from kincal.kinematics import REVOLUTE
 from kincal.lie import se3
@@ -52,7 +53,7 @@ def scale_null(lin: Linearization, layout: Layout) -> np.ndarray | None:
         outside = np.linalg.norm(Ra[p:, p + lengths], axis=0) / colnorm[p + lengths]
         if np.max(outside) > 1e-6:
             return None
-    u = np.linalg.lstsq(lin.Rf, Ra[:p, p:] @ s[p:], rcond=None)[0]
+    u = lstsq(lin.Rf, Ra[:p, p:] @ s[p:])
     d = s[:p] + u
     return d if np.linalg.norm(d) > 0 else None
 
@@ -197,7 +198,7 @@ def _consistent_nulls(lin: Linearization, layout: Layout, experiments: Sequence,
     if not np.all(np.isfinite(J)) or J.shape[1] == 0:
         return None
     Js, c = unit_columns(J)
-    S, Vt = right_svd(Js) if Js.shape[0] >= Js.shape[1] else np.linalg.svd(Js)[1:]
+    S, Vt = right_svd(Js) if Js.shape[0] >= Js.shape[1] else svd(Js)[1:]
     S = np.concatenate([S, np.zeros(Js.shape[1] - len(S))])
     null = Vt[S <= rtol * S[0]] if S[0] > 0 else Vt
     return null.T / c[:, None]

@@ -60,13 +60,20 @@ def _print_outliers(console: Console, outliers, what: str = "") -> None:
         console.print(f"  and {len(outliers) - MAX_OUTLIERS_SHOWN} more (all in result.yaml)")
 
 
+def _verdict(result) -> str:
+    """Why a converged result is not trusted, in a few words for the status line ("" when it is trusted)."""
+    if result.status != "converged" or result.trusted:
+        return ""
+    if not result.physical:
+        names = ", ".join(c.name for c in result.negative_compliances if c.significant)
+        return f" (NOT TRUSTED: compliance below 0 beyond the noise: {names})"
+    return (" (NOT TRUSTED: low redundancy and no validation data)" if not result.predictions
+            else " (NOT TRUSTED at the validation configurations)")
+
+
 def print_summary(console: Console, result, title: str) -> None:
     ana = result.identifiability
-    untrusted = result.status == "converged" and not result.trusted
-    verdict = ""
-    if untrusted:
-        verdict = (" (NOT TRUSTED: low redundancy and no validation data)" if not result.predictions
-                   else " (NOT TRUSTED at the validation configurations)")
+    verdict = _verdict(result)
     console.print(f"{title}: {result.status}{verdict} after {result.iterations} outer iterations "
                   f"({result.evaluations} evaluations); rank {ana.rank} of {len(ana.names)} free parameters; "
                   f"residual variance factor {_num(result.sigma2)}")

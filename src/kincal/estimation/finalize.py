@@ -10,6 +10,7 @@ from kincal.estimation import steps
 from kincal.estimation.gauge import gauge_basis
 from kincal.estimation.iterate import Iteration, scale_test_needed
 from kincal.estimation.options import SolverOptions
+from kincal.estimation.plausibility import negative_compliance_notes, negative_compliances
 from kincal.estimation.problem import Problem
 from kincal.estimation.result import Estimate, Result, TwistEstimate, low_redundancy
 from kincal.params import HOME, TWISTS, displacement, twist_coordinates
@@ -61,16 +62,19 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
             f"(residual variance factor {sigma2:.3g}); the estimates absorb what the free parameters cannot model "
             f"and their standard deviations assume a model that fits. {_misfit_advice(problem)}"))
     names = [problem.layout.names[i] for i in problem.free_idx]
+    estimates = tuple(_estimates(problem, run.state, std, ok))
+    negative = negative_compliances(problem.layout, estimates)
+    messages[:0] = negative_compliance_notes(negative)
     return Result(
         robot=run.state.to_robot(problem.robot), nominal_robot=problem.robot, state=run.state,
-        layout=problem.layout, estimates=tuple(_estimates(problem, run.state, std, ok)), covariance=cov,
+        layout=problem.layout, estimates=estimates, covariance=cov,
         correlated=tuple(correlated_pairs(cov, names, options.correlation_threshold, ok)),
         identifiability=ana, identifiability_before=run.first, before=run.before,
         after=tuple(problem.statistics(run.state, lin.W)), sigma2=sigma2, status=status,
         iterations=run.iterations, evaluations=run.evaluations, messages=tuple(messages),
         extras=dict(run.state.extras), problem=problem, linearization=lin,
         twists=_twists(problem, run.state, cov), weights=None if options.loss == "linear" else weights,
-        covariance_scale=scale,
+        covariance_scale=scale, negative_compliances=negative,
     )
 
 

@@ -16,6 +16,7 @@ from typing import Sequence
 import numpy as np
 
 from kincal.analysis import Identifiability, covariance
+from kincal.analysis.linalg import svd
 from kincal.analysis.observability import Observability, observability
 from kincal.analysis.sensitivity import Sensitivity, sensitivity
 from kincal.errors import ModelError
@@ -72,7 +73,7 @@ def plan(problem: Problem, options: SolverOptions | None = None, held: Sequence[
                      messages=tuple(ana.messages))
     configurations = sum(e.size for e in problem.experiments)
     B = identifiable_basis(problem, ana)
-    obs = observability(np.linalg.svd(lin.Rf @ B, compute_uv=False) if B.shape[1] else np.zeros(0), configurations)
+    obs = observability(svd(lin.Rf @ B, compute_uv=False) if B.shape[1] else np.zeros(0), configurations)
     return Plan(problem, ana, obs, estimates, cov, _held_sensitivity(problem, lin, cov, held), result)
 
 

@@ -1,9 +1,12 @@
 """Data implausible for the robot, found before any solve: degrees declared as radians, metres as mm, a single
-absurd measured value (1e300 in one cell); and joint readings past the model's limits (a warning).
+absurd measured value (1e300 in one cell); and joint readings past the model's limits (a warning). After the
+solve: estimates no real robot has (a joint compliance below 0).
 
 A solve on such data grinds towards an arm shrunk or grown 1000 times (or cannot fit at all, or overflows) and
 can take minutes; the data loaders (``kincal.io.datasets``, naming file, line and column) and ``solve`` (naming
-the data set and field) refuse it first.
+the data set and field) refuse it first. A negative compliance is kept in the calibrated model as estimated (the
+model must predict what the solver fitted) and reported: within ``NEGATIVE_SIGMAS`` standard deviations of 0 as
+a warning (a stiff joint's estimate scatters around 0), beyond them as a reason not to trust the result.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import numpy as np
 
 from kincal.data import Dataset
 from kincal.kinematics import PRISMATIC, Robot, forward_kinematics
+from kincal.params import COMPLIANCE, Layout
 from kincal.schema import LENGTH, SCHEMAS
 
 # A reading of a revolute joint with limits beyond this (rad) is not an angle in radians (a continuous joint,
@@ -136,3 +140,51 @@ def _absurd_cell(key: str, arm: str, x: np.ndarray, tool: float) -> Implausible 
 def spread(x: np.ndarray) -> float:
     """RMS distance of points (N, ..., 3) from their mean over the samples."""
     return float(np.sqrt(np.mean(np.sum((x - x.mean(axis=0)) ** 2, axis=-1))))
+
+
+# A compliance estimated more than this many standard deviations below 0 is no chance scatter of a stiff joint:
+# the loads (their size or sign, one not modelled such as gravity) or the model do not fit the data.
+NEGATIVE_SIGMAS = 3.0
+
+
+@dataclass(frozen=True)
+class NegativeCompliance:
+    """A compliance coordinate estimated below 0: its name, value and standard deviation (nan: undetermined)
+    in ``unit`` (rad/Nm or m/N)."""
+
+    name: str
+    value: float
+    std: float
+    unit: str
+
+    @property
+    def significant(self) -> bool:
+        """More than ``NEGATIVE_SIGMAS`` standard deviations below 0 (or undetermined): not noise."""
+        return not self.value >= -NEGATIVE_SIGMAS * self.std
+
+    def describe(self) -> str:
+        return f"{self.name} = {self.value:.3g} {self.unit} (std {self.std:.2g})"
+
+
+def negative_compliances(layout: Layout, estimates) -> tuple[NegativeCompliance, ...]:
+    """The compliance ``estimates`` (``kincal.estimation.result.Estimate``) below 0, in layout order."""
+    names = {layout.names[i] for b in layout.blocks if b.kind is COMPLIANCE for i in range(b.start, b.stop)}
+    return tuple(NegativeCompliance(e.name, e.value, e.std, e.unit) for e in estimates
+                 if e.name in names and e.value < 0)
+
+
+def negative_compliance_notes(found) -> list[str]:
+    """One line for the compliances below 0 by more than ``NEGATIVE_SIGMAS`` std (the result is not trusted),
+    one for those within the noise (a warning)."""
+    far = [c.describe() for c in found if c.significant]
+    near = [c.describe() for c in found if not c.significant]
+    notes = []
+    if far:
+        notes.append(f"not trusted: compliance estimated below 0 by more than {NEGATIVE_SIGMAS:g} std: "
+                     f"{'; '.join(far)}; no joint yields against its load, so the loads (their size or sign, a load "
+                     "not modelled such as gravity) or the model do not fit the data; the calibrated model keeps the "
+                     "estimate as fitted (exit code 5)")
+    if near:
+        notes.append(f"warning: compliance estimated below 0 within {NEGATIVE_SIGMAS:g} std of 0 (a stiff joint's "
+                     f"estimate scattering around 0): {'; '.join(near)}; kept as estimated in the calibrated model")
+    return notes

@@ -16,6 +16,7 @@ from kincal.estimation.crossval import CrossValidation
 from kincal.estimation import steps
 from kincal.estimation.iterate import scale_test_needed
 from kincal.estimation.outliers import Outlier
+from kincal.estimation.plausibility import NegativeCompliance
 from kincal.estimation.problem import Problem
 from kincal.estimation.stats import ResidualStats, ValidationStats
 from kincal.kinematics import Robot
@@ -110,6 +111,7 @@ class Result:
     validation_all: tuple[ValidationStats, ...] = ()  # validation sets with such rows: their errors with every row
     covariance_scale: float | None = None  # what scaled ``covariance`` (None: ``sigma2``; ``finalize.covariance_scale``)
     stages: tuple[StageRecord, ...] = ()  # a staged solve's stages, the last one's being this result
+    negative_compliances: tuple[NegativeCompliance, ...] = ()  # compliances estimated below 0 (``physical``)
 
     @property
     def scale(self) -> float:
@@ -126,10 +128,18 @@ class Result:
 
     @property
     def trusted(self) -> bool:
-        """Converged, and every validation prediction trusted (``Prediction.trusted``): nothing the data cannot
-        determine moves the tool where the model was validated; with ``low_redundancy``, validated at all."""
+        """Converged, ``physical``, and every validation prediction trusted (``Prediction.trusted``): nothing the
+        data cannot determine moves the tool where the model was validated; with ``low_redundancy``, validated at
+        all."""
         validated = bool(self.predictions) or not self.low_redundancy
-        return self.status == "converged" and validated and all(p.trusted for _, p in self.predictions)
+        return (self.status == "converged" and self.physical and validated
+                and all(p.trusted for _, p in self.predictions))
+
+    @property
+    def physical(self) -> bool:
+        """No estimate a real robot cannot have: no compliance below 0 by more than
+        ``plausibility.NEGATIVE_SIGMAS`` standard deviations (those within are warnings in ``messages``)."""
+        return not any(c.significant for c in self.negative_compliances)
 
     @property
     def success(self) -> bool:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from kincal.analysis import Linearization
+from kincal.analysis.linalg import lstsq
 from kincal.errors import DegenerateExperimentError
 from kincal.estimation.problem import Problem
 from kincal.params import State, scale_direction
@@ -88,7 +89,7 @@ def gauss_newton(lin: Linearization, V: np.ndarray) -> tuple[np.ndarray, float]:
     """Gauss-Newton step in the subspace V and the predicted |r|^2 after it, from the triangular factor alone:
     with ``J = Q R``, ``z = argmin |R V z + Q^T r|`` and ``|r + J V z|^2 = |r|^2 - |Q^T r|^2 + |R V z + Q^T r|^2``."""
     RV = lin.Rf @ V
-    z = np.linalg.lstsq(RV, -lin.qtr, rcond=None)[0]
+    z = lstsq(RV, -lin.qtr)
     e = lin.qtr + RV @ z
     return z, max(lin.cost2 - float(lin.qtr @ lin.qtr) + float(e @ e), 0.0)
 

@@ -13,6 +13,7 @@ round-trip float text, so ``load_robot(save_robot(x)) == x`` exactly.
 from __future__ import annotations
 
 import math
+import warnings
 from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
@@ -20,7 +21,7 @@ from typing import Any, Mapping
 import numpy as np
 import yaml
 
-from kincal.errors import DataFormatError, KincalError, ModelError
+from kincal.errors import DataFormatError, KincalError, KincalWarning, ModelError
 from kincal.io import units
 from kincal.lie.rotations import quat_wxyz_to_matrix, rpy_to_matrix
 from kincal.io.yamlfile import clip, parse_yaml, quote, read_text
@@ -30,13 +31,18 @@ from kincal.lie import se3, so3
 FORMAT = "kincal-model"
 VERSION = 1
 ROTATION_TOL = 1e-6  # published matrices are rounded; larger errors need `orthonormalize: true`
-AXIS_TOL = 1e-6
+# `orthonormalize: true` projects rotations with max |R^T R - I| (quaternions and axes with |norm - 1|) up to this:
+# rounding to 2 decimals and more; beyond it a matrix is a mistake, not a rounded rotation.
+ORTHONORMALIZE_LIMIT = 1e-2
 _BUILTIN = resources.files(__package__) / "builtin_robots"
 BUILTIN_ROBOTS = _BUILTIN  # the folder of the built-in model files (a Traversable)
 TWIST_TOL = 1e-9  # twists are what save_robot writes: they must already be exact joint screws
+# A compliance below 0 is no joint's; a calibrated model keeps its estimates as fitted (docs/model-format.md).
+NEGATIVE_HINT = ("; a calibrated model's estimates below 0 load with 'allow_negative_compliance: true' on the arm "
+                 "(kincal writes it)")
 
-_TOP_KEYS = {"format", "version", "name", "units", "meta", "arms"}
-_ARM_KEYS = {"joints", "base", "home", "tool", "controller_order", "meta"}
+_TOP_KEYS = {"format", "version", "name", "units", "meta", "arms", "orthonormalize"}
+_ARM_KEYS = {"joints", "base", "home", "tool", "controller_order", "meta", "allow_negative_compliance"}
 _JOINT_KEYS = {"name", "type", "axis", "point", "twist", "offset", "limits", "gear_ratio", "compliance"}
 _POSE_KEYS = {"matrix", "xyz", "rpy", "quaternion_wxyz", "rotation", "orthonormalize"}
 
@@ -44,13 +50,20 @@ _POSE_KEYS = {"matrix", "xyz", "rpy", "quaternion_wxyz", "rotation", "orthonorma
 class _Ctx:
     """File name, unit factors and the current field path, for error messages."""
 
-    def __init__(self, file: str):
+    def __init__(self, file: str, warn: bool = True):
         self.file = file
         self.length = 1.0
         self.angle = 1.0
+        self.orthonormalize = False  # the file-level default of every pose's 'orthonormalize'
+        self.warn = warn  # False for the built-in files: their projections are documented (docs/model-format.md)
 
     def fail(self, path: str, msg: str) -> DataFormatError:
         return DataFormatError(f"{self.file}: {path}: {msg}")
+
+    def warning(self, path: str, msg: str) -> None:
+        """A ``KincalWarning`` naming file and field: input accepted, but changed."""
+        if self.warn:
+            warnings.warn(f"{self.file}: {path}: {msg}", KincalWarning, stacklevel=2)
 
     def one_of(self, path: str, value: Any, allowed) -> str:
         """``value`` if it is one of the names ``allowed`` (text only: a list or mapping is never a name)."""
@@ -86,7 +99,8 @@ def load_builtin(name: str) -> Robot:
     """The built-in robot ``name`` (e.g. ``"frida"``); DataFormatError lists the names if unknown."""
     if name not in builtin_names():
         raise DataFormatError(f"unknown built-in robot {quote(name)}; built-in robots: {', '.join(builtin_names())}")
-    return parse_robot((_BUILTIN / f"{name}.yaml").read_text(encoding="utf-8"), f"{name}.yaml (built-in)")
+    return parse_robot((_BUILTIN / f"{name}.yaml").read_text(encoding="utf-8"), f"{name}.yaml (built-in)",
+                       warn=False)
 
 
 def read_robot(path) -> Robot:
@@ -94,15 +108,17 @@ def read_robot(path) -> Robot:
     return parse_robot(read_text(path, "model file"), str(path))
 
 
-def parse_robot(text: str, file: str = "<string>") -> Robot:
-    """Validate the YAML text of a model file; ``file`` names it in error messages."""
-    return robot_from_dict(parse_yaml(text, file), file)
+def parse_robot(text: str, file: str = "<string>", *, warn: bool = True) -> Robot:
+    """Validate the YAML text of a model file; ``file`` names it in error messages, and in the ``KincalWarning``s
+    on what it changed (rounded rotations it projected) unless ``warn`` is false."""
+    return robot_from_dict(parse_yaml(text, file), file, warn=warn)
 
 
-def robot_from_dict(data: Any, file: str = "<dict>") -> Robot:
+def robot_from_dict(data: Any, file: str = "<dict>", *, warn: bool = True) -> Robot:
     """Validate a parsed model file (nested dicts and lists) and build the Robot."""
-    ctx = _Ctx(file)
+    ctx = _Ctx(file, warn)
     top = _mapping(ctx, data, "(top level)", _TOP_KEYS, required=("format", "version", "name", "units", "arms"))
+    ctx.orthonormalize = _flag(ctx, top, "orthonormalize", "(top level)")
     if top["format"] != FORMAT:
         raise ctx.fail("format", f"expected {quote(FORMAT)}, found {quote(top['format'])}")
     if top["version"] != VERSION or isinstance(top["version"], bool):
@@ -128,7 +144,8 @@ def _arm(ctx: _Ctx, name: str, data: Any, path: str) -> ArmModel:
     joints = d["joints"]
     if not isinstance(joints, list) or not joints:
         raise ctx.fail(f"{path}.joints", f"expected a non-empty list of joints, found {_kind(joints)}")
-    parsed = [_joint(ctx, j, f"{path}.joints[{i}]", i) for i, j in enumerate(joints)]
+    negative = _flag(ctx, d, "allow_negative_compliance", path)
+    parsed = [_joint(ctx, j, f"{path}.joints[{i}]", i, negative) for i, j in enumerate(joints)]
     names = [p["name"] for p in parsed]
     for i, n in enumerate(names):
         if n in names[:i]:
@@ -155,12 +172,13 @@ def _arm(ctx: _Ctx, name: str, data: Any, path: str) -> ArmModel:
             joint_names=tuple(names),
             joint_types=tuple(p["type"] for p in parsed),
             meta=meta,
+            allow_negative_compliance=negative,
         )
     except KincalError as exc:  # cross-field problems the per-field checks cannot see
         raise ctx.fail(path, str(exc)) from None
 
 
-def _joint(ctx: _Ctx, data: Any, path: str, index: int) -> dict:
+def _joint(ctx: _Ctx, data: Any, path: str, index: int, negative: bool = False) -> dict:
     d = _mapping(ctx, data, path, _JOINT_KEYS)
     name = _string(ctx, d.get("name", f"j{index + 1}"), f"{path}.name")
     kind = d.get("type", REVOLUTE)
@@ -175,12 +193,9 @@ def _joint(ctx: _Ctx, data: Any, path: str, index: int) -> dict:
             raise ctx.fail(f"{path}.point", "'point' goes with 'axis', not with 'twist'")
         twist = _twist(ctx, d["twist"], f"{path}.twist", kind)
     else:
-        axis = _vector(ctx, d["axis"], f"{path}.axis", 3)
-        norm = float(np.linalg.norm(axis))
-        if abs(norm - 1.0) > AXIS_TOL:
-            raise ctx.fail(f"{path}.axis",
-                           f"expected a unit vector (norm 1 within {AXIS_TOL:g}), found norm {norm:.9g}")
-        axis = axis / norm
+        axis = _unit(ctx, _vector(ctx, d["axis"], f"{path}.axis", 3), f"{path}.axis", ctx.orthonormalize,
+                     "a unit vector", "at the top of the file")
+        axis = axis / np.linalg.norm(axis)
         if kind == REVOLUTE:
             if "point" not in d:
                 raise ctx.fail(path, "missing key 'point' (a point on the axis of this revolute joint)")
@@ -205,17 +220,18 @@ def _joint(ctx: _Ctx, data: Any, path: str, index: int) -> dict:
     if ratio == 0:
         raise ctx.fail(f"{path}.gear_ratio", "expected a non-zero gear ratio, found 0")
     if isinstance(d.get("compliance"), dict):
-        compliance = _compliance_nodes(ctx, d["compliance"], f"{path}.compliance", kind, (lower, upper))
+        compliance = _compliance_nodes(ctx, d["compliance"], f"{path}.compliance", kind, (lower, upper), negative)
     else:
         compliance = _number(ctx, d.get("compliance", 0.0), f"{path}.compliance") * scale
-        if compliance < 0:
+        if compliance < 0 and not negative:
             unit = "angle unit/(N m)" if kind == REVOLUTE else "length unit/N"
-            raise ctx.fail(f"{path}.compliance", f"expected a compliance >= 0 ({unit}), found {quote(compliance / scale)}")
+            raise ctx.fail(f"{path}.compliance", f"expected a compliance >= 0 ({unit}), found "
+                           f"{quote(compliance / scale)}{NEGATIVE_HINT}")
     return {"name": name, "type": kind, "twist": twist, "offset": offset, "lower": lower, "upper": upper,
             "gear_ratio": ratio, "compliance": compliance}
 
 
-def _compliance_nodes(ctx: _Ctx, data: dict, path: str, kind: str, limits) -> np.ndarray:
+def _compliance_nodes(ctx: _Ctx, data: dict, path: str, kind: str, limits, negative: bool) -> np.ndarray:
     """``compliance: {nodes: [angles], values: [compliances]}`` -> (m, 2) rows (angle rad, rad/(N m))."""
     d = _mapping(ctx, data, path, {"nodes", "values"}, required=("nodes", "values"))
     if kind != REVOLUTE:
@@ -237,8 +253,9 @@ def _compliance_nodes(ctx: _Ctx, data: dict, path: str, kind: str, limits) -> np
             raise ctx.fail(f"{path}.nodes[{i}]", f"expected a node within the joint limits "
                            f"[{limits[0] / ctx.angle:g}, {limits[1] / ctx.angle:g}], found {quote(nodes[i])}")
     for i, v in enumerate(c):
-        if v < 0:
-            raise ctx.fail(f"{path}.values[{i}]", f"expected a compliance >= 0 (angle unit/(N m)), found {quote(values[i])}")
+        if v < 0 and not negative:
+            raise ctx.fail(f"{path}.values[{i}]", f"expected a compliance >= 0 (angle unit/(N m)), found "
+                           f"{quote(values[i])}{NEGATIVE_HINT}")
     return np.stack([x, c], axis=-1)
 
 
@@ -262,9 +279,7 @@ def _pose(ctx: _Ctx, data: Any, path: str) -> np.ndarray:
     if data is None:
         return np.eye(4)
     d = _mapping(ctx, data, path, _POSE_KEYS)
-    fix = d.get("orthonormalize", False)
-    if not isinstance(fix, bool):
-        raise ctx.fail(f"{path}.orthonormalize", f"expected true or false, found {quote(fix)}")
+    fix = _flag(ctx, d, "orthonormalize", path, ctx.orthonormalize)
     forms = [k for k in ("matrix", "rpy", "quaternion_wxyz", "rotation") if k in d]
     if len(forms) > 1:
         raise ctx.fail(path, f"give the rotation one way only; found {', '.join(forms)}")
@@ -274,38 +289,68 @@ def _pose(ctx: _Ctx, data: Any, path: str) -> np.ndarray:
         M = _matrix(ctx, d["matrix"], f"{path}.matrix", 4, 4)
         if np.abs(M[3] - [0, 0, 0, 1]).max() > 1e-12:
             raise ctx.fail(f"{path}.matrix", f"last row must be [0, 0, 0, 1], found {M[3].tolist()}")
-        R, p = M[:3, :3], M[:3, 3]
-        rot_path = f"{path}.matrix"
+        return se3.make(_rotation(ctx, M[:3, :3], f"{path}.matrix", fix), M[:3, 3] * ctx.length)
+    p = _vector(ctx, d.get("xyz", [0.0, 0.0, 0.0]), f"{path}.xyz", 3)
+    rot_path = f"{path}.{forms[0]}" if forms else path
+    if "rpy" in d:
+        R = rpy_to_matrix(_vector(ctx, d["rpy"], rot_path, 3) * ctx.angle)
+    elif "quaternion_wxyz" in d:
+        R = quat_wxyz_to_matrix(_unit(ctx, _vector(ctx, d["quaternion_wxyz"], rot_path, 4), rot_path, fix,
+                                      "a unit quaternion"))
+    elif "rotation" in d:
+        R = _rotation(ctx, _matrix(ctx, d["rotation"], rot_path, 3, 3), rot_path, fix)
     else:
-        p = _vector(ctx, d.get("xyz", [0.0, 0.0, 0.0]), f"{path}.xyz", 3)
-        rot_path = f"{path}.{forms[0]}" if forms else path
-        if "rpy" in d:
-            R = rpy_to_matrix(_vector(ctx, d["rpy"], rot_path, 3) * ctx.angle)
-        elif "quaternion_wxyz" in d:
-            q = _vector(ctx, d["quaternion_wxyz"], rot_path, 4)
-            norm = float(np.linalg.norm(q))
-            if fix and norm > 0:
-                q = q / norm
-            elif abs(norm - 1) > ROTATION_TOL:
-                raise ctx.fail(rot_path, f"expected a unit quaternion (norm 1 within {ROTATION_TOL:g}), found norm "
-                               f"{norm:.9g}; set 'orthonormalize: true' to normalize it")
-            R = quat_wxyz_to_matrix(q)
-        elif "rotation" in d:
-            R = _matrix(ctx, d["rotation"], rot_path, 3, 3)
-        else:
-            R = np.eye(3)
-    if fix:
-        if np.linalg.det(R) <= 0:
-            raise ctx.fail(rot_path, f"cannot orthonormalize: determinant {np.linalg.det(R):.6g} is not positive")
-        R = so3.project(R)
-    else:
-        err = float(np.abs(R.T @ R - np.eye(3)).max())
-        det = float(np.linalg.det(R))
-        if err > ROTATION_TOL or abs(det - 1) > ROTATION_TOL:
-            raise ctx.fail(rot_path, f"rotation is not orthonormal: max |R^T R - I| = {err:.3g}, det = {det:.6g} "
-                           f"(expected within {ROTATION_TOL:g}); set 'orthonormalize: true' to project a rounded "
-                           "published matrix onto the nearest rotation")
+        R = np.eye(3)
     return se3.make(R, p * ctx.length)
+
+
+def _rotation(ctx: _Ctx, R: np.ndarray, path: str, fix: bool) -> np.ndarray:
+    """A rotation matrix as given (orthonormal within ROTATION_TOL), or with ``fix`` its nearest rotation (SVD
+    polar factor) when it is within ORTHONORMALIZE_LIMIT of one, with a warning saying how far its axes moved."""
+    err = float(np.abs(R.T @ R - np.eye(3)).max())
+    det = float(np.linalg.det(R))
+    found = f"max |R^T R - I| = {err:.3g}, det = {det:.6g}"
+    if not fix:
+        if err > ROTATION_TOL or abs(det - 1) > ROTATION_TOL:
+            raise ctx.fail(path, f"rotation is not orthonormal: {found} (expected within {ROTATION_TOL:g}); set "
+                           "'orthonormalize: true' to project a rounded published matrix onto the nearest rotation")
+        return R
+    if det <= 0:
+        raise ctx.fail(path, f"cannot orthonormalize: determinant {det:.6g} is not positive")
+    if err > ORTHONORMALIZE_LIMIT:
+        raise ctx.fail(path, f"rotation is too far from orthonormal to be a rounded one: {found} (orthonormalize "
+                       f"projects up to {ORTHONORMALIZE_LIMIT:g})")
+    P = so3.project(R)
+    if err > ROTATION_TOL:
+        cos = np.sum(R * P, axis=0) / np.linalg.norm(R, axis=0)
+        moved = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).max())
+        ctx.warning(path, f"rotation projected onto the nearest rotation ({found}): its axes moved by up to "
+                          f"{moved:.3g} deg")
+    return P
+
+
+def _unit(ctx: _Ctx, x: np.ndarray, path: str, fix: bool, what: str, where: str = "") -> np.ndarray:
+    """``x`` of norm 1 within ROTATION_TOL, or with ``fix`` normalized when within ORTHONORMALIZE_LIMIT of it
+    (a warning gives the norm found: the direction it stands for does not change)."""
+    norm = float(np.linalg.norm(x))
+    if abs(norm - 1) <= ROTATION_TOL:
+        return x / norm if fix else x
+    if not fix:
+        raise ctx.fail(path, f"expected {what} (norm 1 within {ROTATION_TOL:g}), found norm {norm:.9g}; set "
+                       f"'orthonormalize: true'{' ' + where if where else ''} to normalize a rounded one")
+    if abs(norm - 1) > ORTHONORMALIZE_LIMIT:
+        raise ctx.fail(path, f"expected {what}: norm {norm:.9g} is too far from 1 to be a rounded one "
+                       f"(orthonormalize normalizes within {ORTHONORMALIZE_LIMIT:g})")
+    ctx.warning(path, f"normalized to {what}: found norm {norm:.9g}")
+    return x / norm
+
+
+def _flag(ctx: _Ctx, d: dict, key: str, path: str, default: bool = False) -> bool:
+    """The true/false value of ``key`` in mapping ``d`` (``default`` when absent)."""
+    value = d.get(key, default)
+    if not isinstance(value, bool):
+        raise ctx.fail(_join(path, key), f"expected true or false, found {quote(value)}")
+    return value
 
 
 def _controller_order(ctx: _Ctx, value: Any, names: list[str], path: str) -> tuple[int, ...]:
@@ -423,6 +468,8 @@ def _arm_to_dict(arm: ArmModel) -> dict:
         "home": {"matrix": [_floats(r) for r in arm.home]},
         "tool": {"matrix": [_floats(r) for r in arm.tool]},
     }
+    if arm.allow_negative_compliance:
+        out["allow_negative_compliance"] = True
     if arm.controller_order != tuple(range(arm.dof)):
         out["controller_order"] = [arm.joint_names[i] for i in arm.controller_order]
     if arm.meta:

@@ -54,6 +54,10 @@ class ArmModel:
         increasing angles within the joint's limits, at least 2; the compliance is interpolated linearly in
         the reading between them and held at the end values beyond (``kincal.kinematics.elastic``). Revolute
         joints only; their entry in ``compliance`` must be 0 (the table replaces it).
+    allow_negative_compliance : bool
+        False (default): every compliance must be >= 0, as a real joint's. True: a calibrated model, whose
+        compliances are estimates kept as the solver fitted them, also below 0 (the calibration's verdict reports
+        those: ``kincal.estimation.plausibility.negative_compliances``).
     gear_ratios : ndarray, shape (n,)
         Motor units per joint unit (motor rad = ratio * arm rad), in model joint order.
     controller_order : tuple of int
@@ -79,6 +83,7 @@ class ArmModel:
     meta: Mapping = field(default_factory=dict)
     compliance: np.ndarray | None = None
     compliance_nodes: Mapping[str, np.ndarray] | None = None
+    allow_negative_compliance: bool = False
 
     def __post_init__(self) -> None:
         where = f"arm '{self.name}'"
@@ -105,8 +110,9 @@ class ArmModel:
         vec("upper", np.inf)
         vec("gear_ratios", 1.0)
         vec("compliance", 0.0)
-        if np.any(self.compliance < 0):
-            raise ModelError(f"{where}: compliance must be >= 0 (rad/(N m) or m/N), got {self.compliance.tolist()}")
+        if np.any(self.compliance < 0) and not self.allow_negative_compliance:
+            raise ModelError(f"{where}: compliance must be >= 0 (rad/(N m) or m/N), got {self.compliance.tolist()}"
+                             "; a calibration's estimates below 0 need allow_negative_compliance")
         if np.any(np.isnan(self.lower)) or np.any(np.isnan(self.upper)) or np.any(self.lower >= self.upper):
             raise ModelError(f"{where}: joint limits need lower < upper, got lower={self.lower.tolist()} upper={self.upper.tolist()}")
         if np.any(self.gear_ratios == 0):
@@ -136,6 +142,7 @@ class ArmModel:
                     f"got |w| = {np.linalg.norm(w):.3g}, |v| = {np.linalg.norm(v):.12g}"
                 )
 
+        set_("allow_negative_compliance", bool(self.allow_negative_compliance))
         set_("compliance_nodes", MappingProxyType(_nodes(self, where)))
         order = tuple(range(n)) if self.controller_order is None else tuple(int(i) for i in self.controller_order)
         if sorted(order) != list(range(n)):
@@ -177,7 +184,8 @@ class ArmModel:
 
 
 def _nodes(arm: ArmModel, where: str) -> dict[str, np.ndarray]:
-    """``compliance_nodes`` checked: known revolute joints, >= 2 increasing angles within limits, values >= 0."""
+    """``compliance_nodes`` checked: known revolute joints, >= 2 increasing angles within limits, values >= 0
+    (unless ``allow_negative_compliance``)."""
     out = {}
     for name, table in dict(arm.compliance_nodes or {}).items():
         at = f"{where}: joint {name}: compliance nodes"
@@ -199,7 +207,7 @@ def _nodes(arm: ArmModel, where: str) -> dict[str, np.ndarray]:
         if len(np.unique(np.round(np.degrees(t[:, 0])))) < len(t):
             raise ModelError(f"{at}: angles {np.degrees(t[:, 0]).round(3).tolist()} deg: keep them at least 1 deg "
                              "apart (their parameters are named by the nearest degree)")
-        if np.any(t[:, 1] < 0):
+        if np.any(t[:, 1] < 0) and not arm.allow_negative_compliance:
             raise ModelError(f"{at}: compliances must be >= 0 (rad/(N m)), got {t[:, 1].tolist()}")
         out[name] = _frozen(t)
     return out

@@ -102,17 +102,20 @@ def retract_twists(a: ArmValues, d: np.ndarray) -> ArmValues:
 
 
 def _compliance_fields(a: ArmValues) -> dict:
-    """``compliance`` (n,) and ``compliance_nodes`` of an ArmModel from the coefficients (negatives held at 0)."""
-    k = np.maximum(a.joint_compliance, 0.0)
+    """``compliance`` (n,) and ``compliance_nodes`` of an ArmModel from the coefficients, as estimated: one below 0
+    is kept (``allow_negative_compliance``), so the model predicts what the solver fitted; the calibration's
+    verdict reports it (``kincal.estimation.plausibility.negative_compliances``)."""
+    k = a.joint_compliance
+    negative = {"allow_negative_compliance": True} if np.any(k < 0) else {}
     if not a.compliance_nodes:
-        return {"compliance": k}
+        return {"compliance": k, **negative}
     c, nodes = np.zeros(a.dof), {}
     for (j, at), value in zip(a.compliance_columns(), k):
         if at is None:
             c[j] = value
         else:
             nodes.setdefault(a.joint_names[j], []).append((at, value))
-    return {"compliance": c, "compliance_nodes": nodes}
+    return {"compliance": c, "compliance_nodes": nodes, **negative}
 
 
 @dataclass(frozen=True)
@@ -179,6 +182,6 @@ class State:
                 continue
             a = self.arms[key]
             screws = conform_twists(a.screws, a.joint_types)
-            arms[key] = model.replace(  # a compliance estimated below 0 (noise) is held at 0 in the model
+            arms[key] = model.replace(
                 screws=screws, offsets=a.offsets, base=a.base, home=a.home, tool=a.tool, **_compliance_fields(a))
         return Robot(robot.name, arms, dict(robot.meta))

@@ -1,0 +1,48 @@
+"""A singular value decomposition (and least squares) that does not give up: LAPACK's divide and conquer, else
+its QR iteration.
+
+numpy's ``svd`` calls LAPACK ``gesdd`` (divide and conquer), which raises "SVD did not converge" on some
+ill-conditioned matrices (a kinematic + elastic Jacobian of DLR's Agile Justin); ``gesvd`` (QR iteration, in
+scipy) is slower but converges on them. Every SVD of ``kincal.analysis`` and ``kincal.estimation`` goes through
+``svd`` here, every least-squares solve through ``lstsq``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg
+
+
+def svd(a, full_matrices: bool = True, compute_uv: bool = True):
+    """``numpy.linalg.svd(a, full_matrices, compute_uv)`` (``(U, S, Vt)``, or ``S`` without ``compute_uv``),
+    redone with LAPACK's ``gesvd`` when ``gesdd`` does not converge. ``a`` (..., m, n): a stack is decomposed
+    matrix by matrix on the fallback."""
+    try:
+        return np.linalg.svd(a, full_matrices=full_matrices, compute_uv=compute_uv)
+    except np.linalg.LinAlgError:
+        a = np.asarray(a, dtype=float)
+        if not np.all(np.isfinite(a)):  # no driver decomposes nan or inf: numpy's error says what failed
+            raise
+        return _gesvd(a, full_matrices, compute_uv)
+
+
+def _gesvd(a: np.ndarray, full_matrices: bool, compute_uv: bool):
+    """The same outputs as ``numpy.linalg.svd`` by scipy's ``gesvd`` driver (rare: only after gesdd failed)."""
+    if a.ndim == 2:
+        return scipy.linalg.svd(a, full_matrices=full_matrices, compute_uv=compute_uv, lapack_driver="gesvd")
+    parts = [_gesvd(m, full_matrices, compute_uv) for m in a.reshape(-1, *a.shape[-2:])]
+    if not compute_uv:
+        return np.stack(parts).reshape(*a.shape[:-2], -1)
+    return tuple(np.stack(p).reshape(*a.shape[:-2], *p[0].shape) for p in zip(*parts))
+
+
+def lstsq(a, b) -> np.ndarray:
+    """The minimum-norm least-squares solution x of ``a x = b`` (``numpy.linalg.lstsq(a, b, rcond=None)[0]``:
+    LAPACK ``gelsd``, an SVD by divide and conquer), redone with ``gelsy`` (complete orthogonal factorization)
+    when ``gelsd`` does not converge."""
+    try:
+        return np.linalg.lstsq(a, b, rcond=None)[0]
+    except np.linalg.LinAlgError:
+        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+            raise
+        return scipy.linalg.lstsq(a, b, lapack_driver="gelsy")[0]
