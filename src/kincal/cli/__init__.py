@@ -7,6 +7,7 @@ import os
 import signal
 import sys
 import threading
+import warnings
 
 import click
 from threadpoolctl import threadpool_limits
@@ -14,7 +15,7 @@ from threadpoolctl import threadpool_limits
 from kincal import __version__
 from kincal.cli import (analyze_cmds, calibrate_cmds, compensate_cmds, design_cmds, export_cmds, list_cmds, model_cmds,
                         pose_cmds, report_cmds, simulate_cmds, study_cmds)
-from kincal.errors import KincalError
+from kincal.errors import KincalError, KincalWarning
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -91,6 +92,15 @@ def main(argv=None) -> int:
 
 
 def _run(argv) -> int:
+    with warnings.catch_warnings():  # kincal's warnings as one line each on stderr, like its errors
+        show = warnings.showwarning
+        warnings.showwarning = lambda msg, category, *args: (
+            click.echo(f"kincal: warning: {msg}", err=True) if issubclass(category, KincalWarning)
+            else show(msg, category, *args))
+        return _command(argv)
+
+
+def _command(argv) -> int:
     try:
         cli.main(args=argv, prog_name="kincal", standalone_mode=False)
     except KincalError as exc:

@@ -322,11 +322,15 @@ def _rotation(ctx: _Ctx, R: np.ndarray, path: str, fix: bool) -> np.ndarray:
                        f"projects up to {ORTHONORMALIZE_LIMIT:g})")
     P = so3.project(R)
     if err > ROTATION_TOL:
-        cos = np.sum(R * P, axis=0) / np.linalg.norm(R, axis=0)
-        moved = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).max())
-        ctx.warning(path, f"rotation projected onto the nearest rotation ({found}): its axes moved by up to "
-                          f"{moved:.3g} deg")
+        turned = round(float(np.degrees(_angles(R, P)).max()), 9)  # below 1e-9 deg: round-off, not a turn
+        ctx.warning(path, f"rotation projected onto the nearest rotation ({found}): its axes turned by up to "
+                          f"{turned:.3g} deg")
     return P
+
+
+def _angles(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Angle (rad) between each column of A and of B (atan2 of |a x b| and a . b: exact also near 0)."""
+    return np.arctan2(np.linalg.norm(np.cross(A.T, B.T), axis=-1), np.sum(A * B, axis=0))
 
 
 def _unit(ctx: _Ctx, x: np.ndarray, path: str, fix: bool, what: str, where: str = "") -> np.ndarray:
