@@ -10,7 +10,7 @@ import yaml
 
 from kincal.cli import main
 from kincal.errors import DataFormatError, ModelError
-from kincal.estimation import calibrate, evaluate
+from kincal.estimation import Stage, calibrate, evaluate
 from kincal.estimation.plausibility import NEGATIVE_SIGMAS
 from kincal.io.datasets import write_dataset
 from kincal.io.models import dump_robot, load_robot, parse_robot, save_robot
@@ -18,7 +18,7 @@ from kincal.kinematics import Robot
 from kincal.noise import Noise as Stated
 from kincal.params import State
 from kincal.robots import load
-from kincal.simulate.generators import generate_markers
+from kincal.simulate.generators import generate_markers, generate_pose
 from kincal.simulate.noise import Noise
 from kincal.simulate.perturb import perturb_robot
 
@@ -47,14 +47,14 @@ def _nominal(nodes=None):
     return r if nodes is None else Robot(r.name, {"arm": r["arm"].replace(compliance_nodes=nodes)})
 
 
-def assert_model_is_the_fit(res):
+def assert_model_is_the_fit(res, noise=STATED):
     """The returned Robot predicts exactly what the solver fitted: its residuals (with the solve's frames) are
     the solver's final residuals, and re-fitting only the frames to it gives the solver's RMS."""
     problem = res.problem
     at_model = State.from_robot(res.robot, res.state.extras, res.state.kinds)
     for fitted, model in zip(problem.residuals(res.state), problem.residuals(at_model)):
         np.testing.assert_allclose(model.r, fitted.r, rtol=0, atol=1e-12)
-    again = evaluate(res.robot, [e.dataset for e in problem.experiments], noise=STATED)
+    again = evaluate(res.robot, [e.dataset for e in problem.experiments], noise=noise)
     for a, b in zip(again, res.after):
         assert a.position_rms == pytest.approx(b.position_rms, rel=1e-6, abs=1e-12)
 
@@ -155,3 +155,49 @@ def test_cli_says_not_trusted_and_exits_5_and_the_model_loads_back(tmp_path, cap
     np.testing.assert_allclose(model["arm"].compliance, [values[f"arm.j{i}.compliance"] for i in (1, 2, 3)],
                                rtol=1e-12)
     assert model["arm"].compliance[0] < 0
+
+
+# ------------------------------------------------------------------ the returned model is the solver's fit
+
+
+def _loaded_markers():
+    return _nominal(), [_data(_truth(), 3)], STATED
+
+
+def _loaded_markers_with_nodes():
+    return _nominal(NODES), [_data(_truth(nodes=NODES), 4)], STATED
+
+
+def _pose_and_markers_of_frida():
+    """Two arms, a tool frame and a tracker: Frida's right arm seen as poses, the left as markers (no loads)."""
+    frida = load("frida")
+    true = perturb_robot(frida, "thesis", 2)
+    pose, _, _ = generate_pose(true, "right", n=25, rng=1, noise=Noise(position=2e-5, orientation=1e-4))
+    markers, _, _ = generate_markers(true, "left", n=25, rng=2, markers=3, noise=Noise(position=2e-5))
+    return frida, [pose, markers], Stated(position=2e-5, orientation=1e-4, joint=0.0)
+
+
+CASES = {"loaded markers": _loaded_markers, "compliance nodes": _loaded_markers_with_nodes,
+         "frida pose and markers": _pose_and_markers_of_frida}
+LEVELS = {"loaded markers": ["offsets", "kinematic", "elastic", ["kinematic", "elastic"]],
+          "compliance nodes": [["kinematic", "elastic"]],
+          "frida pose and markers": ["offsets", "kinematic"]}
+
+
+@pytest.mark.parametrize("case, free", [(c, f) for c in CASES for f in LEVELS[c]])
+def test_the_returned_robot_predicts_the_solvers_final_residuals(case, free):
+    """Guard (issue 14): whatever the level, ``Result.robot`` is the state the solver ended at, so a
+    "converged" never describes a fit the returned model does not have."""
+    robot, data, noise = CASES[case]()
+    res = calibrate(robot, data, free, noise=noise)
+    assert res.status in ("converged", "misfit")  # at offsets, loads unmodelled: a misfit, as it should
+    assert_model_is_the_fit(res, noise)
+
+
+def test_a_staged_solve_returns_its_last_stages_fit():
+
+    robot, data, noise = _loaded_markers()
+    res = calibrate(robot, data, noise=noise, stages=[Stage("offsets", name="offsets"),
+                                                      Stage(["kinematic", "elastic"], name="all")])
+    assert len(res.stages) == 2
+    assert_model_is_the_fit(res)

@@ -221,7 +221,7 @@ def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool,
     """Calibrate as described by JOB.yaml (docs/job-format.md) and write the results to OUT.
 
     Exit codes: 0 converged, 1 not converged, 2 bad input, 3 degenerate, 4 misfit, 5 converged but not
-    trusted at the validation configurations (docs/calibration.md)."""
+    trusted (at the validation configurations, or a compliance below 0 beyond the noise; docs/calibration.md)."""
     console = _console()
     if not overwrite:
         _refuse_existing(out, ("model.yaml", "result.yaml") + (("plots",) if plots else ()))
@@ -255,8 +255,8 @@ def calibrate_cmd(job: Path, out: Path, quiet: bool, as_json: bool, plots: bool,
 # ``kincal calibrate`` and ``kincal demo`` exit with the status' code (docs/calibration.md "Statuses and exit
 # codes"); 2 is kincal's one-line input error (``kincal.cli.main``), 130 an abort.
 EXIT_CODES = {"converged": 0, "not converged": 1, "degenerate": 3, "misfit": 4}
-# A converged result that is not trusted where it was validated (``Result.trusted``): it fits, but directions its
-# data cannot determine move the tool there.
+# A converged result that is not trusted (``Result.trusted``): it fits, but directions its data cannot determine
+# move the tool where it was validated, or a compliance came out below 0 beyond the noise (``Result.physical``).
 UNTRUSTED_EXIT = 5
 
 
