@@ -11,7 +11,7 @@ import yaml
 from kincal.cli import main
 from kincal.errors import DataFormatError, ModelError
 from kincal.estimation import Stage, calibrate, evaluate
-from kincal.estimation.plausibility import NEGATIVE_SIGMAS
+from kincal.estimation.plausibility import NEGATIVE_SIGMAS, ROUND_OFF_COMPLIANCE
 from kincal.io.datasets import write_dataset
 from kincal.io.models import dump_robot, load_robot, parse_robot, save_robot
 from kincal.kinematics import Robot
@@ -89,6 +89,14 @@ def test_a_stiff_joint_scattering_below_zero_is_a_warning_and_kept():
     note = next(m for m in res.messages if "below 0" in m)
     assert note.startswith("warning: compliance estimated below 0 within 3 std of 0")
     assert f"arm.j2.compliance = {c.value:.3g} rad/Nm (std {c.std:.2g})" in note
+
+
+def test_a_rigid_joint_in_noise_free_data_is_zero_up_to_round_off_not_reported():
+    ds, _, _ = generate_markers(_truth(), n=30, rng=4, markers=3, wrench=LOAD_N)
+    res = calibrate(_nominal(), [ds], ["kinematic", "elastic"])
+    assert -ROUND_OFF_COMPLIANCE < res.estimate("arm.j2.compliance").value < 0  # -7e-20 rad/Nm
+    assert res.negative_compliances == () and res.physical and res.trusted
+    assert not any("below 0" in m for m in res.messages)
 
 
 NODES = {"j2": [[-1.0, 1e-5], [1.0, 2e-5]]}

@@ -145,6 +145,9 @@ def spread(x: np.ndarray) -> float:
 # A compliance estimated more than this many standard deviations below 0 is no chance scatter of a stiff joint:
 # the loads (their size or sign, one not modelled such as gravity) or the model do not fit the data.
 NEGATIVE_SIGMAS = 3.0
+# A compliance between this (rad/Nm or m/N; 1e-9 rad or m under 1000 N m or N) and 0 is 0 up to round-off (a
+# rigid joint fitted to noise-free data), not reported: realistic compliances are 1e-7 and more.
+ROUND_OFF_COMPLIANCE = 1e-12
 
 
 @dataclass(frozen=True)
@@ -167,10 +170,11 @@ class NegativeCompliance:
 
 
 def negative_compliances(layout: Layout, estimates) -> tuple[NegativeCompliance, ...]:
-    """The compliance ``estimates`` (``kincal.estimation.result.Estimate``) below 0, in layout order."""
+    """The compliance ``estimates`` (``kincal.estimation.result.Estimate``) below 0 (below
+    ``-ROUND_OFF_COMPLIANCE``), in layout order."""
     names = {layout.names[i] for b in layout.blocks if b.kind is COMPLIANCE for i in range(b.start, b.stop)}
     return tuple(NegativeCompliance(e.name, e.value, e.std, e.unit) for e in estimates
-                 if e.name in names and e.value < 0)
+                 if e.name in names and e.value < -ROUND_OFF_COMPLIANCE)
 
 
 def negative_compliance_notes(found) -> list[str]:
