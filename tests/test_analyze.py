@@ -16,6 +16,7 @@ from kincal.cli import main
 from kincal.data import Dataset
 from kincal.errors import KincalError, ModelError
 from kincal.estimation import Noise, calibrate
+from kincal.io.jobs import load_job
 from kincal.workflow.plan import load_plan_job
 from kincal.lie import se3
 from kincal.simulate import generate_clamp, generate_dual, generate_markers
@@ -275,6 +276,20 @@ def test_plan_job_bad_input_one_line(tmp_path, capsys, entry, words):
         assert main(command) == 2
         err = capsys.readouterr().err
         assert words in err and err.count("\n") == 1, err
+
+
+def test_io_only_reads_a_plan_job_and_the_workflow_simulates_it(tmp_path):
+    """io parses a plan entry to plain data (kincal.io.planjobs imports no simulation); io's load_job refuses a
+    plan job in one line, the workflow's load_plan_job makes its data sets, marked as planned."""
+    import inspect
+    import kincal.io.planjobs as planjobs
+    assert "kincal.simulate" not in inspect.getsource(planjobs)
+    job = _plan_job(tmp_path, "scenario: frida_clamp_one", "frida", "offsets")
+    with pytest.raises(KincalError, match=r"data\[0\]: the data set is a plan \(scenario: frida_clamp_one\), not "
+                                          "measured data") as e:
+        load_job(job)
+    assert "\n" not in str(e.value)
+    assert load_plan_job(job).datasets[0].meta["planned"] == "scenario: frida_clamp_one"
 
 
 def test_calibrate_refuses_a_plan_job(tmp_path, capsys):

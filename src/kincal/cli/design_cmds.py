@@ -92,6 +92,8 @@ def _design(source, K, free, criterion, pool, seed, limits, console):
                                   "the candidates (name a scenario in the job to draw them)")
         console.print(f"choosing from the {given.size} configurations of data set '{given.name}'")
         d = choose(robot, given, K, free=free, criterion=criterion, noise=noise, seed=seed)
+        if d.outside:
+            console.print(f"left out {d.outside} configurations outside the joint limits")
     console.print(f"chose {K} of {d.pool} candidates by {criterion}: criterion {d.selection.value:.6g} against "
                   f"{d.random:.6g} for the median of 20 random designs; rank {d.rank} of {d.free}")
     console.print(f"predicted tool position std over the workspace: {d.tool_rms * 1e3:.4g} mm RMS "
