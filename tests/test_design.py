@@ -342,3 +342,17 @@ def test_cli_bad_pools_one_line(tmp_path, capsys):
     assert main(["design", str(tmp_path / "job.yaml"), "-n", "10", "-o", str(tmp_path / "b")]) == 2
     err = capsys.readouterr().err
     assert "no data rows" in err and err.count("\n") == 1
+
+
+def test_pooled_starts_keep_the_best_exchanged_design():
+    """design_pool.d_optimal with more starts (stochastic greedies, each exchanged): never a lower log det than
+    the first start alone, the same greedy choice, and deterministic for a seed."""
+    X = _pool(11, N=600, k=3, r=9)
+    M0 = 1e-10 * np.eye(9)
+    ld = lambda idx: np.linalg.slogdet(M0 + information(X[idx]))[1]  # noqa: E731
+    runs = {s: design_pool.d_optimal(X, 6, M0, np.random.default_rng(2), starts=s, passes=MAX_PASSES,
+                                     min_gain=D_GAIN, shortlist=20_000) for s in (1, 4)}
+    assert runs[1][0] == runs[4][0] and ld(runs[4][1]) >= ld(runs[1][1]) - 1e-9
+    again = design_pool.d_optimal(X, 6, M0, np.random.default_rng(2), starts=4, passes=MAX_PASSES, min_gain=D_GAIN,
+                                  shortlist=20_000)
+    assert again[1] == runs[4][1]

@@ -18,10 +18,13 @@ Adding candidate i to M: with ``L L^T = M``, ``Y = X_i L^-T``, ``G = Y Y^T`` (k,
 D, A, I and G are scored for every candidate at once from (N, k, r) arrays; spectral criteria take one batched
 eigen-decomposition per step.
 
-D (also the start of A, I and G) is fast on large pools: a stochastic greedy start (each step scores a random
-sample of the pool), then the exchange finds each position's best swap by branch and bound (``_LogDet.best``:
-bounds of every candidate's gain from one skinny product with the pool, exact scores only for the few that could
-win), first on a shortlist of the candidates that add most to the design, then checked on the whole pool.
+D (also the start of A, I and G) takes the method whose exact score is cheaper (``_d_optimal``). Candidates of
+at most ``POOLED_ROWS`` rows: every candidate scored at every step, from rank-k updates of the whole pool's
+``X_j M^-1 X_j^T`` (``kincal.analysis.design_pool``). More rows: a stochastic greedy start (each step scores a
+random sample of the pool), then the exchange finds each position's best swap by branch and bound
+(``_LogDet.best``: bounds of every candidate's gain from one skinny product with the pool, exact scores only for
+the few that could win), first on a shortlist of the candidates that add most to the design, then checked on the
+whole pool.
 """
 
 from __future__ import annotations
