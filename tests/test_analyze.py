@@ -198,7 +198,7 @@ def test_cli_analyze_bad_error_spelling(capsys):
     assert err.count("\n") == 1 and "unit mm, m, deg or rad" in err
 
 
-# ------------------------------------------------------------------ jobs without measured data (kincal.io.planjobs, kincal.workflow.plan)
+# ------------------------------------------- jobs without measured data (kincal.io.planjobs, kincal.workflow.plan)
 
 def _plan_job(tmp_path, entry: str, model: str = "ur10", free: str = "kinematic", name: str = "plan.yaml"):
     job = tmp_path / name

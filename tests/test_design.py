@@ -221,7 +221,7 @@ def test_cli_design_from_a_job_without_measured_data(tmp_path, capsys):
     assert "this job's data set gives the candidates" in err and err.count("\n") == 1
 
 
-# ------------------------------------------------------------------ the D selection's two methods (analysis.design_pool)
+# --------------------------------------------------------- the D selection's two methods (analysis.design_pool)
 
 @pytest.mark.parametrize("k", [1, 3, 4, 6])
 def test_d_selection_against_brute_force_by_either_method(k):
