@@ -135,7 +135,7 @@ def select(X: np.ndarray, K: int, criterion: str = "D", *, workspace: np.ndarray
 def _d_optimal(X, K, M0, seed) -> tuple[list[int], list[int], int]:
     """(greedy choice, exchanged design, swaps) for D, by the method whose exact score is cheaper: for
     candidates of at most ``POOLED_ROWS`` rows every candidate's gain costs a few vector operations
-    (``kincal.analysis.design_pool``: the whole pool scored at each step, several starts); for more rows the
+    (``kincal.analysis.design_pool``: the whole pool scored at each step, ``STARTS`` starts); for more rows the
     per-candidate determinants cost more than bounding them (a stochastic greedy start, then the exchange by
     branch and bound, ``_exchange_d``)."""
     rng = np.random.default_rng(seed)
