@@ -17,6 +17,7 @@ from kincal.data import Dataset
 from kincal.errors import KincalError, ModelError
 from kincal.estimation import Noise, calibrate
 from kincal.io.jobs import load_job
+from kincal.workflow.plan import load_plan_job
 from kincal.lie import se3
 from kincal.simulate import generate_clamp, generate_dual, generate_markers
 from kincal.workflow.analyze import analyze
@@ -197,7 +198,7 @@ def test_cli_analyze_bad_error_spelling(capsys):
     assert err.count("\n") == 1 and "unit mm, m, deg or rad" in err
 
 
-# ------------------------------------------------------------------ jobs without measured data (kincal.io.planjobs)
+# ------------------------------------------- jobs without measured data (kincal.io.planjobs, kincal.workflow.plan)
 
 def _plan_job(tmp_path, entry: str, model: str = "ur10", free: str = "kinematic", name: str = "plan.yaml"):
     job = tmp_path / name
@@ -216,7 +217,7 @@ def test_job_naming_a_scenario_analyses_like_the_scenario(tmp_path, capsys):
     assert (from_job["rank"], from_job["free"]) == (11, 13)
     for key in ("rank", "free", "configurations", "unidentifiable", "observability"):
         assert from_job[key] == from_scenario[key], key
-    job = load_job(job)
+    job = load_plan_job(job)
     assert [d.name for d in job.datasets] == ["frida-clamp-one"] and job.datasets[0].size == 200
     an = analyze(job.robot, job.datasets, job.free, noise=job.noise, workspace=20)
     assert an.plan.rank == 11 and {"right.j1.offset", "right.j7.offset"} == {
@@ -237,7 +238,7 @@ def test_job_naming_configurations_predicts_with_the_stated_noise(tmp_path, caps
         data = json.loads(capsys.readouterr().out)
         assert (data["rank"], data["configurations"]) == (33, 30)
         stds[sigma] = np.array([e["std"] for e in data["estimates"] if e["identifiable"]])
-        job = load_job(job)
+        job = load_plan_job(job)
         assert job.datasets[0].name == "targets" and job.datasets[0].size == 30
         assert job.noise["targets"].position == pytest.approx(sigma * 1e-3)
     np.testing.assert_allclose(stds[0.1], 2 * stds[0.05], rtol=1e-6)
@@ -247,10 +248,10 @@ def test_job_naming_configurations_predicts_with_the_stated_noise(tmp_path, caps
     np.savetxt(tmp_path / "deg.csv", np.degrees(q), delimiter=",", header=header, comments="")
     job = _plan_job(tmp_path, "configurations: deg.csv\n    units: {angle: deg, length: mm}\n    experiment: "
                     "{kind: pose, arm: arm, known_tracker: true, T_world_tracker: {xyz: [2000, 0, 500]}}", name="deg.yaml")
-    ds = load_job(job).datasets[0]
+    ds = load_plan_job(job).datasets[0]
     np.testing.assert_allclose(ds.q["arm"], q, atol=1e-12)
     np.testing.assert_allclose(ds.known["T_world_tracker"][:3, 3], [2.0, 0.0, 0.5])
-    assert analyze(load_job(job).robot, [ds], "offsets", workspace=10).plan.rank == 6
+    assert analyze(load_plan_job(job).robot, [ds], "offsets", workspace=10).plan.rank == 6
 
 
 @pytest.mark.parametrize("entry, words", [
@@ -275,6 +276,20 @@ def test_plan_job_bad_input_one_line(tmp_path, capsys, entry, words):
         assert main(command) == 2
         err = capsys.readouterr().err
         assert words in err and err.count("\n") == 1, err
+
+
+def test_io_only_reads_a_plan_job_and_the_workflow_simulates_it(tmp_path):
+    """io parses a plan entry to plain data (kincal.io.planjobs imports no simulation); io's load_job refuses a
+    plan job in one line, the workflow's load_plan_job makes its data sets, marked as planned."""
+    import inspect
+    import kincal.io.planjobs as planjobs
+    assert "kincal.simulate" not in inspect.getsource(planjobs)
+    job = _plan_job(tmp_path, "scenario: frida_clamp_one", "frida", "offsets")
+    with pytest.raises(KincalError, match=r"data\[0\]: the data set is a plan \(scenario: frida_clamp_one\), not "
+                                          "measured data") as e:
+        load_job(job)
+    assert "\n" not in str(e.value)
+    assert load_plan_job(job).datasets[0].meta["planned"] == "scenario: frida_clamp_one"
 
 
 def test_calibrate_refuses_a_plan_job(tmp_path, capsys):

@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from kincal import robots
-from kincal.analysis.design import CRITERIA, _LogDet, criterion_value, information, select
+from kincal.analysis import design_pool
+from kincal.analysis.design import (CRITERIA, D_GAIN, MAX_PASSES, POOLED_ROWS, _LogDet, criterion_value, information,
+                                    select)
 from kincal.errors import KincalError, ModelError
 from kincal.estimation import Noise, calibrate
 from kincal.kinematics import forward_kinematics
@@ -217,3 +219,140 @@ def test_cli_design_from_a_job_without_measured_data(tmp_path, capsys):
     assert main(["design", str(job), "-n", "25", "--box", "0,0,0,1,1,1", "-o", str(tmp_path / "c")]) == 2
     err = capsys.readouterr().err
     assert "this job's data set gives the candidates" in err and err.count("\n") == 1
+
+
+# --------------------------------------------------------- the D selection's two methods (analysis.design_pool)
+
+@pytest.mark.parametrize("k", [1, 3, 4, 6])
+def test_d_selection_against_brute_force_by_either_method(k):
+    """D for candidates of few rows (k <= 3: the whole pool scored at once, ``design_pool``) and of more rows
+    (k > 3: branch and bound): on pools of 12 (495 subsets of 4) within 1 % of the best subset's log det and
+    better than 99 % of the subsets; on most pools the best subset."""
+    hits = 0
+    for seed in range(5):
+        X = _pool(seed, N=12, k=k, r=6)
+        values = np.array([criterion_value(information(X[list(c)]) + 1e-12 * np.eye(6), "D")
+                           for c in itertools.combinations(range(len(X)), 4)])
+        got, best = select(X, 4, "D").value, values.max()
+        assert got >= best - 0.01 * abs(best), (k, seed, got, best)
+        assert np.mean(values <= got + 1e-9) >= 0.99
+        hits += got >= best - 1e-9 * abs(best)
+    assert hits >= 4, (k, hits)
+
+
+@pytest.mark.parametrize("k, N, shortlist", [(3, 400, 20_000), (3, 1500, 200), (4, 1500, 0)])
+def test_d_exchange_ends_where_no_single_swap_pays(k, N, shortlist):
+    """Whichever method and whether the passes ran on a shortlist first: no swap of one chosen configuration for
+    any candidate of the whole pool raises log det by more than the exchange's threshold."""
+    X = _pool(7, N=N, k=k, r=9) * np.random.default_rng(8).uniform(0.2, 2.0, size=(N, 1, 1))
+    K = 8
+    if k <= POOLED_ROWS:
+        M0 = 1e-10 * np.eye(9)
+        pool = design_pool.Pool(X, M0)
+        chosen, _ = design_pool.exchange(pool, design_pool.greedy(pool, K, M0), M0, passes=MAX_PASSES,
+                                         min_gain=D_GAIN, shortlist=shortlist)
+    else:
+        chosen = list(select(X, K, "D").indices)
+    M = information(X[chosen]) + 1e-10 * np.eye(9)
+    value = np.linalg.slogdet(M)[1]
+    for pos, out in enumerate(chosen):
+        B = M - X[out].T @ X[out]
+        gains = np.linalg.slogdet(B[None] + np.einsum("nkr,nks->nrs", X, X))[1]
+        gains[chosen] = -np.inf
+        assert gains.max() <= value + D_GAIN + 1e-9, (pos, gains.max() - value)
+
+
+def test_pooled_bookkeeping_matches_direct_computation():
+    """design_pool.Pool: every candidate's X_j M^-1 X_j^T, M^-1 and log det after adding and removing
+    candidates, in double precision to round-off, with single-precision updates within 1e-5; the gains are the
+    log det rises."""
+    X = _pool(3, N=200, k=3, r=7)
+    M = np.eye(7) + information(X[:9])
+    for single, tol in ((False, 1e-10), (True, 1e-5)):
+        pool = design_pool.Pool(X, M.copy(), single=single)
+        pool.commit(20, 1.0)
+        pool.commit(4, -1.0)
+        M2 = M + X[20].T @ X[20] - X[4].T @ X[4]
+        assert pool.logdet == pytest.approx(np.linalg.slogdet(M2)[1], abs=tol)
+        G = np.einsum("nkr,rs,nls->kln", X, np.linalg.inv(M2), X)
+        np.testing.assert_allclose(pool.G, G, atol=tol)
+        rise = np.linalg.slogdet(M2[None] + np.einsum("nkr,nks->nrs", X, X))[1] - np.linalg.slogdet(M2)[1]
+        np.testing.assert_allclose(pool.gains(), rise, atol=tol)
+        G_wo, Binv, ld = pool.moved(5, -1.0)
+        M3 = M2 - X[5].T @ X[5]
+        assert ld == pytest.approx(np.linalg.slogdet(M3)[1], abs=tol)
+        np.testing.assert_allclose(Binv, np.linalg.inv(M3), atol=tol)
+        np.testing.assert_allclose(G_wo, np.einsum("nkr,rs,nls->kln", X, np.linalg.inv(M3), X), atol=tol)
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 4, 6])
+def test_pooled_log_det_of_identity_plus_gram(k):
+    """Closed forms (k <= 3) and the elementwise Cholesky (k > 3) against LAPACK; a candidate whose matrix is
+    not positive definite scores far below any other."""
+    A = np.random.default_rng(k).normal(size=(40, k, k + 1))
+    G = A @ np.swapaxes(A, 1, 2)
+    G[5] = -3 * np.eye(k)
+    got = design_pool.logdet_eye_plus(np.ascontiguousarray(np.moveaxis(G, 0, -1)))
+    ref = np.linalg.slogdet(np.eye(k) + G)[1]
+    np.testing.assert_allclose(np.delete(got, 5), np.delete(ref, 5), atol=1e-12)
+    if k % 2:  # an odd number of negative pivots: a negative determinant (closed forms) or a failed pivot
+        assert got[5] < -600
+
+
+def test_design_never_returns_a_configuration_outside_the_limits(tmp_path, capsys):
+    """A pool given as data (a configurations file, measured data) may hold configurations outside the joint
+    limits: they are left out, and said; a pool with none inside gets a one-line error."""
+    from kincal.cli import main
+    rng = np.random.default_rng(5)
+    lo, hi = UR10[ARM].lower, UR10[ARM].upper
+    inside = rng.uniform(np.maximum(lo, -3), np.minimum(hi, 3), size=(120, 6))
+    outside = inside[:60].copy()
+    outside[:, 1] = hi[1] + 0.5  # beyond the shoulder's upper limit
+    pool = np.vstack([outside[:30], inside, outside[30:]])
+    header = ",".join(f"{ARM}.{j}" for j in UR10[ARM].joint_names)
+    np.savetxt(tmp_path / "cell.csv", pool, delimiter=",", header=header, comments="")
+    np.savetxt(tmp_path / "far.csv", outside, delimiter=",", header=header, comments="")
+    for name in ("cell", "far"):
+        (tmp_path / f"{name}.yaml").write_text(
+            f"model: ur10\nfree: kinematic\ndata:\n  - configurations: {name}.csv\n    experiment: {{kind: markers, "
+            f"arm: {ARM}, markers: 1}}\n    noise: {{position_mm: 0.05}}\n")
+    for criterion in ("D", "A"):
+        assert main(["design", str(tmp_path / "cell.yaml"), "-n", "25", "--criterion", criterion,
+                     "-o", str(tmp_path / criterion)]) == 0
+        assert "left out 60 configurations outside the joint limits" in capsys.readouterr().out
+        chosen = np.loadtxt(tmp_path / criterion / "targets.csv", delimiter=",", skiprows=1)
+        assert UR10[ARM].within_limits(chosen).all()
+        assert all(np.abs(inside - row).max(axis=1).min() < 1e-12 for row in chosen)
+    assert main(["design", str(tmp_path / "far.yaml"), "-n", "25", "-o", str(tmp_path / "far")]) == 2
+    err = capsys.readouterr().err
+    assert "none of the 60 configurations of data set 'far' lies within the joint limits" in err
+    assert err.count("\n") == 1
+
+
+def test_cli_bad_pools_one_line(tmp_path, capsys):
+    """From the command line: a workspace box no candidate reaches, and a configurations file without rows."""
+    from kincal.cli import main
+    assert main(["design", "ur10_tracker_markers", "-n", "30", "--pool", "200", "--box", "10,10,10,11,11,11",
+                 "-o", str(tmp_path / "a")]) == 2
+    err = capsys.readouterr().err
+    assert "widen the box" in err and err.count("\n") == 1
+    (tmp_path / "empty.csv").write_text(",".join(f"{ARM}.{j}" for j in UR10[ARM].joint_names) + "\n")
+    (tmp_path / "job.yaml").write_text("model: ur10\nfree: kinematic\ndata:\n  - configurations: empty.csv\n"
+                                       f"    experiment: {{kind: markers, arm: {ARM}}}\n")
+    assert main(["design", str(tmp_path / "job.yaml"), "-n", "10", "-o", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err
+    assert "no data rows" in err and err.count("\n") == 1
+
+
+def test_pooled_starts_keep_the_best_exchanged_design():
+    """design_pool.d_optimal with more starts (stochastic greedies, each exchanged): never a lower log det than
+    the first start alone, the same greedy choice, and deterministic for a seed."""
+    X = _pool(11, N=600, k=3, r=9)
+    M0 = 1e-10 * np.eye(9)
+    ld = lambda idx: np.linalg.slogdet(M0 + information(X[idx]))[1]  # noqa: E731
+    runs = {s: design_pool.d_optimal(X, 6, M0, np.random.default_rng(2), starts=s, passes=MAX_PASSES,
+                                     min_gain=D_GAIN, shortlist=20_000) for s in (1, 4)}
+    assert runs[1][0] == runs[4][0] and ld(runs[4][1]) >= ld(runs[1][1]) - 1e-9
+    again = design_pool.d_optimal(X, 6, M0, np.random.default_rng(2), starts=4, passes=MAX_PASSES, min_gain=D_GAIN,
+                                  shortlist=20_000)
+    assert again[1] == runs[4][1]

@@ -18,10 +18,13 @@ Adding candidate i to M: with ``L L^T = M``, ``Y = X_i L^-T``, ``G = Y Y^T`` (k,
 D, A, I and G are scored for every candidate at once from (N, k, r) arrays; spectral criteria take one batched
 eigen-decomposition per step.
 
-D (also the start of A, I and G) is fast on large pools: a stochastic greedy start (each step scores a random
-sample of the pool), then the exchange finds each position's best swap by branch and bound (``_LogDet.best``:
-bounds of every candidate's gain from one skinny product with the pool, exact scores only for the few that could
-win), first on a shortlist of the candidates that add most to the design, then checked on the whole pool.
+D (also the start of A, I and G) takes the method whose exact score is cheaper (``_d_optimal``). Candidates of
+at most ``POOLED_ROWS`` rows: every candidate scored at every step, from rank-k updates of the whole pool's
+``X_j M^-1 X_j^T`` (``kincal.analysis.design_pool``). More rows: a stochastic greedy start (each step scores a
+random sample of the pool), then the exchange finds each position's best swap by branch and bound
+(``_LogDet.best``: bounds of every candidate's gain from one skinny product with the pool, exact scores only for
+the few that could win), first on a shortlist of the candidates that add most to the design, then checked on the
+whole pool.
 """
 
 from __future__ import annotations
@@ -31,6 +34,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import solve_triangular
 
+from kincal.analysis import design_pool
+from kincal.analysis.design_pool import information, logdet as _logdet
 from kincal.analysis.observability import index
 from kincal.errors import ModelError
 
@@ -54,6 +59,9 @@ BOUND_SLACK = 1e-4
 GREEDY_EPS = 0.01  # stochastic greedy: the sample per step is N / K ln(1 / GREEDY_EPS)
 NEAR = 8  # per search, the best candidates scored that the exchange's shortlist keeps
 SHORTLIST = (500, 100)  # the exchange's shortlist: at least 500 candidates, or 1 % of the pool
+POOLED_ROWS = 3  # candidates of at most this many rows: design_pool (closed-form determinants, no bounds)
+POOLED_SHORTLIST = (20_000, 100)  # design_pool's exchange passes run on a shortlist beyond twice this
+STARTS = 1  # design_pool's starts (the greedy, then stochastic greedies), each exchanged
 SPECTRAL = ("E", "O2", "O3", "O4", "O5")  # non-smooth in M: exchanged from random starts too
 RESTARTS = 8
 SMOOTHING = (1, 4, 16)  # exponents p of phi_p on the way to a spectral criterion
@@ -70,12 +78,6 @@ class Selection:
     value: float
     greedy: float
     exchanges: int
-
-
-def information(X: np.ndarray) -> np.ndarray:
-    """sum_i X_i^T X_i of candidate rows X (N, k, r)."""
-    flat = X.reshape(-1, X.shape[-1])
-    return flat.T @ flat
 
 
 def criterion_value(M: np.ndarray, criterion: str, workspace: np.ndarray | None = None, configurations: int = 1):
@@ -106,15 +108,17 @@ def select(X: np.ndarray, K: int, criterion: str = "D", *, workspace: np.ndarray
         raise ModelError(f"cannot choose {K} of {N} candidates")
     eps = RIDGE * max(np.trace(information(X)) / (N * r), 1e-300)
     M0 = eps * np.eye(r) + (0.0 if base is None else base)
-    # the exchange that follows repairs a sampled greedy start (``_greedy_d``); alone, the greedy scores the whole pool
-    chosen = _greedy(X, K, criterion, workspace, M0, eps, np.random.default_rng(seed) if exchange else None)
+    if criterion in ("D", "O1") and exchange:
+        first, best, swaps = _d_optimal(X, K, M0, seed)
+        return Selection(np.array(best), criterion, criterion_value(M0 + information(X[best]), criterion, workspace, K),
+                         criterion_value(M0 + information(X[first]), criterion, workspace, K), swaps)
+    chosen = _greedy(X, K, criterion, workspace, M0, eps)
     greedy = criterion_value(M0 + information(X[chosen]), criterion, workspace, K)
     if not exchange:
         return Selection(np.array(chosen), criterion, greedy, greedy, 0)
     best, value, swaps = _exchange_smoothed(X, chosen, criterion, workspace, M0)
     if criterion in ("A", "I", "G"):  # also from the D-optimal design: a good start for variance criteria
-        start = _exchange_d(X, _greedy_d(X, K, M0, np.random.default_rng(seed)), M0)[0]
-        other, v, n = _exchange(X, start, criterion, workspace, M0)
+        other, v, n = _exchange(X, _d_optimal(X, K, M0, seed)[1], criterion, workspace, M0)
         swaps += n
         if v > value:
             best, value = other, v
@@ -128,11 +132,27 @@ def select(X: np.ndarray, K: int, criterion: str = "D", *, workspace: np.ndarray
     return Selection(np.array(best), criterion, value, greedy, swaps)
 
 
-def _greedy(X, K, criterion, workspace, M0, eps, rng=None) -> list[int]:
-    """Add the best candidate K times; until the design has full rank every criterion but D is flat in the
-    missing directions, so D chooses until then."""
+def _d_optimal(X, K, M0, seed) -> tuple[list[int], list[int], int]:
+    """(greedy choice, exchanged design, swaps) for D, by the method whose exact score is cheaper: for
+    candidates of at most ``POOLED_ROWS`` rows every candidate's gain costs a few vector operations
+    (``kincal.analysis.design_pool``: the whole pool scored at each step, ``STARTS`` starts); for more rows the
+    per-candidate determinants cost more than bounding them (a stochastic greedy start, then the exchange by
+    branch and bound, ``_exchange_d``)."""
+    rng = np.random.default_rng(seed)
+    if X.shape[1] <= POOLED_ROWS:
+        return design_pool.d_optimal(X, K, M0, rng, starts=STARTS, passes=MAX_PASSES, min_gain=D_GAIN,
+                                     shortlist=max(POOLED_SHORTLIST[0], len(X) // POOLED_SHORTLIST[1]))
+    first = _greedy_d(X, K, M0, rng)
+    best, _, swaps = _exchange_d(X, first, M0)
+    return first, best, swaps
+
+
+def _greedy(X, K, criterion, workspace, M0, eps) -> list[int]:
+    """Add the best candidate of the whole pool K times; until the design has full rank every criterion but D is
+    flat in the missing directions, so D chooses until then."""
     if criterion in ("D", "O1"):
-        return _greedy_d(X, K, M0, rng)
+        return design_pool.greedy(design_pool.Pool(X, M0), K, M0) if X.shape[1] <= POOLED_ROWS else \
+            _greedy_d(X, K, M0)
     M = M0
     chosen: list[int] = []
     for _ in range(K):
@@ -159,10 +179,8 @@ def _exchange_smoothed(X, chosen, criterion, workspace, M0):
 
 
 def _exchange(X, chosen, criterion, workspace, M0) -> tuple[list[int], float, int]:
-    """Fedorov exchange from ``chosen``: (design, criterion value, swaps)."""
-    if criterion in ("D", "O1"):
-        chosen, _, swaps = _exchange_d(X, chosen, M0)
-        return chosen, criterion_value(M0 + information(X[chosen]), criterion, workspace, len(chosen)), swaps
+    """Fedorov exchange from ``chosen`` for any criterion but D and O1 (``_d_optimal``): (design, criterion
+    value, swaps)."""
     chosen = list(chosen)
     K = len(chosen)
     M = M0 + information(X[chosen])
@@ -308,10 +326,6 @@ def _logdet_plus_identity(G: np.ndarray) -> np.ndarray:
             sign, logdet = np.linalg.slogdet(A)
             return np.where(sign > 0, logdet, -np.inf)
     return np.log(np.maximum(det, 1e-300))  # round-off can leave a chosen candidate's downdate at <= 0
-
-
-def _logdet(A: np.ndarray) -> float:
-    return float(np.linalg.slogdet(A)[1])
 
 
 def _greedy_d(X, K, M0, rng=None) -> list[int]:

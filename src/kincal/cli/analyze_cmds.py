@@ -14,10 +14,9 @@ from kincal.analysis.observability import MEANINGS
 from kincal.cli.calibrate_cmds import DEG, _console, _num, _shown
 from kincal.errors import DataFormatError
 from kincal.io.datasets import load_scenario, scenario_path
-from kincal.io.jobs import load_job
-from kincal.io.planjobs import scenario_dataset
 from kincal.io.yamlfile import read_yaml
 from kincal.workflow.analyze import WORKSPACE_SAMPLES, Analysis, analyze
+from kincal.workflow.plan import load_plan_job, scenario_dataset
 
 _ERROR = re.compile(r"^\s*([^=\s]+)\s*=\s*([-+0-9.eE]+)\s*(mm|m|deg|rad)\s*$")
 _UNITS = {"mm": 1e-3, "m": 1.0, "deg": math.pi / 180, "rad": 1.0}
@@ -44,7 +43,7 @@ def _inputs(source: str, free: str | None):
     if isinstance(top, dict) and top.get("format") == "kincal-scenario":
         robot, ds = scenario_dataset(load_scenario(path))
         return robot, [ds], {"free": free or "offsets"}
-    job = load_job(path)
+    job = load_plan_job(path)
     return job.robot, list(job.datasets), {"free": free or job.free, "fixed": job.fixed, "priors": job.priors,
                                            "noise": job.noise, "constraints": job.constraints}
 

@@ -15,7 +15,6 @@ from kincal.analysis.design import CRITERIA
 from kincal.cli.calibrate_cmds import _console
 from kincal.errors import DataFormatError
 from kincal.io.datasets import load_scenario, scenario_path
-from kincal.io.jobs import load_job
 from kincal.io.planjobs import is_planned, planned_source, scenario_file
 from kincal.io.models import load_robot
 from kincal.io.targets import write_targets
@@ -24,6 +23,7 @@ from kincal.simulate.scenario import build_scenario
 from kincal.workflow.augment import next_configurations
 from kincal.workflow import run_job
 from kincal.workflow.design import Candidates, choose, design
+from kincal.workflow.plan import load_plan_job
 
 
 def _floats(text: str | None, n: int, option: str) -> np.ndarray | None:
@@ -92,6 +92,8 @@ def _design(source, K, free, criterion, pool, seed, limits, console):
                                   "the candidates (name a scenario in the job to draw them)")
         console.print(f"choosing from the {given.size} configurations of data set '{given.name}'")
         d = choose(robot, given, K, free=free, criterion=criterion, noise=noise, seed=seed)
+        if d.outside:
+            console.print(f"left out {d.outside} configurations outside the joint limits")
     console.print(f"chose {K} of {d.pool} candidates by {criterion}: criterion {d.selection.value:.6g} against "
                   f"{d.random:.6g} for the median of 20 random designs; rank {d.rank} of {d.free}")
     console.print(f"predicted tool position std over the workspace: {d.tool_rms * 1e3:.4g} mm RMS "
@@ -113,7 +115,7 @@ def _experiment_source(source):
     if isinstance(top, dict) and top.get("format") == "kincal-scenario":
         sc = build_scenario(load_scenario(path))
         return sc.robot, sc.kind, sc.options, None, "offsets", sc.noise
-    job = load_job(path)
+    job = load_plan_job(path)
     if len(job.datasets) != 1:
         raise DataFormatError(f"{path}: design -n chooses configurations for one experiment; the job has "
                               f"{len(job.datasets)} data sets (keep one, or use --next to extend them)")
@@ -129,7 +131,7 @@ def _next(source, K, result, free, pool, seed, console):
     top = read_yaml(Path(source), "job file")
     if not isinstance(top, dict) or top.get("format") != "kincal-job":
         raise DataFormatError(f"{source}: --next needs a job file (format: kincal-job)")
-    job = load_job(source)
+    job = load_plan_job(source)
     if result is None:  # the information counts at the calibrated model: calibrate first
         console.print("calibrating the job first (give --result DIR to use an existing calibration)")
         robot = run_job(job).robot

@@ -27,7 +27,7 @@ from kincal.io import units
 from kincal.io.datasets import load_dataset
 from kincal.io.jobschema import check_job_types
 from kincal.io.models import load_robot
-from kincal.io.planjobs import is_planned, planned_dataset
+from kincal.io.planjobs import is_planned, read_plan
 from kincal.io.references import model_reference, resolve
 from kincal.io.yamlfile import quote, read_yaml
 from kincal.kinematics import Robot
@@ -61,9 +61,10 @@ class Job:
     stages: tuple[Stage, ...] = ()  # a staged solve (``calibrate(stages=...)``); ``free`` is then the last stage's
 
 
-def load_job(path, confine: bool = False) -> Job:
+def load_job(path, confine: bool = False, plan=None) -> Job:
     """Read a job file; ``confine``: refuse file references outside the job's folder (as the job's own
-    ``confine: true``)."""
+    ``confine: true``). ``plan(Plan, robot) -> Dataset`` makes a data entry that names a plan a data set
+    (``kincal.workflow.plan.load_plan_job``); without it such an entry is refused: a plan is not measured data."""
     path = Path(path)
     top = read_yaml(path, "job file")
     f = str(path)
@@ -82,7 +83,7 @@ def load_job(path, confine: bool = False) -> Job:
     root = Path(os.path.realpath(path.parent)) if confine or top.get("confine", False) else None
     model = model_reference(path, str(top["model"]), f"{f}: model", root)
     robot = load_robot(model)
-    refs = (path, model, root)
+    refs = (path, model, root, plan)
     datasets, noise = _data(f, refs, top.get("data"), "data", robot, required=True)
     validation, _ = _data(f, refs, top.get("validation") or [], "validation", robot, required=False)
     free = _free(f, top.get("free", "offsets"), "free")
@@ -224,8 +225,9 @@ def _strings(f, x, key) -> tuple[str, ...]:
 
 
 def _data(f, refs: tuple, entries, key, robot, required):
-    """The data sets of ``entries``; ``refs``: (job file, its resolved model reference, confining folder)."""
-    job, model, root = refs
+    """The data sets of ``entries``; ``refs``: (job file, its resolved model reference, confining folder, plan
+    materializer or None)."""
+    job, model, root, plan = refs
     if not isinstance(entries, list) or (required and not entries):
         raise DataFormatError(f"{f}: field '{key}' must be a non-empty list of data sets ({{manifest: path}})")
     datasets, noise = [], {}
@@ -234,7 +236,7 @@ def _data(f, refs: tuple, entries, key, robot, required):
         if isinstance(e, str):
             e = {"manifest": e}
         if is_planned(e):  # a scenario or configurations file instead of measured data (kincal.io.planjobs)
-            ds = planned_dataset(where, job, e, robot, root)
+            ds = _planned(where, job, e, robot, root, plan)
             datasets.append(ds if e.get("frames") is None else _frames(where, e["frames"], ds, robot))
             noise[ds.name] = _noise(where, e.get("noise"), ds)
             continue
@@ -248,6 +250,16 @@ def _data(f, refs: tuple, entries, key, robot, required):
         datasets.append(ds)
         noise[ds.name] = _noise(where, e.get("noise"), ds)
     return tuple(datasets), noise
+
+
+def _planned(where, job, entry, robot, root, plan) -> Dataset:
+    p = read_plan(where, job, entry, robot, root)
+    if plan is None:
+        raise DataFormatError(f"{where}: the data set is a plan ({p.label}), not measured data: its readings would "
+                              "be the nominal model's own, which any calibration fits exactly; plans are for `kincal "
+                              "analyze` and `kincal design`. Calibrate measured data, or `kincal simulate` the "
+                              "scenario and calibrate its job to try the calibration")
+    return plan(p, robot)
 
 
 def _frames(where, frames, ds: Dataset, robot: Robot) -> Dataset:

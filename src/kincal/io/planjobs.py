@@ -2,37 +2,47 @@
 data"): ``scenario:`` (a built-in scenario or a scenario file) or ``configurations:`` (a CSV of joint
 configurations with the experiment that will measure them).
 
-Either becomes a ``Dataset`` of the **nominal** robot's readings, so ``kincal analyze`` and ``kincal design`` run
-on a job before anything is measured: a scenario's configurations as its generator draws them with its seed,
-with its stated noise (``kincal analyze SCENARIO`` reads a scenario the same way); a configurations file's as
-given, noise-free, stating no noise (the entry's ``noise:`` or kincal's default applies, as for any data set).
+Reading only: an entry becomes a ``Plan`` (the scenario as ``load_scenario`` reads it, or the experiment and the
+configurations table); ``kincal.workflow.plan`` turns a Plan into the **nominal** robot's readings, so that
+``kincal analyze`` and ``kincal design`` run on a job before anything is measured.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-import numpy as np
-
-from kincal.data import Dataset
 from kincal.errors import DataFormatError, KincalError
 from kincal.schema import SCHEMAS
 from kincal.io import units
-from kincal.io.csvtable import read_table
+from kincal.io.csvtable import Table, read_table
 from kincal.io.datasets import _experiment, load_scenario, scenario_path
 from kincal.io.models import _Ctx
 from kincal.io.references import resolve
 from kincal.io.yamlfile import quote
-from kincal.kinematics import Robot, forward_kinematics
-from kincal.lie import se3
-from kincal.simulate import GENERATORS, Noise
-from kincal.simulate.perturb import perturbation
-from kincal.simulate.scenario import build_scenario, run
+from kincal.kinematics import Robot
 
 KEYS = {"scenario": {"scenario", "noise", "frames"},
         "configurations": {"configurations", "experiment", "units", "noise", "frames"}}
+# What kincal can predict from configurations alone (``kincal.workflow.plan`` computes each at the nominal).
+PREDICTABLE = ("T_tracker_tool", "p_tracker_marker")
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A planned data entry as read: ``where`` (job file and entry), ``label`` ('scenario: NAME' or
+    'configurations: FILE'); a scenario's ``scenario`` (as ``load_scenario`` returns it), or a configurations
+    file's experiment ``kind`` and generator ``options``, its ``table`` and the ``angle`` factor of its unit."""
+
+    where: str
+    label: str
+    scenario: Mapping | None = None
+    kind: str = ""
+    options: Mapping[str, Any] = field(default_factory=dict)
+    table: Table | None = None
+    angle: float = 1.0
+    name: str = ""
 
 
 def is_planned(entry: Any) -> bool:
@@ -45,8 +55,8 @@ def planned_source(entry: Mapping) -> str:
     return next(k for k in KEYS if k in entry)
 
 
-def planned_dataset(where: str, job: Path, entry: Mapping, robot: Robot, root: Path | None = None) -> Dataset:
-    """The data set of a planned entry (module docstring); ``where`` names the job file and the entry."""
+def read_plan(where: str, job: Path, entry: Mapping, robot: Robot, root: Path | None = None) -> Plan:
+    """The Plan of a planned entry (module docstring); ``where`` names the job file and the entry."""
     if all(k in entry for k in KEYS):
         raise DataFormatError(f"{where}: name either a scenario or a configurations file, not both")
     source = planned_source(entry)
@@ -54,12 +64,10 @@ def planned_dataset(where: str, job: Path, entry: Mapping, robot: Robot, root: P
     if extra:
         raise DataFormatError(f"{where}: unknown key(s) {sorted(extra)} for a {source} entry; expected some of "
                               f"{sorted(KEYS[source])}")
+    label = f"{source}: {entry[source]}"
     if source == "scenario":
-        ds = _scenario(where, job, entry["scenario"], robot, root)
-    else:
-        ds = _configurations(where, job, entry, robot, root)
-    # marked, so that calibrate refuses it: the nominal robot's own readings fit the nominal model exactly
-    return replace(ds, meta={**ds.meta, "planned": f"{source}: {entry[source]}"})
+        return Plan(where, label, scenario=_scenario(where, job, entry["scenario"], robot, root))
+    return _configurations(where, label, job, entry, robot, root)
 
 
 def scenario_file(where: str, job: Path, ref: Any, root: Path | None = None) -> Path:
@@ -79,23 +87,15 @@ def scenario_file(where: str, job: Path, ref: Any, root: Path | None = None) -> 
         raise DataFormatError(f"{where}.scenario: {exc}") from None
 
 
-def _scenario(where: str, job: Path, ref: Any, robot: Robot, root) -> Dataset:
+def _scenario(where: str, job: Path, ref: Any, robot: Robot, root) -> Mapping:
     spec = load_scenario(scenario_file(where, job, ref, root))
     if spec["robot"].name != robot.name:
         raise DataFormatError(f"{where}.scenario: {ref} is a scenario for the model '{spec['robot'].name}'; the "
                               f"job's model is '{robot.name}'")
-    return scenario_dataset(spec, robot)[1]
+    return spec
 
 
-def scenario_dataset(spec: Mapping, robot: Robot | None = None) -> tuple[Robot, Dataset]:
-    """(robot, data set) of a scenario read by ``load_scenario``, simulated on the nominal ``robot`` (default:
-    the scenario's own): its configurations and stated noise, its ``truth:`` ignored."""
-    sc = build_scenario(spec)
-    sc = replace(sc, robot=robot or sc.robot, perturbation=perturbation("none"))
-    return sc.robot, run(sc)[1]
-
-
-def _configurations(where: str, job: Path, entry: Mapping, robot: Robot, root) -> Dataset:
+def _configurations(where: str, label: str, job: Path, entry: Mapping, robot: Robot, root) -> Plan:
     ctx = _Ctx(where)
     u = entry.get("units") or {}
     if not isinstance(u, dict) or set(u) - {"length", "angle"}:
@@ -107,7 +107,7 @@ def _configurations(where: str, job: Path, entry: Mapping, robot: Robot, root) -
                                      "scenario's experiment block (e.g. {kind: markers, arm: right, markers: 3})")
     exp = entry["experiment"]
     kind, options = _experiment(ctx, {"kind": exp} if isinstance(exp, str) else exp, robot)
-    missing = [f.key for f in SCHEMAS[kind].measured if f.required and f.key not in _NOMINAL]
+    missing = [f.key for f in SCHEMAS[kind].measured if f.required and f.key not in PREDICTABLE]
     if missing:
         raise ctx.fail("experiment.kind", f"'{kind}' measures {', '.join(missing)}, which kincal cannot predict "
                                           f"from configurations alone; name a scenario instead")
@@ -115,27 +115,5 @@ def _configurations(where: str, job: Path, entry: Mapping, robot: Robot, root) -
     if not path.is_file():
         raise ctx.fail("configurations", f"{path}: no such file")
     options = {k: v for k, v in options.items() if k != "n"}  # the file's rows are the configurations
-    ds, truth, _ = GENERATORS[kind](robot, n=1, rng=0, noise=Noise(), n_validation=1, **options)
-    table = read_table(path, "configurations file")
-    q = {a: table.take([f"{a}.{j}" for j in robot[a].joint_names]) * ctx.angle for a in ds.arms}
-    extra = [c for c in table.header if c not in table.used]
-    if extra:
-        raise DataFormatError(f"{path}: line {table.header_line}, column '{extra[0]}': not a joint of the "
-                              f"experiment's arms; expected the columns "
-                              f"{', '.join(f'{a}.{j}' for a in ds.arms for j in robot[a].joint_names)}")
-    measured = {k: f(robot, ds.arms, q, truth.values) for k, f in _NOMINAL.items()
-                if any(m.key == k for m in SCHEMAS[kind].measured)}
-    return Dataset(kind, robot.name, ds.arms, q, measured, dict(ds.known), path.stem, {})
-
-
-def _tool_in_tracker(robot: Robot, arms, q, values) -> np.ndarray:
-    (arm,) = arms
-    return se3.inverse(values["T_world_tracker"]) @ forward_kinematics(robot[arm], q[arm])
-
-
-def _markers_in_tracker(robot: Robot, arms, q, values) -> np.ndarray:
-    return se3.transform_points(_tool_in_tracker(robot, arms, q, values)[:, None], values["p_tool_marker"][None])
-
-
-# What the nominal robot's measurement is, per measured entry kincal can predict from configurations alone.
-_NOMINAL = {"T_tracker_tool": _tool_in_tracker, "p_tracker_marker": _markers_in_tracker}
+    return Plan(where, label, kind=kind, options=options, table=read_table(path, "configurations file"),
+                angle=ctx.angle, name=path.stem)

@@ -39,7 +39,8 @@ class Design:
     """The chosen configurations (``dataset``: the pool's rows, noise-free nominal measurements), the
     selection, the criterion of random designs of the same size (``random``: median, and all draws), the
     identifiable rank and the predicted tool position error (m, RMS and max over the workspace sample) of
-    the designed design and the median over the random ones."""
+    the designed design and the median over the random ones; ``outside``: the pool's configurations left out
+    for lying outside the joint limits."""
 
     dataset: Dataset
     pool: int
@@ -51,6 +52,7 @@ class Design:
     tool_rms: float
     tool_max: float
     random_tool_rms: float
+    outside: int = 0
 
 
 @dataclass(frozen=True)
@@ -112,7 +114,9 @@ def design(robot: Robot, kind: str, options: Mapping, K: int, *, free="offsets",
 def choose(robot: Robot, pool: Dataset, K: int, *, free="offsets", criterion: str = "D", noise: Noise | None = None,
            seed: int = 0, workspace: int = WORKSPACE, exchange: bool = True) -> Design:
     """Choose K of the configurations of the data set ``pool`` (any kind; only its configurations and known
-    frames matter, the model is linearized at its nominal values)."""
+    frames matter, the model is linearized at its nominal values). Configurations outside the joint limits are
+    left out (``Design.outside`` counts them): a design never returns one."""
+    pool, outside = _within_limits(robot, pool)
     problem = Problem.build(robot, [pool], free, noise=noise)
     p = plan(problem, SolverOptions())
     rows = ds_rows(problem)
@@ -133,7 +137,16 @@ def choose(robot: Robot, pool: Dataset, K: int, *, free="offsets", criterion: st
     tools = [_tool_error(information(X[d]), W)[0] for d in draws]
     tool = _tool_error(information(X[sel.indices]), W)
     return Design(pool.subset(sel.indices), pool.size, sel, p.rank, len(p.identifiability.names),
-                  float(np.median(values)), values, tool[0], tool[1], float(np.median(tools)))
+                  float(np.median(values)), values, tool[0], tool[1], float(np.median(tools)), outside)
+
+
+def _within_limits(robot: Robot, pool: Dataset) -> tuple[Dataset, int]:
+    """The pool without its configurations outside the joint limits, and how many those were."""
+    keep = np.logical_and.reduce([robot[a].within_limits(pool.q[a]) for a in pool.arms])
+    if not keep.any():
+        raise ModelError(f"none of the {pool.size} configurations of data set '{pool.name}' lies within the joint "
+                         "limits: give configurations within the model's limits")
+    return (pool if keep.all() else pool.subset(np.flatnonzero(keep))), int((~keep).sum())
 
 
 def ds_rows(problem: Problem) -> int:
