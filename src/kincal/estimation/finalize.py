@@ -12,6 +12,7 @@ from kincal.estimation.iterate import Iteration, scale_test_needed
 from kincal.estimation.options import SolverOptions
 from kincal.estimation.problem import Problem
 from kincal.estimation.result import Estimate, Result, TwistEstimate, low_redundancy
+from kincal.estimation.sandwich import Sandwich
 from kincal.params import HOME, TWISTS, displacement, twist_coordinates
 
 # Residual variance factor above which the fit is reported as not explaining the data (RMS 10x the noise).
@@ -45,10 +46,12 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
     ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=list(run.order))
     weights, slopes = robust_weights(lin.r, options.loss, options.f_scale)
     dof = len(lin.r) - ana.rank
-    sigma2 = variance_factor(lin.r, weights, slopes, ana.rank)
+    sw = Sandwich.of(problem, lin, weights)
+    sigma2 = variance_factor(lin.r, weights, slopes, ana.rank) if sw is None else sw.variance_factor(
+        ana.range_space, ana.rank)
     status, messages = _status(problem, run, options, sigma2)
     scale = covariance_scale(sigma2, dof, ana.rank)
-    cov, std, ok = _uncertainty(lin, ana, options, run.order, scale, status, weights)
+    cov, std, ok = _uncertainty(lin, ana, options, run.order, scale, status, weights, sw)
     messages += list(ana.messages)
     if low_redundancy(dof, ana.rank):
         messages.append(low_redundancy_note(len(lin.r), ana.rank, sigma2))
@@ -147,13 +150,18 @@ def _collapse_message(name: str, before_q: float, after_q: float) -> str:
 
 
 def _uncertainty(lin: Linearization, ana: Identifiability, options: SolverOptions, order, sigma2: float,
-                 status: str, weights: np.ndarray):
+                 status: str, weights: np.ndarray, sw: Sandwich | None = None):
     """Covariance (p, p) in the solve's gauge (of the robustly weighted problem with a robust loss) scaled by
-    ``sigma2``, standard deviations (nan where not identifiable) and the mask of identifiable coordinates."""
+    ``sigma2`` (the sandwich ``sw`` where the fit is not weighted by the noise), standard deviations (nan where
+    not identifiable) and the mask of identifiable coordinates."""
     p = lin.p
     Rf = lin.Rf if options.loss == "linear" else np.linalg.qr(np.sqrt(weights)[:, None] * lin.J, mode="r")
     V = gauge_basis(Rf, ana, options.gauge, list(order))
-    cov = covariance(Rf, V, sigma2 if np.isfinite(sigma2) else 1.0) if V.shape[1] else np.zeros((p, p))
+    s2 = sigma2 if np.isfinite(sigma2) else 1.0
+    if not V.shape[1]:
+        cov = np.zeros((p, p))
+    else:
+        cov = covariance(Rf, V, s2) if sw is None else sw.covariance(V, s2)
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
     ok = ana.identifiable & (status != "degenerate")
     return cov, np.where(ok, std, np.nan), ok
