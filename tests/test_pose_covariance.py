@@ -11,6 +11,7 @@ from kincal.cli import cli
 from kincal.data import Dataset
 from kincal.errors import DataFormatError, DegenerateExperimentError, KincalError, ShapeError
 from kincal.estimation import Problem, calibrate
+from kincal.estimation.plan import plan
 from kincal.experiments.pose import weighted
 from kincal.experiments._kernel import fit_transform
 from kincal.experiments.pose_from_markers import layout_covariance, markers_to_pose
@@ -313,6 +314,18 @@ def test_sandwich_reduces_to_the_usual_covariance_and_ignores_the_weights_scale(
     assert 0.2 < lo.sigma2 < 3  # 36 residuals, 7 parameters: the noise's chi^2 over its expectation
     blind = _calibrate(robot, weighted(ds, "equal", 1e-6, keep_noise=False), Noise(joint=0.0))
     assert blind.sigma2 > 100 * lo.sigma2  # the weights' own chi^2 says nothing about the noise
+
+
+def test_plan_predicts_the_sandwich_std_whatever_the_weights_scale():
+    """Planning (variance factor 1) reads the same sandwich: equal weights at any scale predict the same std,
+    which are those of the calibration up to its variance factor."""
+    robot, _, ds = _pose_data(n=6)
+    plans = [plan(Problem.build(robot, [weighted(ds, "equal", s)], FREE, noise=Noise(joint=0.0)))
+             for s in (1e-6, 1e-2)]
+    lo, hi = ([e.std for e in p.estimates] for p in plans)
+    np.testing.assert_allclose(hi, lo, rtol=1e-6)
+    res = _calibrate(robot, weighted(ds, "equal", 1e-6), Noise(joint=0.0))
+    np.testing.assert_allclose([e.std for e in res.estimates], np.sqrt(res.scale) * np.array(lo), rtol=0.05)
 
 
 def test_noise_covariance_round_trips_in_files_and_is_checked(tmp_path):
