@@ -46,9 +46,7 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
     ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=list(run.order))
     weights, slopes = robust_weights(lin.r, options.loss, options.f_scale)
     dof = len(lin.r) - ana.rank
-    sw = Sandwich.of(problem, lin, weights)
-    sigma2 = variance_factor(lin.r, weights, slopes, ana.rank) if sw is None else sw.variance_factor(
-        ana.range_space, ana.rank)
+    sigma2, sw = noise_variance_factor(problem, lin, ana, weights, slopes)
     status, messages = _status(problem, run, options, sigma2)
     scale = covariance_scale(sigma2, dof, ana.rank)
     cov, std, ok = _uncertainty(lin, ana, options, run.order, scale, status, weights, sw)
@@ -109,6 +107,16 @@ def robust_weights(r: np.ndarray, loss: str, f_scale: float) -> tuple[np.ndarray
     if loss == "arctan":
         return 1.0 / (1.0 + z**2), np.clip((1.0 - 3.0 * z**2) / (1.0 + z**2) ** 2, 0.0, None)
     return np.ones_like(r), np.ones_like(r)
+
+
+def noise_variance_factor(problem: Problem, lin: Linearization, ana: Identifiability, weights: np.ndarray,
+                          slopes: np.ndarray) -> tuple[float, Sandwich | None]:
+    """The residual variance factor against the stated noise, and the sandwich (``estimation.sandwich``) where
+    a data set is weighted otherwise than by its noise (None elsewhere: ``variance_factor`` of the fit)."""
+    sw = Sandwich.of(problem, lin, weights)
+    if sw is None:
+        return variance_factor(lin.r, weights, slopes, ana.rank), None
+    return sw.variance_factor(ana.range_space, ana.rank), sw
 
 
 def variance_factor(r: np.ndarray, weights: np.ndarray, slopes: np.ndarray, rank: int) -> float:
