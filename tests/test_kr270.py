@@ -13,7 +13,7 @@ from kincal.cli import main
 from kincal.estimation import calibrate
 from kincal.io.datasets import load_dataset, load_scenario, scenario_path
 from kincal.kinematics import Robot, forward_kinematics
-from kincal.kinematics.elastic import compliance_coefficients
+from kincal.kinematics.elastic import compliance_coefficients, loaded_forward_kinematics
 from kincal.robots import load
 from kincal.simulate.generators._payload import GRAVITY
 from kincal.simulate.scenario import build_scenario, run
@@ -34,14 +34,19 @@ def simulate(seed: int):
 
 
 def rigid_start() -> Robot:
-    """The built-in KR-270 with every compliance at zero: the calibration must find Table IV by itself."""
-    arm = load("kr270")["arm"]
-    nodes = {j: t * [1.0, 0.0] for j, t in arm.compliance_nodes.items()}
-    return Robot("kr270", {"arm": arm.replace(compliance=np.zeros(6), compliance_nodes=nodes)})
+    """The built-in KR-270, the nominal a user starts from: every compliance at zero, so the calibration must
+    find Table IV by itself."""
+    robot = load("kr270")
+    assert not compliance_coefficients(robot["arm"]).any()
+    return robot
 
 
-def test_builtin_model_carries_table_iv_and_the_q2_nodes_of_table_ii():
-    arm = load("kr270")["arm"]
+def test_scenario_truth_carries_table_iv_and_the_builtin_model_the_q2_nodes_of_table_ii():
+    true, *_ = simulate(1)
+    arm = true["arm"]  # the scenario's truth (truth.errors: Table IV) over the built-in nominal
+    nominal = load("kr270")["arm"]
+    assert not compliance_coefficients(nominal).any()  # the built-in model knows no compliance
+    np.testing.assert_array_equal(nominal.compliance_nodes["j2"][:, 0], arm.compliance_nodes["j2"][:, 0])
     nodes = arm.compliance_nodes["j2"]
     np.testing.assert_allclose(np.degrees(nodes[:, 0]), [-140, -99.85, -56.9, -25.24, -0.01])
     k = compliance_coefficients(arm) / URAD
@@ -93,6 +98,46 @@ def test_simulate_and_calibrate_from_the_command_line(tmp_path):
     model = yaml.safe_load((tmp_path / "out" / "model.yaml").read_text())
     j2 = model["arms"]["arm"]["joints"][1]["compliance"]
     assert len(j2["nodes"]) == 5 and len(j2["values"]) == 5
+
+
+def test_compliance_job_with_validation_is_not_flagged_and_predicts_the_loaded_error(tmp_path):
+    """The validation set is loaded markers: the prediction deflects the chain by its loads, so the compliances'
+    uncertainty counts there (unloaded, it would predict no error and flag the honest calibration)."""
+    assert main(["simulate", SCENARIO, "-o", str(tmp_path / "sim"), "--quiet"]) == 0
+    (tmp_path / "sim" / "job.yaml").write_text(yaml.safe_dump(
+        {"format": "kincal-job", "version": 1, "model": "kr270", "data": ["data.yaml"], "free": FREE,
+         "validation": ["validation/arm.yaml"]}))
+    assert main(["calibrate", str(tmp_path / "sim" / "job.yaml"), "-o", str(tmp_path / "out"), "--quiet"]) == 0
+    result = yaml.safe_load((tmp_path / "out" / "result.yaml").read_text())
+    assert result["status"] == "converged", result["messages"]
+    assert not any("not trusted" in m or "should not be trusted" in m for m in result["messages"]), result["messages"]
+    true, ds, truth, val = simulate(1)
+    res = calibrate(rigid_start(), [ds], free=FREE, noise=truth.noise)
+    v = val["arm"]
+    loaded = res.predict(v.q["arm"], "arm", register=False)
+    assert not loaded.position_std.any()  # no load given: compliances move nothing
+    pred = res.predict(v.q["arm"], "arm", register=False, wrench=v.measured["wrench_tool"])
+    err = (loaded_forward_kinematics(res.robot["arm"], v.q["arm"], v.measured["wrench_tool"])
+           - loaded_forward_kinematics(true["arm"], v.q["arm"], v.measured["wrench_tool"]))[:, :3, 3]
+    actual = np.sqrt(np.mean(np.sum(err**2, axis=1)))
+    assert 1e-7 < actual < 2 * pred.position_rms_predicted, (actual, pred.position_rms_predicted)
+
+
+def test_compliance_model_of_the_wrong_structure_is_still_flagged():
+    """A constant joint 2 compliance cannot follow the truth's, which changes with q2 by 20 %: it nearly fits the
+    calibration data (15 configurations at the five nodes) but validation at the loaded random configurations
+    shows errors beyond the prediction, so it is not trusted. A rigid wrist (the truth's most compliant joints
+    held at zero) does not fit at all: a misfit."""
+    true, ds, truth, val = simulate(1)
+    noise = {ds.name: truth.noise}  # the validation set's own stated noise (none), as in a job
+    arm = rigid_start()["arm"]
+    constant = Robot("kr270", {"arm": arm.replace(compliance_nodes={})})
+    res = calibrate(constant, [ds], free=["arm.j2.compliance"] + FREE[1:], noise=noise, validation=[val["arm"]])
+    pred = res.predictions[0][1]
+    assert not res.trusted and not pred.trusted
+    assert any("times the predicted" in d for d in pred.doubts), pred.doubts
+    res = calibrate(rigid_start(), [ds], free=FREE[:2], noise=noise, validation=[val["arm"]])
+    assert res.status == "misfit" and not res.trusted, (res.status, res.sigma2)
 
 
 def test_reported_standard_deviations_match_the_scatter_over_noise_seeds():

@@ -30,7 +30,7 @@ from kincal.analysis.columns import scatter_columns
 from kincal.analysis.error_budget import measurement_noise, model_error
 from kincal.analysis.linalg import svd
 from kincal.experiments._kernel import point_jacobian
-from kincal.kinematics import chain, tool_jacobians
+from kincal.kinematics import chain, loaded_chain, tool_jacobians
 from kincal.lie import se3
 from kincal.noise import Noise
 from kincal.schema import BETWEEN, TOOL, WORLD, schema_of
@@ -113,15 +113,21 @@ class Prediction:
                 "position_model": self.position_model, "orientation_model": self.orientation_model}
 
 
-def tool_jacobian(result, q, arm: str, with_jq: bool = False):
+def tool_jacobian(result, q, arm: str, with_jq: bool = False, wrench: np.ndarray | None = None):
     """Calibrated ``T_world_tool`` (N, 4, 4) at joint readings q (N, n) and its Jacobian (N, 6, p_free): the
     world-frame left increment per free local coordinate of ``result`` (columns in ``result.covariance``
-    order; experiment frames get zero columns); ``with_jq``: also the one w.r.t. the joint readings (N, 6, n)."""
+    order; experiment frames get zero columns); ``with_jq``: also the one w.r.t. the joint readings (N, 6, n).
+    ``wrench`` (N, 6): the loads on the tool (tool frame, as data's ``wrench_tool``), which deflect compliant
+    joints as in the experiments: the compliances then move the tool (None: unloaded, they do not)."""
     a = _arm_values(result, arm)
     q = _joints(q, a, arm)
-    kin = chain(a.screws, q + a.offsets, a.base, a.home, a.tool)
+    if wrench is None:
+        kin = chain(a.screws, q + a.offsets, a.base, a.home, a.tool)
+    else:
+        wrench = _loads(wrench, len(q), arm)
+        kin = loaded_chain(a.screws, q + a.offsets, a.base, a.home, a.tool, a.compliance_at(q), wrench)
     blocks, jq = tool_jacobians(kin, np.broadcast_to(np.eye(6), (len(q), 6, 6)), a.screws, a.generators,
-                                a.joint_compliance, with_jq=with_jq)
+                                a.joint_compliance, with_jq=with_jq, basis=a.compliance_basis(q))
     layout = result.layout
     J = scatter_columns({f"{arm}.{part}": Jb for part, Jb in blocks.items()}, layout, np.flatnonzero(layout.free),
                         (len(q), 6))
@@ -129,12 +135,13 @@ def tool_jacobian(result, q, arm: str, with_jq: bool = False):
 
 
 def predicted_accuracy(result, q, arm: str, *, register: bool = True, register_tool: bool = False,
-                       noise: Noise | None = None) -> Prediction:
+                       noise: Noise | None = None, wrench: np.ndarray | None = None) -> Prediction:
     """Predicted standard deviations of the tool pose at q (N, n), its dependence on unidentifiable and weakly
     identifiable directions (module docstring), and the RMS error to expect there (``position_rms_predicted``):
     with the stated measurement ``noise`` of data taken there (None: the model's own error only) and the model
-    error the calibration could not explain. Registration needs 2 configurations (it absorbs one whole)."""
-    T, J, Jq = tool_jacobian(result, q, arm, with_jq=True)
+    error the calibration could not explain. ``wrench`` (N, 6): the loads there (tool frame; ``tool_jacobian``):
+    the compliances' uncertainty then counts. Registration needs 2 configurations (it absorbs one whole)."""
+    T, J, Jq = tool_jacobian(result, q, arm, with_jq=True, wrench=wrench)
     if (register or register_tool) and len(T) < 2:
         raise ShapeError(f"q: registration needs at least 2 configurations (a common rigid motion absorbs any "
                          f"change of one pose), found {len(T)}; pass register=False for world-frame predictions")
@@ -207,7 +214,8 @@ def validation_predictions(result, datasets, noise=()) -> tuple[tuple[str, Predi
     """(data set name, prediction) for every calibrated arm of every data set, registered as the validation fits
     the data set's frames: the world side unless it is given, the tool side when it is not given (marker offsets,
     a dual-arm clamp). Per arm: a two-arm set's relative error is only approximated. ``noise``: the stated
-    noise of each data set (in order; none: the model's own error only)."""
+    noise of each data set (in order; none: the model's own error only). A data set's loads (``wrench_tool``)
+    deflect the predicted chain as they deflect the measured one."""
     out = []
     noise = tuple(noise) or (None,) * len(datasets)
     for ds, nz in zip(datasets, noise):
@@ -221,7 +229,8 @@ def validation_predictions(result, datasets, noise=()) -> tuple[tuple[str, Predi
         for arm in ds.arms:
             if arm in result.state.arms:  # an arm the calibration did not involve was not estimated
                 out.append((ds.name, predicted_accuracy(result, ds.q[arm], arm, register=register,
-                                                        register_tool=register_tool, noise=nz)))
+                                                        register_tool=register_tool, noise=nz,
+                                                        wrench=ds.measured.get("wrench_tool"))))
     return tuple(out)
 
 
@@ -237,6 +246,13 @@ def _joints(q, a, arm) -> np.ndarray:
         raise ShapeError(f"q: expected joint readings of shape (N, {a.dof}) with N >= 1 for arm '{arm}' "
                          f"({', '.join(a.joint_names)}), found shape {np.shape(q)}")
     return as_array(q, "q", (a.dof,))
+
+
+def _loads(wrench, n: int, arm: str) -> np.ndarray:
+    if np.shape(wrench) != (n, 6):
+        raise ShapeError(f"wrench: expected the loads on arm '{arm}' at each configuration, shape ({n}, 6) "
+                         f"(force, torque in the tool frame), found shape {np.shape(wrench)}")
+    return as_array(wrench, "wrench", (6,))
 
 
 def _point_map(p: np.ndarray) -> np.ndarray:

@@ -13,6 +13,7 @@ from kincal.estimation.options import SolverOptions
 from kincal.estimation.plausibility import negative_compliance_notes, negative_compliances
 from kincal.estimation.problem import Problem
 from kincal.estimation.result import Estimate, Result, TwistEstimate, low_redundancy
+from kincal.estimation.sandwich import Sandwich
 from kincal.params import HOME, TWISTS, displacement, twist_coordinates
 
 # Residual variance factor above which the fit is reported as not explaining the data (RMS 10x the noise).
@@ -46,10 +47,10 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
     ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=list(run.order))
     weights, slopes = robust_weights(lin.r, options.loss, options.f_scale)
     dof = len(lin.r) - ana.rank
-    sigma2 = variance_factor(lin.r, weights, slopes, ana.rank)
+    sigma2, sw = noise_variance_factor(problem, lin, ana, weights, slopes)
     status, messages = _status(problem, run, options, sigma2)
     scale = covariance_scale(sigma2, dof, ana.rank)
-    cov, std, ok = _uncertainty(lin, ana, options, run.order, scale, status, weights)
+    cov, std, ok = _uncertainty(lin, ana, options, run.order, scale, status, weights, sw)
     messages += list(ana.messages)
     if low_redundancy(dof, ana.rank):
         messages.append(low_redundancy_note(len(lin.r), ana.rank, sigma2))
@@ -112,6 +113,16 @@ def robust_weights(r: np.ndarray, loss: str, f_scale: float) -> tuple[np.ndarray
     return np.ones_like(r), np.ones_like(r)
 
 
+def noise_variance_factor(problem: Problem, lin: Linearization, ana: Identifiability, weights: np.ndarray,
+                          slopes: np.ndarray) -> tuple[float, Sandwich | None]:
+    """The residual variance factor against the stated noise, and the sandwich (``estimation.sandwich``) where
+    a data set is weighted otherwise than by its noise (None elsewhere: ``variance_factor`` of the fit)."""
+    sw = Sandwich.of(problem, lin, weights)
+    if sw is None:
+        return variance_factor(lin.r, weights, slopes, ana.rank), None
+    return sw.variance_factor(ana.range_space, ana.rank), sw
+
+
 def variance_factor(r: np.ndarray, weights: np.ndarray, slopes: np.ndarray, rank: int) -> float:
     """``sum psi^2 / (sum psi' - rank)`` (Huber's scale of an M-estimate; ``chi^2 / (m - rank)`` for the linear
     loss): rows a robust loss discounts neither inflate it nor count as degrees of freedom. nan without any."""
@@ -151,13 +162,18 @@ def _collapse_message(name: str, before_q: float, after_q: float) -> str:
 
 
 def _uncertainty(lin: Linearization, ana: Identifiability, options: SolverOptions, order, sigma2: float,
-                 status: str, weights: np.ndarray):
+                 status: str, weights: np.ndarray, sw: Sandwich | None = None):
     """Covariance (p, p) in the solve's gauge (of the robustly weighted problem with a robust loss) scaled by
-    ``sigma2``, standard deviations (nan where not identifiable) and the mask of identifiable coordinates."""
+    ``sigma2`` (the sandwich ``sw`` where the fit is not weighted by the noise), standard deviations (nan where
+    not identifiable) and the mask of identifiable coordinates."""
     p = lin.p
     Rf = lin.Rf if options.loss == "linear" else np.linalg.qr(np.sqrt(weights)[:, None] * lin.J, mode="r")
     V = gauge_basis(Rf, ana, options.gauge, list(order))
-    cov = covariance(Rf, V, sigma2 if np.isfinite(sigma2) else 1.0) if V.shape[1] else np.zeros((p, p))
+    s2 = sigma2 if np.isfinite(sigma2) else 1.0
+    if not V.shape[1]:
+        cov = np.zeros((p, p))
+    else:
+        cov = covariance(Rf, V, s2) if sw is None else sw.covariance(V, s2)
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
     ok = ana.identifiable & (status != "degenerate")
     return cov, np.where(ok, std, np.nan), ok

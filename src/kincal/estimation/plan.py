@@ -27,6 +27,7 @@ from kincal.estimation.iterate import Iteration, scale_test_needed
 from kincal.estimation.options import SolverOptions
 from kincal.estimation.problem import Problem
 from kincal.estimation.result import Estimate, Result
+from kincal.estimation.sandwich import Sandwich
 
 
 @dataclass(frozen=True, eq=False)
@@ -65,7 +66,7 @@ def plan(problem: Problem, options: SolverOptions | None = None, held: Sequence[
                    tuple(order))
     nominal = finalize(problem, options, it)
     ana = nominal.identifiability
-    cov = _unit_covariance(lin, ana, options.gauge, order) if ana.rank else np.zeros((lin.p, lin.p))
+    cov = _unit_covariance(problem, lin, ana, options.gauge, order) if ana.rank else np.zeros((lin.p, lin.p))
     std = np.where(ana.identifiable, np.sqrt(np.clip(np.diag(cov), 0, None)), np.nan)
     estimates = tuple(replace(e, value=e.nominal if np.isnan(e.value) else e.value, std=float(s),
                               identifiable=bool(ok)) for e, s, ok in zip(nominal.estimates, std, ana.identifiable))
@@ -93,9 +94,11 @@ def identifiable_basis(problem: Problem, ana: Identifiability) -> np.ndarray:
     return scale[:, None] * Q
 
 
-def _unit_covariance(lin, ana, gauge, order) -> np.ndarray:
-    """The covariance at variance factor 1 in the solve's gauge: what the stated noise alone gives."""
-    return covariance(lin.Rf, gauge_basis(lin.Rf, ana, gauge, order), 1.0)
+def _unit_covariance(problem, lin, ana, gauge, order) -> np.ndarray:
+    """The covariance at variance factor 1 in the solve's gauge: what the stated noise alone gives (the sandwich
+    where the data are weighted otherwise than by their noise, ``estimation.sandwich``)."""
+    V, sw = gauge_basis(lin.Rf, ana, gauge, order), Sandwich.of(problem, lin, np.ones(len(lin.r)))
+    return covariance(lin.Rf, V, 1.0) if sw is None else sw.covariance(V, 1.0)
 
 
 def held_coordinates(problem: Problem, held: Sequence[str] | None) -> np.ndarray:

@@ -18,6 +18,7 @@ from kincal.estimation.iterate import scale_test_needed
 from kincal.estimation.outliers import Outlier
 from kincal.estimation.plausibility import NegativeCompliance
 from kincal.estimation.problem import Problem
+from kincal.estimation.sandwich import Sandwich
 from kincal.estimation.stats import ResidualStats, ValidationStats
 from kincal.kinematics import Robot
 from kincal.noise import Noise
@@ -173,12 +174,14 @@ class Result:
         return in_gauge(self)
 
     def predict(self, q, arm: str, *, register: bool = True, register_tool: bool = False,
-                noise: Noise | None = None) -> Prediction:
+                noise: Noise | None = None, wrench=None) -> Prediction:
         """Predicted accuracy of the calibrated tool pose of ``arm`` at joint readings q (N, n): standard
         deviations, dependence on what the data cannot determine, and the RMS error to expect
         (``position_rms_predicted``, ``orientation_rms_predicted``) with the model error the calibration could
-        not explain and, given ``noise``, the stated noise of measurements there (``kincal.analysis.prediction``)."""
-        return predicted_accuracy(self, q, arm, register=register, register_tool=register_tool, noise=noise)
+        not explain and, given ``noise``, the stated noise of measurements there; ``wrench`` (N, 6): the loads
+        there, deflecting compliant joints (``kincal.analysis.prediction``)."""
+        return predicted_accuracy(self, q, arm, register=register, register_tool=register_tool, noise=noise,
+                                  wrench=wrench)
 
     def summary(self) -> str:
         lines = [f"status: {self.status} after {self.iterations} outer iterations ({self.evaluations} evaluations)"]
@@ -203,7 +206,8 @@ def in_gauge(result: Result) -> tuple[GaugeView | None, tuple[Derived, ...]]:
     if found is not None:
         state, lin, ana = found
         null = ana.null_space
-        cov = covariance(lin.Rf, ana.range_space, result.scale if np.isfinite(result.scale) else 1.0)
+        s2, sw = result.scale if np.isfinite(result.scale) else 1.0, Sandwich.of(problem, lin, np.ones(len(lin.r)))
+        cov = covariance(lin.Rf, ana.range_space, s2) if sw is None else sw.covariance(ana.range_space, s2)
     disp, D = displacement(state, problem.nominal, layout)
     view = min_change(disp[free], D[np.ix_(free, free)], null, cov, w)
     change = displacement(result.state, problem.nominal, layout)[0][free]

@@ -105,6 +105,11 @@ class Experiment:
         None: whitening then uses the stated noise per component (``estimation.problem``)."""
         return None
 
+    def noise_covariance(self) -> np.ndarray | None:
+        """The residual's actual covariance per sample (N, k, k) where the fit weights by another (``covariance``
+        or the stated noise: a reweighted pose's ``noise_cov``), else None (the fit weights by the noise)."""
+        return None
+
     def frame_shape(self, role: str) -> tuple[int, ...]:
         """Shape of the value of a role's frame, to check data sets sharing it agree: the schema's shape, with
         data-chosen sizes (markers ``m``) read off this data set."""

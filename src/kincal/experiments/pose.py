@@ -9,7 +9,11 @@ Optional ``pose_cov`` (N, 6, 6): the covariance of the measured pose's error ``e
 (true pose p, R), both parts in the tracker frame: a position error and a left rotation increment, as the
 residual's. At the true parameters ``r = -e`` (the rotation part exactly: ``log(R R^T exp(-e_w)^) = -e_w``), so
 ``pose_cov`` is the residual's covariance and whitening uses it in place of the stated position and orientation
-noise (docs/calibration.md "Pose data with a full covariance"). ``weighted`` drops it for comparisons.
+noise (docs/calibration.md "Pose data with a full covariance").
+
+``weighted`` weights a fit otherwise for comparisons (the covariance's diagonal, or 1 m = 1 rad); it then keeps
+the pose error's covariance as ``noise_cov``, which the fit does not weight by but the reported covariance uses
+(the sandwich, ``kincal.estimation.sandwich``).
 """
 
 from __future__ import annotations
@@ -30,7 +34,10 @@ SCHEMA = Schema(
     "pose", arms=1,
     measured=(Field("T_tracker_tool", "pose", LENGTH, columns=("tool",), doc="tool pose in the tracker frame"), WRENCH,
               Field("pose_cov", "covariance", NONE, required=False, columns=("cov",),
-                    doc="covariance of the pose's error (position, left rotation), tracker frame")),
+                    doc="covariance of the pose's error (position, left rotation), tracker frame"),
+              Field("noise_cov", "covariance", NONE, required=False, columns=("noise_cov",),
+                    doc="the pose error's covariance where the fit weights by another (pose_cov, or the stated "
+                        "noise): standard deviations follow it")),
     known=(Field("T_world_tracker", "pose", LENGTH, required=False),),
     roles=(Role("tracker", "T_world_tracker", WORLD, "pose"),),
 )
@@ -62,12 +69,18 @@ class PoseExperiment(Experiment):
         frame; the residual is minus that error at the truth, so it is the residual's covariance too."""
         return self.dataset.measured.get("pose_cov")
 
+    def noise_covariance(self):
+        """``noise_cov``: the pose error's covariance where the fit weights by another (``weighted``), else None."""
+        return self.dataset.measured.get("noise_cov")
+
     def check(self):
-        cov = self.covariance()
-        bad = None if cov is None else covariance_problem(cov)
-        if bad:
-            raise DataFormatError(f"data set '{self.name}': sample {bad[0]}{file_line(self.dataset, bad[0])}, field "
-                                  f"pose_cov: expected a symmetric positive definite 6x6 covariance, found {bad[1]}")
+        for key in ("pose_cov", "noise_cov"):
+            cov = self.dataset.measured.get(key)
+            bad = None if cov is None else covariance_problem(cov)
+            if bad:
+                raise DataFormatError(f"data set '{self.name}': sample {bad[0]}{file_line(self.dataset, bad[0])}, "
+                                      f"field {key}: expected a symmetric positive definite 6x6 covariance, found "
+                                      f"{bad[1]}")
 
     def initial(self, state, known):
         if "tracker" in known:
@@ -97,13 +110,17 @@ def file_line(dataset: Dataset, i: int) -> str:
 WEIGHTS = ("full", "diagonal", "equal")
 
 
-def weighted(dataset: Dataset, how: str, sigma: float | None = None) -> Dataset:
+def weighted(dataset: Dataset, how: str, sigma: float | None = None, keep_noise: bool = True) -> Dataset:
     """A ``pose`` data set with ``pose_cov`` (``pose_from_markers.markers_to_pose``) weighted another way.
 
-    ``"full"``: as it is (whitened by ``pose_cov``); ``"diagonal"``: ``pose_cov`` without its correlations
+    ``"full"``: whitened by the pose error's covariance; ``"diagonal"``: ``pose_cov`` without its correlations
     (each component by its own variance); ``"equal"``: the partial-pose paper's unweighted approach 1,
     1 m = 1 rad: no ``pose_cov``, stated noise ``position = sigma`` m and ``orientation = sigma`` rad
-    (default: the data set's stated position noise, else ``kincal.noise.DEFAULT``'s).
+    (default: the data set's stated position noise, else ``kincal.noise.DEFAULT``'s). The pose error's
+    covariance (``noise_cov`` if the data set has one, else ``pose_cov``) stays as ``noise_cov`` when the
+    weights differ from it, so the reported standard deviations remain the estimator's (the sandwich);
+    ``keep_noise=False`` drops it: the fit then reports the standard deviations its weights imply, as the paper's
+    approach 1 does (for comparisons; they are not the estimates' scatter).
     """
     where = f"data set '{dataset.name}'"
     if how not in WEIGHTS:
@@ -113,8 +130,13 @@ def weighted(dataset: Dataset, how: str, sigma: float | None = None) -> Dataset:
         raise ShapeError(f"{where}: expected a pose data set with pose_cov to reweight, found kind "
                          f"'{dataset.kind}'{'' if cov is None else ' with pose_cov'}")
     measured, meta = dict(dataset.measured), dict(dataset.meta)
+    noise_cov = measured.pop("noise_cov", cov)
+    if how == "full":
+        measured["pose_cov"] = noise_cov
+    elif keep_noise:
+        measured["noise_cov"] = noise_cov
     if how == "diagonal":
-        measured["pose_cov"] = cov * np.eye(6)
+        measured["pose_cov"] = noise_cov * np.eye(6)
     elif how == "equal":
         del measured["pose_cov"]
         noise = dict(meta.get("noise") or {})

@@ -43,6 +43,7 @@ from kincal.io.yamlfile import clip, quote, read_yaml
 from kincal.kinematics import PRISMATIC, Robot
 from kincal.lie import se3
 from kincal.lie.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix
+from kincal.params import State, build_layout
 from kincal.schema import ANGLE, LENGTH, SCHEMAS, Field, Schema, covariance_problem
 from kincal.simulate.generators import OPTIONS as GENERATOR_OPTIONS
 from kincal.simulate.perturb import LEVELS as PERTURBATION_LEVELS
@@ -610,13 +611,18 @@ def load_scenario(path) -> dict:
 
 
 def _truth(ctx, data: Any, robot: Robot) -> dict:
-    """``truth:``: a perturbation level, magnitudes overriding it (SI) and the arms to perturb."""
+    """``truth:``: a perturbation level, magnitudes overriding it (SI) and the arms to perturb; or ``errors``,
+    explicit errors by parameter name (``truth_errors``)."""
     fields = [f for f in Perturbation.__dataclass_fields__ if f != "compliance"]
-    allowed = (set(fields) | {"level", "arms", COMPLIANCE_KEY}
+    allowed = (set(fields) | {"level", "arms", "errors", COMPLIANCE_KEY}
                | {f"{f.rpartition('_')[0]}_{u}" for f in fields for u in ("mm", "deg")})
     truth = _mapping(ctx, data, "truth", allowed)
+    errors = truth_errors(ctx, truth.get("errors"), robot)
+    if errors and set(truth) - {"errors"}:
+        raise ctx.fail("truth", f"give explicit errors or a perturbation, not both (found "
+                                f"{', '.join(sorted(set(truth) - {'errors'}))})")
     over = dict(_si_key(ctx, k, v, f"truth.{k}") for k, v in truth.items()
-                if k not in ("level", "arms", COMPLIANCE_KEY))
+                if k not in ("level", "arms", "errors", COMPLIANCE_KEY))
     if COMPLIANCE_KEY in truth:  # joint compliances drawn in [0, value] (rad/(N m); prismatic joints m/N)
         c = _number(ctx, truth[COMPLIANCE_KEY], f"truth.{COMPLIANCE_KEY}")
         if not (np.isfinite(c) and c >= 0):
@@ -627,7 +633,26 @@ def _truth(ctx, data: Any, robot: Robot) -> dict:
     if arms is not None and (not isinstance(arms, list) or any(a not in robot.arms for a in arms)):
         raise ctx.fail("truth.arms", f"expected a list of arms of '{robot.name}' ({', '.join(robot.arms)}), "
                        f"found {quote(arms)}")
-    return {"level": level, "overrides": over, "arms": arms}
+    return {"level": "none" if errors else level, "overrides": over, "arms": arms, "errors": errors}
+
+
+def truth_errors(ctx, data: Any, robot: Robot) -> dict[str, float]:
+    """``truth.errors``: the true robot's errors from the nominal one by parameter name (the names ``kincal
+    calibrate`` reports), in the file's units: angles for radian coordinates, lengths for metre ones, others
+    (compliances, rad/(N m)) in SI. Returned in SI."""
+    if data is None:
+        return {}
+    errors = _mapping(ctx, data, "truth.errors", set(data) if isinstance(data, dict) else set())
+    layout = build_layout(State.from_robot(robot), [])
+    unit_of = dict(zip(layout.names, layout.units))
+    out = {}
+    for name, value in errors.items():
+        if name not in unit_of:
+            raise ctx.fail(f"truth.errors.{name}", f"no such parameter of '{robot.name}' (e.g. "
+                                                   f"{', '.join(layout.names[:4])}, ...)")
+        out[str(name)] = _number(ctx, value, f"truth.errors.{name}") * {"m": ctx.length, "rad": ctx.angle}.get(
+            unit_of[name], 1.0)
+    return out
 
 
 def _experiment(ctx, exp: Any, robot: Robot) -> tuple[str, dict]:

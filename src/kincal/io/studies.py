@@ -23,7 +23,6 @@ STUDY_FORMAT = "kincal-study"
 BUILTIN_STUDIES = Path(__file__).resolve().parents[1] / "studies"
 _KEYS = {"format", "version", "name", "description", "model", "seed", "repeats", "units", "truth", "experiment",
          "noise", "validation", "quantities", "variants"}
-_TRUTH_EXTRA = {"errors", "redraw"}
 CONFIGURATIONS = ("fixed", "redrawn")
 DATA = ("markers", "pose")
 WEIGHTING = ("full", "diagonal", "equal")  # kincal.experiments.pose.WEIGHTS
@@ -79,21 +78,15 @@ def _count(ctx, value: Any, path: str, minimum: int) -> int:
 
 
 def _study_truth(ctx, data: Any, robot) -> dict:
-    """The scenario's ``truth:`` (perturbation level and sizes) plus ``errors:`` (explicit errors by parameter
-    name, in the file's units: angles for rad coordinates, lengths for m) and ``redraw:`` (a new true robot
-    every repeat)."""
+    """The scenario's ``truth:`` (a perturbation, or explicit ``errors`` by parameter name:
+    ``kincal.io.datasets.truth_errors``) plus ``redraw:`` (a new true robot every repeat)."""
     data = _mapping(ctx, data, "truth", set(data) if isinstance(data, dict) else set())
-    errors = _mapping(ctx, data.get("errors") or {}, "truth.errors", set(data.get("errors") or {}))
     redraw = data.get("redraw", False)
     if not isinstance(redraw, bool):
         raise ctx.fail("truth.redraw", f"expected true or false, found {quote(redraw)}")
-    rest = {k: v for k, v in data.items() if k not in _TRUTH_EXTRA}
-    if errors and rest:
-        raise ctx.fail("truth", f"give explicit errors or a perturbation, not both (found {', '.join(sorted(rest))})")
-    out = _truth(ctx, rest, robot)
-    out["errors"] = {str(k): _number(ctx, v, f"truth.errors.{k}") for k, v in errors.items()}
+    out = _truth(ctx, {k: v for k, v in data.items() if k != "redraw"}, robot)
     out["redraw"] = redraw
-    if redraw and errors:
+    if redraw and out["errors"]:
         raise ctx.fail("truth.redraw", "explicit errors give one true robot; redraw needs a perturbation")
     return out
 
@@ -116,7 +109,8 @@ def _variants(ctx, data: Any) -> list[dict]:
     out, seen = [], set()
     for i, v in enumerate(data):
         where = f"variants[{i}]"
-        v = _mapping(ctx, v, where, {"name", "data", "weighting", "length_per_radian"} | CALIBRATE_OPTIONS, ("name",))
+        v = _mapping(ctx, v, where, {"name", "data", "weighting", "length_per_radian", "noise_known"}
+                     | CALIBRATE_OPTIONS, ("name",))
         name = v["name"]
         if not isinstance(name, str) or not name or name in seen:
             raise ctx.fail(f"{where}.name", f"expected a new variant name, found {quote(name)}")
@@ -131,6 +125,10 @@ def _variants(ctx, data: Any) -> list[dict]:
         scale = _number(ctx, scale, f"{where}.length_per_radian") * (ctx.length if "length_per_radian" in v else 1.0)
         if scale <= 0:
             raise ctx.fail(f"{where}.length_per_radian", f"expected a length > 0, found {quote(v['length_per_radian'])}")
+        noise_known = v.get("noise_known", True)
+        if not isinstance(noise_known, bool) or ("noise_known" in v and weighting == "full"):
+            raise ctx.fail(f"{where}.noise_known", "expected true or false, for weighting: diagonal or equal; found "
+                                                   f"{quote(noise_known)} with weighting {weighting}")
         options = {k: v[k] for k in CALIBRATE_OPTIONS if k in v}
         _check_patterns(ctx, options, where)
         if "stages" in options:
@@ -138,7 +136,7 @@ def _variants(ctx, data: Any) -> list[dict]:
                 raise ctx.fail(f"{where}.stages", "with stages, give free and fixed in each stage instead")
             options["stages"] = tuple(parse_stages(ctx.file, options["stages"], f"{where}.stages"))
         out.append({"name": name, "data": data_kind, "weighting": weighting, "length_per_radian": scale,
-                    "options": options})
+                    "noise_known": noise_known, "options": options})
     return out
 
 

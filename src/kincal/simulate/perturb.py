@@ -12,6 +12,8 @@ Joint compliances (``compliance``, rad/(N m) for revolute and m/N for prismatic 
 
 Named levels: ``"thesis"`` (0.01 m, 2.4 deg, 0.07 rad offsets, home perturbed like the twists) and
 ``"fine"`` (1 mm, 0.1 deg, 0.01 rad). Base and tool stay nominal unless their magnitudes are set.
+
+``with_errors``: explicit errors instead, by parameter name (a scenario's or study's ``truth.errors``).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import numpy as np
 from kincal.errors import ModelError
 from kincal.kinematics import PRISMATIC, ArmModel, Robot, conform_twists
 from kincal.lie import se3
+from kincal.params import State, build_layout, retract
 
 _DEG = np.pi / 180
 
@@ -128,3 +131,14 @@ def perturb_robot(
         robot[a]
     new = {a: perturb_arm(m, p, rng) if a in chosen else m for a, m in robot.arms.items()}
     return Robot(robot.name, new, {**robot.meta, "perturbation": str(level)})
+
+
+def with_errors(robot: Robot, errors) -> Robot:
+    """``robot`` moved by explicit ``errors`` {parameter name: SI value} (the names ``kincal calibrate`` reports;
+    each a displacement of that coordinate from the nominal value, as calibration reports changes)."""
+    state = State.from_robot(robot)
+    layout = build_layout(state, list(errors))
+    d = np.zeros(layout.size)
+    for name, value in errors.items():
+        d[layout.index(name)] = value
+    return retract(state, layout, d).to_robot(robot)

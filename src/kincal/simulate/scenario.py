@@ -18,7 +18,7 @@ from kincal.data import Dataset
 from kincal.kinematics import Robot
 from kincal.simulate.generators import GENERATORS
 from kincal.simulate.noise import Noise
-from kincal.simulate.perturb import Perturbation, perturb_robot, perturbation
+from kincal.simulate.perturb import Perturbation, perturb_robot, perturbation, with_errors
 
 
 @dataclass(frozen=True, eq=False)
@@ -41,12 +41,13 @@ class Scenario:
     seed: int = 0
     angle_unit: str = "rad"
     length_unit: str = "m"
+    errors: Mapping[str, float] = field(default_factory=dict)  # explicit errors of the true robot (SI), if any
 
 
 def build_scenario(spec: Mapping[str, Any]) -> Scenario:
     """A ``Scenario`` from the plain data of ``load_scenario``: ``name``, ``robot``, ``model``, ``kind``,
     ``options`` (the generator's keyword arguments, SI), ``truth`` (``level``, ``overrides`` {field: SI value},
-    ``arms``), ``noise``, ``validation``, ``seed``, ``output`` ({angle, length} unit names)."""
+    ``arms``; or ``errors`` {parameter name: SI value}), ``noise``, ``validation``, ``seed``, ``output`` ({angle, length} unit names)."""
     truth = spec["truth"]
     arms = truth.get("arms")
     return Scenario(
@@ -55,6 +56,7 @@ def build_scenario(spec: Mapping[str, Any]) -> Scenario:
         perturb_arms=tuple(arms) if arms else None, noise=spec.get("noise", Noise()),
         n_validation=spec.get("validation", 100), seed=spec.get("seed", 0),
         angle_unit=spec.get("output", {}).get("angle", "rad"), length_unit=spec.get("output", {}).get("length", "m"),
+        errors=dict(truth.get("errors") or {}),
     )
 
 
@@ -64,7 +66,8 @@ def run(scenario: Scenario, progress: Callable[[int, int], None] | None = None):
     The seed drives two independent streams: one for the true robot, one for the experiment.
     """
     robot_rng, data_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(scenario.seed).spawn(2))
-    true = perturb_robot(scenario.robot, scenario.perturbation, robot_rng, arms=scenario.perturb_arms)
+    true = (with_errors(scenario.robot, scenario.errors) if scenario.errors else
+            perturb_robot(scenario.robot, scenario.perturbation, robot_rng, arms=scenario.perturb_arms))
     gen = GENERATORS[scenario.kind]
     options = dict(scenario.options)
     if "progress" in inspect.signature(gen).parameters:  # generators walking a self-motion report progress

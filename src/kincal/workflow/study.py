@@ -26,12 +26,12 @@ from kincal.io.atomic import output_directory
 from kincal.io.studies import load_study, write_csv
 from kincal.kinematics import Robot, forward_kinematics
 from kincal.noise import NONE, Noise
-from kincal.params import State, build_layout, displacement, retract
+from kincal.params import State, build_layout, displacement
 from kincal.report.study_plots import write_study_plots
 from kincal.schema import schema_of
 from kincal.simulate import GENERATORS, perturb_robot, random_configurations
 from kincal.simulate.noise import joint_readings, tracker_points, tracker_poses
-from kincal.simulate.perturb import Perturbation, perturbation
+from kincal.simulate.perturb import Perturbation, perturbation, with_errors
 from kincal.workflow.parallel import default_workers, run_tasks
 
 FAILED = "failed"
@@ -41,13 +41,16 @@ FAILED = "failed"
 class Variant:
     """One way to calibrate every repeat: ``data`` (``markers`` as measured, or ``pose`` computed from them),
     ``weighting`` of pose data (``full``: the fitted pose's 6x6 covariance; ``diagonal``; ``equal``: 1 m = 1 rad,
-    ``length_per_radian`` sets the normalization) and ``options``, keywords of ``kincal.estimation.calibrate`` (``free``, ``fixed``, ``gauge``, ...)."""
+    ``length_per_radian`` sets the normalization) and ``options``, keywords of ``kincal.estimation.calibrate`` (``free``, ``fixed``, ``gauge``, ...).
+    ``noise_known``: a ``diagonal`` or ``equal`` fit knows the fitted pose's covariance and reports the
+    sandwich (honest); false: the std its weights imply, as the paper reports approach 1."""
 
     name: str
     data: str = "markers"
     weighting: str = "full"
     options: Mapping[str, Any] = field(default_factory=dict)
     length_per_radian: float = 1.0  # ``equal`` weighting: this many metres weigh as one radian
+    noise_known: bool = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -80,14 +83,8 @@ def load(path) -> Study:
     """The study of a study file (or a built-in study's name), checked as far as it can be before running."""
     spec = load_study(path)
     truth, u = spec["truth"], spec["units"]
-    factor = {"m": units.LENGTH[u["length"]], "rad": units.ANGLE[u["angle"]]}
     names = dict(zip(*_arm_coordinates(spec["robot"])))
-    errors = {}
-    for name, value in truth["errors"].items():
-        if name not in names:
-            raise DataFormatError(f"{spec['file']}: truth.errors.{name}: no such parameter of '{spec['model']}' "
-                                  f"(e.g. {', '.join(list(names)[:4])}, ...)")
-        errors[name] = value * factor.get(names[name], 1.0)
+    errors = truth["errors"]  # SI, names checked (kincal.io.datasets.truth_errors)
     for q, terms in spec["quantities"].items():
         bad = [t for t in terms if t not in names]
         if bad:
@@ -99,8 +96,8 @@ def load(path) -> Study:
         for key in set(v["options"]) - accepted:
             raise DataFormatError(f"{spec['file']}: variants[{i}].{key}: this kincal's calibrate has no option "
                                   f"{key!r}")
-    variants = tuple(Variant(v["name"], v["data"], v["weighting"], v["options"], v["length_per_radian"])
-                     for v in spec["variants"])
+    variants = tuple(Variant(v["name"], v["data"], v["weighting"], v["options"], v["length_per_radian"],
+                             v["noise_known"]) for v in spec["variants"])
     return Study(spec["name"], spec["robot"], spec["kind"], spec["options"], variants, spec["repeats"], spec["seed"],
                  spec["noise"], spec["configurations"], errors,
                  None if errors else perturbation(truth["level"], **truth["overrides"]),
@@ -140,12 +137,7 @@ def true_robot(study: Study, rng: np.random.Generator) -> Robot:
     """The study's true robot: the nominal one moved by the explicit errors, else a drawn perturbation."""
     if not study.errors:
         return perturb_robot(study.robot, study.perturbation, rng, arms=study.perturb_arms)
-    state = State.from_robot(study.robot)
-    layout = build_layout(state, list(study.errors))
-    d = np.zeros(layout.size)
-    for name, value in study.errors.items():
-        d[layout.index(name)] = value
-    return retract(state, layout, d).to_robot(study.robot)
+    return with_errors(study.robot, study.errors)
 
 
 def repeat_data(study: Study, true: Robot, fixed: Fixed, rng: np.random.Generator) -> Dataset:
@@ -179,16 +171,18 @@ def calibrate_variant(study: Study, variant: Variant, ds: Dataset):
     """The ``Result`` of one variant on one repeat's data."""
     data, noise = ds, calibration_noise(study)
     if variant.data == "pose":
-        data, noise = pose_data(ds, noise, variant.weighting, variant.length_per_radian)
+        data, noise = pose_data(ds, noise, variant.weighting, variant.length_per_radian, variant.noise_known)
     return calibrate(study.robot, [data], noise=noise, **variant.options)
 
 
-def pose_data(ds: Dataset, noise: Noise, weighting: str, length_per_radian: float = 1.0) -> tuple[Dataset, Noise]:
+def pose_data(ds: Dataset, noise: Noise, weighting: str, length_per_radian: float = 1.0,
+              noise_known: bool = True) -> tuple[Dataset, Noise]:
     """Approach 1: the pose fitted to each row's markers (``markers_to_pose``), weighted as
     ``kincal.experiments.pose.weighted`` says: ``full`` (its 6x6 covariance), ``diagonal`` (without the
     correlations) or ``equal`` (the paper's: no covariance, an orientation error of 1 rad weighs as
-    ``length_per_radian`` metres of position error, 1 m = 1 rad by default)."""
-    pose = weighted(markers_to_pose(ds, sigma=noise.position), weighting, noise.position)
+    ``length_per_radian`` metres of position error, 1 m = 1 rad by default); ``noise_known``: the fit keeps
+    the covariance for its reported std (``weighted``'s ``keep_noise``)."""
+    pose = weighted(markers_to_pose(ds, sigma=noise.position), weighting, noise.position, keep_noise=noise_known)
     if weighting == "equal":
         noise = replace(noise, orientation=noise.position / length_per_radian)
     return pose, noise
