@@ -1,0 +1,156 @@
+"""Tree-structured robots: mounted arms, their composite chains and the Jacobians of every segment's blocks."""
+
+import numpy as np
+import pytest
+
+from kincal import experiments
+from kincal.data import Dataset
+from kincal.errors import DataFormatError, ModelError
+from kincal.kinematics import Robot, forward_kinematics, loaded_forward_kinematics
+from kincal.kinematics.tree import tip_model, tip_pose
+from kincal.lie import se3
+from kincal.params import State, build_layout, retract
+from kincal.testing import numerical_jacobian, random_arm, random_pose
+
+
+def tree_robot(rng, compliance=0.0, levels=1):
+    """A torso (2 joints; on a 1-joint column when ``levels`` is 2) carrying two arms of 6 and 7 joints."""
+    arms = {"torso": random_arm(rng, 2, name="torso"), "a": random_arm(rng, 6, name="a"),
+            "b": random_arm(rng, 7, prismatic=(3,), name="b")}
+    mounts = {"a": "torso", "b": "torso"}
+    if levels == 2:
+        arms["column"] = random_arm(rng, 1, name="column")
+        mounts["torso"] = "column"
+    arms = {k: m.replace(compliance=rng.uniform(0, compliance, m.dof)) for k, m in arms.items()}
+    return Robot("tree", arms, mounts=mounts)
+
+
+def readings(rng, robot, n):
+    return {a: rng.uniform(-2, 2, (n, m.dof)) for a, m in robot.arms.items()}
+
+
+def test_tip_pose_is_the_product_of_the_segments(rng):
+    robot = tree_robot(rng, levels=2)
+    q = readings(rng, robot, 4)
+    T = forward_kinematics(robot["column"], q["column"]) @ forward_kinematics(robot["torso"], q["torso"]) \
+        @ forward_kinematics(robot["a"], q["a"])
+    np.testing.assert_allclose(tip_pose(robot, "a", q), T, atol=1e-12)
+    assert robot.lineage("a") == ("column", "torso", "a")
+
+
+def test_a_tree_equals_the_same_robot_as_one_serial_chain(rng):
+    robot = tree_robot(rng)
+    q = readings(rng, robot, 5)
+    serial = tip_model(robot, "b")
+    assert serial.joint_names[:2] == ("torso.j1", "torso.j2") and serial.dof == 9
+    T = forward_kinematics(serial, np.concatenate([q["torso"], q["b"]], axis=1))
+    np.testing.assert_allclose(T, forward_kinematics(robot["torso"], q["torso"]) @ forward_kinematics(robot["b"], q["b"]),
+                               atol=1e-12)
+    w = rng.normal(size=(5, 6))
+    loaded = tree_robot(np.random.default_rng(3), compliance=0.02)
+    one = Robot("serial", {"b": tip_model(loaded, "b")})
+    ds = _case("pose", np.random.default_rng(4), loaded, w)
+    exp_tree = experiments.build([ds], State.from_robot(loaded))[0][0]
+    ds1 = Dataset("pose", "r", ("b",), {"b": np.concatenate([ds.q["torso"], ds.q["b"]], axis=1)}, dict(ds.measured),
+                  dict(ds.known))
+    exp_one = experiments.build([ds1], State.from_robot(one))[0][0]
+    st_tree, st_one = _state(loaded, exp_tree), _state(one, exp_one)
+    np.testing.assert_allclose(exp_tree.residual(st_tree).r, exp_one.residual(st_one).r, atol=1e-12)
+    np.testing.assert_allclose(exp_tree.residual(st_tree).r, 0.0, atol=1e-12)
+
+
+def _state(robot, exp):
+    state = State.from_robot(robot)
+    _, extras, _ = experiments.build([exp.dataset], state)
+    return State(state.arms, extras, experiments.frame_kinds([exp]), robot.mounts)
+
+
+def _case(kind, rng, robot, wrench=None):
+    """A data set of ``kind`` on arms mounted on the torso, exactly consistent with ``robot``."""
+    n = 5
+    q = readings(rng, robot, n)
+    W = random_pose(rng)
+    qb = {a: q[a] for a in robot.lineage("b")}
+    if wrench is not None:
+        T = loaded_forward_kinematics(tip_model(robot, "b"), np.concatenate(list(qb.values()), axis=1), wrench)
+    else:
+        T = tip_pose(robot, "b", q)
+    measured = {} if wrench is None else {"wrench_tool": wrench}
+    if kind == "pose":
+        return Dataset("pose", "tree", ("b",), qb, {"T_tracker_tool": se3.inverse(W) @ T, **measured},
+                       {"T_world_tracker": W})
+    if kind == "markers":
+        x = rng.uniform(-0.1, 0.1, (3, 3))
+        y = se3.transform_points(se3.inverse(W), se3.transform_points(T[:, None], x))
+        return Dataset("markers", "tree", ("b",), qb, {"p_tracker_marker": y, **measured},
+                       {"T_world_tracker": W, "p_tool_marker": x})
+    TA = tip_pose(robot, "a", q)
+    if kind == "dual":
+        q1 = {a: v[:1] for a, v in q.items()}
+        C = se3.inverse(TA[0]) @ T[0]
+        return Dataset("dual", "tree", ("a", "b"), q1, known={"T_toolA_toolB": C})
+    if kind == "distance":
+        q1 = {a: v[:1] for a, v in q.items()}
+        return Dataset("distance", "tree", ("a", "b"), q1,
+                       known={"distance": np.linalg.norm(TA[0, :3, 3] - T[0, :3, 3])})
+    if kind == "clamp":
+        return Dataset("clamp", "tree", ("b",), {a: v[:1] for a, v in qb.items()}, known={"T_world_fixture": T[0]})
+    raise AssertionError(kind)
+
+
+def _assemble(res, layout, N):
+    J = np.zeros((N, res.r.shape[1], layout.size))
+    for b in layout.blocks:
+        if b.name in res.jac:
+            J[:, :, b.start: b.stop] = res.jac[b.name]
+    return J
+
+
+def check_tree_residual(rng, robot, ds):
+    """Zero at the truth; away from it, every block of every segment (torso included) and the readings of
+    every arm (the torso's shared by both arms of a two-arm kind) equal central differences."""
+    state = State.from_robot(robot)
+    exps, extras, unknown = experiments.build([ds], state)
+    assert unknown == []
+    state = State(state.arms, extras, experiments.frame_kinds(exps), robot.mounts)
+    exp = exps[0]
+    np.testing.assert_allclose(exp.residual(state).r, 0.0, atol=1e-10)
+    arms = sorted({a for arm in ds.arms for a in robot.lineage(arm)})
+    layout = build_layout(state, [f"{a}.*" for a in arms] + list(extras), arms=arms)
+    state = retract(state, layout, rng.normal(scale=0.05, size=layout.size))
+    n = 3
+    q = {a: rng.uniform(-2, 2, (n, robot[a].dof)) for a in arms}
+    measured = {k: np.repeat(v[:1], n, axis=0) for k, v in ds.measured.items()}
+    if "wrench_tool" in measured:
+        measured["wrench_tool"] = rng.normal(size=(n, 6))
+    make = lambda qq: type(exp)(Dataset(ds.kind, "tree", ds.arms, qq, measured, dict(ds.known)), exp.frames)  # noqa
+    res = make(q).residual(state)
+    num = numerical_jacobian(lambda d: make(q).residual(retract(state, layout, d)).r, np.zeros(layout.size))
+    np.testing.assert_allclose(_assemble(res, layout, n), num, atol=1e-7, rtol=1e-6)
+    assert set(res.jac) == {b.name for b in layout.blocks}
+    assert set(res.jq) == set(arms)
+    for arm in arms:
+        def f(x, arm=arm):
+            return make({**q, arm: x.reshape(q[arm].shape)}).residual(state).r
+        num_q = numerical_jacobian(f, q[arm].ravel()).reshape(res.r.shape + q[arm].shape)
+        num_q = np.stack([num_q[i, :, i, :] for i in range(n)])
+        np.testing.assert_allclose(res.jq[arm], num_q, atol=1e-7, rtol=1e-6)
+
+
+@pytest.mark.parametrize("kind", ["pose", "markers", "dual", "distance", "clamp"])
+def test_tree_jacobians_match_differences(rng, kind):
+    robot = tree_robot(rng)
+    check_tree_residual(rng, robot, _case(kind, rng, robot))
+
+
+@pytest.mark.parametrize("kind", ["pose", "markers"])
+def test_tree_jacobians_under_a_tool_wrench_with_a_compliant_torso(rng, kind):
+    robot = tree_robot(rng, compliance=0.02)
+    check_tree_residual(rng, robot, _case(kind, rng, robot, wrench=rng.normal(size=(5, 6))))
+
+
+@pytest.mark.parametrize("kind", ["dual", "markers+wrench"])
+def test_two_levels_of_mounts(rng, kind):
+    robot = tree_robot(rng, levels=2, compliance=0.02)
+    wrench = rng.normal(size=(5, 6)) if kind.endswith("wrench") else None
+    check_tree_residual(rng, robot, _case(kind.split("+")[0], rng, robot, wrench))
