@@ -72,7 +72,8 @@ class Identifiability:
 
 
 def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol: float = 1e-9,
-             priority: Sequence[int] | None = None, report: bool = True) -> Identifiability:
+             priority: Sequence[int] | None = None, report: bool = True,
+             structural: np.ndarray | None = None) -> Identifiability:
     """The identifiability of the free coordinates at one linearization: the one entry point of the solver.
 
     Rank and null space of ``lin``'s whitened Jacobian with the exact symmetries held (the scale without a
@@ -80,16 +81,46 @@ def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol:
     a first joint axis, ``symmetries.rotation_nulls``). ``report``: also name the null directions in words
     (``naming``) and judge whether the data are degenerate; the solver's intermediate iterations need only the
     rank and null space. ``priority``: free-coordinate order for the pivots of the named directions.
+    ``structural`` (p, k): exact gauges of the start (natural units); those still near-exact here are held as
+    gauges too (``near_gauges``: a coupling of parallel axes, whose exact gauge the estimate's round-off-size
+    tilts of the axes lift only slightly).
     """
     names = [layout.names[i] for i in lin.free]
     scale = scale_null(lin, layout) if lin.every else None
     held = rotation_nulls(lin, layout, experiments)
     gauges = consistent_nulls(lin, layout, experiments, rtol)
+    if structural is not None and structural.shape[1]:
+        near = near_gauges(lin.Rf, structural)
+        gauges = near if gauges is None else np.column_stack([gauges, near])
     if not report:
         return analyse(lin.Rf, names, rtol=rtol, priority=priority, scale=scale, held=held, gauges=gauges)
     ana = analyse(lin.Rf, names, rtol=rtol, scale=scale, priority=priority, held=held, gauges=gauges,
                   describe=describer(lin, layout, experiments), context=context(layout, experiments))
     return replace(ana, degenerate=degenerate(lin.Rf, ana.rank, rtol, layout, lin.free))
+
+
+def coupling_gauges(state, first: "Identifiability | None") -> np.ndarray | None:
+    """The start's null basis when an arm has joint couplings (the ``structural`` of ``identify``), else None."""
+    coupled = any(getattr(a, "coupling", None) is not None for a in state.arms.values())
+    return first.null_space if coupled and first is not None else None
+
+
+NEAR_GAUGE_RTOL = 1e-3  # a start's exact gauge still below this (relative singular value) stays a gauge
+
+
+def near_gauges(J: np.ndarray, structural: np.ndarray, rtol: float = NEAR_GAUGE_RTOL) -> np.ndarray:
+    """The directions within span(``structural``) (p, k, natural units) whose relative singular value in the
+    column-scaled ``J`` is below ``rtol``: (p, j) natural units. Exact gauges of the nominal model that the
+    estimate lifts only by its own small deviations (three parallel axes coupled to sum to zero turn slightly
+    apart) are still gauges: the data do not determine them, and estimating them would let them drift."""
+    Js, c = unit_columns(J)
+    G = _orth(c[:, None] * structural)
+    smax = np.linalg.norm(Js, 2) if Js.size else 0.0
+    if G.shape[1] == 0 or smax == 0:
+        return np.zeros((len(c), 0))
+    _, S, Vt = np.linalg.svd(Js @ G, full_matrices=False)
+    small = Vt[S < rtol * smax]
+    return (G @ small.T) / c[:, None]
 
 
 def analyse(
