@@ -227,3 +227,42 @@ def test_torso_geometry_calibrated_with_the_arms_and_validated_on_fresh_configur
     d = d[res.layout.free]
     outside = d - ana.null_space @ (ana.null_space.T @ d)
     assert np.linalg.norm(outside) < 0.05 * np.linalg.norm(d)
+
+
+# ------------------------------------------------------------------ branched URDF
+
+BRANCHED = """<robot name="twoarms">
+  <link name="base"/><link name="waist"/><link name="chest"/>
+  <link name="l1"/><link name="l2"/><link name="left_tip"/>
+  <link name="r1"/><link name="r2"/><link name="right_tip"/>
+  <joint name="t1" type="revolute"><parent link="base"/><child link="waist"/>
+    <origin xyz="0 0 0.3" rpy="0 0 0"/><axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+  <joint name="t2" type="revolute"><parent link="waist"/><child link="chest"/>
+    <origin xyz="0 0 0.2" rpy="0.1 0 0"/><axis xyz="0 1 0"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+  <joint name="l_j1" type="revolute"><parent link="chest"/><child link="l1"/>
+    <origin xyz="0 0.2 0.1" rpy="0 0.3 0"/><axis xyz="1 0 0"/><limit lower="-2" upper="2" effort="1" velocity="1"/></joint>
+  <joint name="l_j2" type="revolute"><parent link="l1"/><child link="l2"/>
+    <origin xyz="0.3 0 0" rpy="0 0 0.2"/><axis xyz="0 0 1"/><limit lower="-2" upper="2" effort="1" velocity="1"/></joint>
+  <joint name="l_fix" type="fixed"><parent link="l2"/><child link="left_tip"/><origin xyz="0.1 0 0" rpy="0 0 0"/></joint>
+  <joint name="r_j1" type="revolute"><parent link="chest"/><child link="r1"/>
+    <origin xyz="0 -0.2 0.1" rpy="0 -0.3 0"/><axis xyz="1 0 0"/><limit lower="-2" upper="2" effort="1" velocity="1"/></joint>
+  <joint name="r_j2" type="prismatic"><parent link="r1"/><child link="r2"/>
+    <origin xyz="0.3 0 0" rpy="0 0 0"/><axis xyz="1 0 0"/><limit lower="-0.1" upper="0.1" effort="1" velocity="1"/></joint>
+  <joint name="r_fix" type="fixed"><parent link="r2"/><child link="right_tip"/><origin xyz="0.1 0 0" rpy="0 0 0"/></joint>
+</robot>"""
+
+
+def test_a_branched_urdf_becomes_a_torso_with_mounted_arms(rng):
+    from kincal.io.urdf import from_urdf, tree_from_urdf
+
+    robot = tree_from_urdf(BRANCHED, "base")
+    assert set(robot.arms) == {"chest", "left_tip", "right_tip"}
+    assert dict(robot.mounts) == {"left_tip": "chest", "right_tip": "chest"}
+    assert robot["chest"].joint_names == ("t1", "t2") and robot["right_tip"].joint_names == ("r_j1", "r_j2")
+    named = tree_from_urdf(BRANCHED, "base", {"left": "left_tip", "right": "right_tip"})
+    assert set(named.arms) == {"chest", "left", "right"}
+    for arm, tip in (("left", "left_tip"), ("right", "right_tip")):
+        serial = from_urdf(BRANCHED, "base", tip)
+        q = {a: rng.uniform(-0.1, 0.1, (4, named[a].dof)) for a in named.arms}
+        np.testing.assert_allclose(tip_pose(named, arm, q),
+                                   forward_kinematics(serial, np.concatenate([q["chest"], q[arm]], axis=1)), atol=1e-12)
