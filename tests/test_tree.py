@@ -266,3 +266,19 @@ def test_a_branched_urdf_becomes_a_torso_with_mounted_arms(rng):
         q = {a: rng.uniform(-0.1, 0.1, (4, named[a].dof)) for a in named.arms}
         np.testing.assert_allclose(tip_pose(named, arm, q),
                                    forward_kinematics(serial, np.concatenate([q["chest"], q[arm]], axis=1)), atol=1e-12)
+
+
+def test_predictions_of_a_mounted_arm_include_the_torso():
+    """A dual clamp cannot see the torso: its unidentifiable parameters move the tool at fresh configurations,
+    which the validation predictions report (the composite chain's Jacobian, carriers included)."""
+    from kincal.analysis.prediction import tool_jacobian, validation_predictions
+
+    nominal = load_builtin("dual7_torso")
+    dual, _, val = generate_dual(perturb_robot(nominal, "thesis", 2), ("left", "right"), n=60, rng=2, noise=NOISE)
+    res = calibrate(nominal, [dual], "offsets", noise=NOISE)
+    T, J = tool_jacobian(res, dict(val["left"].q), "left")
+    np.testing.assert_allclose(T, tip_pose(res.robot, "left", val["left"].q), atol=1e-12)
+    torso = [i for i, n in enumerate(res.identifiability.names) if n.startswith("torso.")]
+    assert np.abs(J[..., torso]).max() > 0.1
+    (name, pred), = [p for p in validation_predictions(res, [val["left"]])]
+    assert pred.null_moving > 0 and any(e.pivot.startswith("torso.t") for e in pred.directions)

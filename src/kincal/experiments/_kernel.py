@@ -29,16 +29,15 @@ def coupled(a: ArmValues, gq: np.ndarray) -> np.ndarray:
     return gq if a.coupling is None else gq @ a.coupling
 
 
-def tree_kin(state, line, ds) -> Kinematics:
-    """Kinematics of the composite chain of the arms ``line`` (root first, ``kincal.kinematics.tree``) at the data
-    set's readings, deflected by ``wrench_tool`` when the data has loads (every segment's joints yield)."""
+def tree_kin(state, line, q, w=None) -> Kinematics:
+    """Kinematics of the composite chain of the arms ``line`` (root first, ``kincal.kinematics.tree``) at readings
+    ``q`` (arm -> (N, n)), deflected by the tool loads ``w`` (N, 6) if given (every segment's joints yield)."""
     segs = [state.arms[s] for s in line]
     comp = composite(segs)
-    theta0 = np.concatenate([ds.q[s] + a.offsets for s, a in zip(line, segs)], axis=-1)
-    w = ds.measured.get("wrench_tool")
+    theta0 = np.concatenate([q[s] + a.offsets for s, a in zip(line, segs)], axis=-1)
     if w is None:
         return chain(comp.screws, theta0, comp.base, comp.home, comp.tool)
-    cs = [a.compliance_at(ds.q[s]) for s, a in zip(line, segs)]  # (n_k,), or (N, n_k) with angle-dependent ones
+    cs = [a.compliance_at(q[s]) for s, a in zip(line, segs)]  # (n_k,), or (N, n_k) with angle-dependent ones
     if any(x.ndim == 2 for x in cs):
         cs = [np.broadcast_to(x, (len(theta0), x.shape[-1])) for x in cs]
     c = np.concatenate(cs, axis=-1)
@@ -67,12 +66,13 @@ def _add(out: dict, key: str, J: np.ndarray) -> None:
     out[key] = out[key] + J if key in out else J
 
 
-def tree_jacobians(state, line, ds, kin, G, parts, jq: bool, out: dict, jqs: dict) -> None:
+def tree_jacobians(state, line, q, kin, G, parts, jq: bool, out: dict, jqs: dict) -> None:
     """Blocks of every arm of ``line`` (root first; ``parts[arm]``: the wanted parts) for the tip's left
-    increment derivative G, added to ``out``; ``G @ J_q`` per arm added to ``jqs`` (if ``jq``)."""
+    increment derivative G at readings ``q`` (arm -> (N, n)), added to ``out``; ``G @ J_q`` per arm added to
+    ``jqs`` (if ``jq``)."""
     segs = [state.arms[s] for s in line]
     comp = composite(segs)
-    coeffs, basis = _tree_compliance(segs, [ds.q[s] for s in line])
+    coeffs, basis = _tree_compliance(segs, [q[s] for s in line])
     wanted = set().union(*parts.values())
     cparts = [p for p in ("offsets", "twists", "compliance") if p in wanted]
     cparts += ["base"] * ("base" in parts[line[0]]) + [p for p in ("home", "tool") if p in parts[line[-1]]]

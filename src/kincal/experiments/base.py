@@ -137,7 +137,7 @@ class Experiment:
         ``kincal.kinematics.tree``); deflected by ``wrench_tool`` when the data has loads."""
         line = lineage(state.mounts, arm)
         if len(line) > 1:
-            return tree_kin(state, line, self.dataset)
+            return tree_kin(state, line, self.dataset.q, self.dataset.measured.get("wrench_tool"))
         a = state.arms[arm]
         theta0 = self.dataset.q[arm] + a.offsets
         w = self.dataset.measured.get("wrench_tool")
@@ -158,7 +158,7 @@ class Experiment:
         if len(line) > 1:
             parts = {s: self._parts(s, want) for s in line}
             if any(parts.values()) or jq:
-                tree_jacobians(state, line, self.dataset, kin, G, parts, jq, out, jqs)
+                tree_jacobians(state, line, self.dataset.q, kin, G, parts, jq, out, jqs)
             return
         parts = self._parts(arm, want)
         if not parts and not jq:
