@@ -10,7 +10,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from kincal.analysis import Identifiability, Linearization, identify
-from kincal.analysis.identifiability import coupling_gauges
 from kincal.analysis.covariance import right_svd
 from kincal.errors import DegenerateExperimentError
 from kincal.estimation import steps
@@ -63,7 +62,7 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
         lin = steps.linearize(problem, state, W, every)
         W = lin.W
         ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=order,
-                       report=first is None, structural=coupling_gauges(state, first))
+                       report=first is None)
         if first is None:
             first, before = ana, tuple(problem.statistics(state, W))
             if ana.degenerate:
