@@ -282,3 +282,15 @@ def test_predictions_of_a_mounted_arm_include_the_torso():
     assert np.abs(J[..., torso]).max() > 0.1
     (name, pred), = [p for p in validation_predictions(res, [val["left"]])]
     assert pred.null_moving > 0 and any(e.pivot.startswith("torso.t") for e in pred.directions)
+
+
+def test_a_branch_without_moving_joints_folds_into_the_arms_bases(rng):
+    from kincal.io.urdf import from_urdf, tree_from_urdf
+
+    text = BRANCHED.replace('name="t1" type="revolute"', 'name="t1" type="fixed"').replace(
+        'name="t2" type="revolute"', 'name="t2" type="fixed"')
+    robot = tree_from_urdf(text, "base", {"left": "left_tip", "right": "right_tip"})
+    assert set(robot.arms) == {"left", "right"} and not robot.mounts
+    q = rng.uniform(-0.1, 0.1, (3, 2))
+    np.testing.assert_allclose(forward_kinematics(robot["right"], q),
+                               forward_kinematics(from_urdf(text, "base", "right_tip"), q), atol=1e-12)
