@@ -33,13 +33,25 @@ def checked_couplings(couplings, names: tuple[str, ...], where: str) -> Mapping[
         for other, coef in terms.items():
             if other != CONSTANT and other not in names:
                 raise ModelError(f"{at}.{other}: no such joint; joints: {', '.join(names)}")
-            if isinstance(coef, bool) or not np.isfinite(np.asarray(coef, dtype=float)).all() or np.ndim(coef):
+            value = _finite(coef)
+            if value is None:
                 raise ModelError(f"{at}.{other}: expected a finite number, found {coef!r}")
-            clean[str(other)] = float(coef)
+            clean[str(other)] = value
         out[str(joint)] = MappingProxyType(clean)
     for joint in out:
         _check_acyclic(out, joint, (joint,), where)
     return MappingProxyType(out)
+
+
+def _finite(x) -> float | None:
+    """``x`` as a finite float, or None (booleans, text, arrays and non-finite values are not coefficients)."""
+    if isinstance(x, (bool, str)) or np.ndim(x):
+        return None
+    try:
+        value = float(x)
+    except (TypeError, ValueError):
+        return None
+    return value if np.isfinite(value) else None
 
 
 def _check_acyclic(couplings, joint: str, path: tuple[str, ...], where: str) -> None:

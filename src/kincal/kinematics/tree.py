@@ -23,6 +23,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from kincal.kinematics.couplings import CONSTANT
 from kincal.kinematics.fk import Kinematics, chain
 from kincal.kinematics.model import ArmModel, Robot
 from kincal.lie import se3
@@ -94,7 +95,7 @@ def tip_model(robot: Robot, arm: str) -> ArmModel:
     names = tuple(f"{a}.{j}" for a, s in zip(line, segs) for j in s.joint_names)
     cat = lambda key: np.concatenate([getattr(s, key) for s in segs])  # noqa: E731
     nodes = {f"{a}.{j}": t for a, s in zip(line, segs) for j, t in s.compliance_nodes.items()}
-    couplings = {f"{a}.{j}": {(k if k == "constant" else f"{a}.{k}"): v for k, v in terms.items()}
+    couplings = {f"{a}.{j}": {(k if k == CONSTANT else f"{a}.{k}"): v for k, v in terms.items()}
                  for a, s in zip(line, segs) for j, terms in s.couplings.items()}
     return ArmModel(f"{arm} (on {', '.join(line[:-1])})", comp.screws, comp.home, base=comp.base, tool=comp.tool,
                     offsets=cat("offsets"), lower=cat("lower"), upper=cat("upper"), gear_ratios=cat("gear_ratios"),

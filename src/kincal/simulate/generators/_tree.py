@@ -56,7 +56,6 @@ class SharedClosedChain(_PoseResidual):
         self.ia = np.concatenate([idx[s] for s in robot.lineage(a)])
         self.ib = np.concatenate([idx[s] for s in robot.lineage(b)])
         self.inner = ClosedChainConstraint(tip_model(robot, a), tip_model(robot, b), T_toolA_toolB)
-        self.robot = robot
         self.lower = np.concatenate([robot[s].lower for s in self.names])
         self.upper = np.concatenate([robot[s].upper for s in self.names])
         self.size = len(self.lower)
