@@ -202,3 +202,10 @@ def test_near_exact_gauges_of_the_start_are_named_weak(rng):
     assert abs(abs(ana.weak_vectors[:, 0] @ V[:, 5]) - 1) < 1e-6
     assert any("an exact gauge of the nominal model" in m for m in ana.messages)
     assert _with_lifted_gauges(ana, near).weak == ana.weak  # reported once
+
+
+def test_generators_that_cannot_hold_a_coupling_say_so(robot):
+    from kincal.simulate.generators import generate_clamp
+
+    with pytest.raises(ModelError, match=r"clamp: arm 'left' has joint couplings \(torso.t4\); the clamp generator"):
+        generate_clamp(robot, "left", n=5, rng=1)

@@ -294,3 +294,18 @@ def test_a_branch_without_moving_joints_folds_into_the_arms_bases(rng):
     q = rng.uniform(-0.1, 0.1, (3, 2))
     np.testing.assert_allclose(forward_kinematics(robot["right"], q),
                                forward_kinematics(from_urdf(text, "base", "right_tip"), q), atol=1e-12)
+
+
+@pytest.mark.parametrize("kind", ["clamp", "socket", "plate"])
+def test_ik_generators_move_the_torso_and_their_data_fit_the_true_robot(kind):
+    from kincal.simulate.generators import GENERATORS
+
+    true = perturb_robot(load_builtin("dual7_torso"), "thesis", 5)
+    ds, truth, _ = GENERATORS[kind](true, "left", n=12, rng=5)
+    assert set(ds.q) == {"torso", "left"} and np.ptp(ds.q["torso"], axis=0).min() > 1e-3
+    state = State.from_robot(true)
+    exps, extras, _ = experiments.build([ds], state)
+    extras.update({k: v for k, v in truth.values.items() if k in extras})
+    frames = {exps[0].frames[r]: truth.values[exps[0].ROLES[r]] for r in exps[0].frames}
+    state = State(state.arms, {**extras, **frames}, experiments.frame_kinds(exps), true.mounts)
+    np.testing.assert_allclose(exps[0].residual(state).r, 0.0, atol=1e-8)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from kincal.errors import ModelError
 from kincal.kinematics import Robot
 from kincal.kinematics.couplings import coupling_map
 from kincal.kinematics.tree import tip_model
@@ -96,3 +97,13 @@ def coupled_readings(model, q: np.ndarray) -> np.ndarray:
         return q
     A, b = coupling_map(model.couplings, model.joint_names)
     return q @ A.T + b
+
+
+def uncoupled_tip(robot: Robot, arm: str, kind: str):
+    """``tip_model(robot, arm)`` for the generators whose inverse kinematics does not hold couplings (clamp,
+    plate, socket); ModelError when the arm or a carrier has couplings."""
+    model = tip_model(robot, arm)
+    if model.couplings:
+        raise ModelError(f"{kind}: arm '{arm}' has joint couplings ({', '.join(model.couplings)}); the {kind} "
+                         "generator does not hold them: simulate with dual, pose or markers data")
+    return model
