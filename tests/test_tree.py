@@ -204,10 +204,11 @@ def test_torso_offsets_recovered_from_a_dual_clamp_with_the_torso_moving(seed):
     assert stats.position_rms < 2 * NOISE.position
 
 
-def test_torso_geometry_calibrated_with_the_arms_and_validated_on_fresh_configurations():
+@pytest.mark.parametrize("seed", [4, 6])
+def test_torso_geometry_calibrated_with_the_arms_and_validated_on_fresh_configurations(seed):
     nominal = load_builtin("dual7_torso")
-    true = perturb_robot(nominal, "thesis", 4)
-    data, truth, val = _torso_data(true, 4, n=150)
+    true = perturb_robot(nominal, "thesis", seed)
+    data, truth, val = _torso_data(true, seed, n=150)
     res = calibrate(nominal, data, "kinematic", noise=NOISE)
     assert res.status == "converged"
     # fresh configurations (torso and arm) of the true robot, seen by the tracker: at the noise level
