@@ -310,3 +310,11 @@ def test_ik_generators_move_the_torso_and_their_data_fit_the_true_robot(kind):
     frames = {exps[0].frames[r]: truth.values[exps[0].ROLES[r]] for r in exps[0].frames}
     state = State(state.arms, {**extras, **frames}, experiments.frame_kinds(exps), true.mounts)
     np.testing.assert_allclose(exps[0].residual(state).r, 0.0, atol=1e-8)
+
+
+def test_tree_jacobians_with_angle_dependent_torso_compliance(rng):
+    robot = tree_robot(rng, compliance=0.02)
+    t = robot["torso"]
+    nodes = {"j2": np.array([[-1.5, 0.01], [0.0, 0.03], [1.5, 0.02]])}
+    robot = robot.replace_arm("torso", t.replace(compliance=np.array([t.compliance[0], 0.0]), compliance_nodes=nodes))
+    check_tree_residual(rng, robot, _case("markers", rng, robot, wrench=rng.normal(size=(5, 6))))
