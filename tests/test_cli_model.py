@@ -64,7 +64,7 @@ def test_fk_single_arm_needs_no_arm_option():
         (["fk", "ur10", "--q-deg", "0,0,0,0,0"],
          "has 6 joints (shoulder_pan, shoulder_lift, elbow, wrist_1, wrist_2, wrist_3); got 5 values"),
         (["fk", "yumi", "--q-deg", "0"],
-         "no built-in robot of that name (built-in robots: frida, klimchik3r, kr270, panda, ur10)"),
+         "no built-in robot of that name (built-in robots: dual7_torso, frida, klimchik3r, kr270, panda, ur10)"),
         (["fk", "frida", "--arm", "middle", "--q-deg", "0,0,0,0,0,0,0"],
          "robot 'frida' has no arm 'middle'; arms: right, left"),
         (["fk", "frida", "--q-deg", "0,0,0,0,0,0,0"], "robot 'frida' has several arms (right, left); choose one"),

@@ -60,13 +60,13 @@ def _pinocchio_fk(xml, frame, q_by_name, base_frame=None):
 
 
 def test_builtin_names_and_loading_by_name_or_path(tmp_path):
-    assert robots.names() == ["frida", "klimchik3r", "kr270", "panda", "ur10"]
+    assert robots.names() == ["dual7_torso", "frida", "klimchik3r", "kr270", "panda", "ur10"]
     frida = robots.load("frida")
     assert set(frida.arms) == {"left", "right"}
     assert all(set(robots.load(n).arms) == {"arm"} for n in ("klimchik3r", "panda", "ur10"))
     assert load_robot("frida") == frida
     assert robots.load("panda").meta["source"].startswith("Franka")
-    with pytest.raises(DataFormatError, match="built-in robots: frida, klimchik3r, kr270, panda, ur10"):
+    with pytest.raises(DataFormatError, match="built-in robots: dual7_torso, frida, klimchik3r, kr270, panda, ur10"):
         load_robot("yumi")
     with pytest.raises(DataFormatError, match="unknown built-in robot"):
         robots.load("nope")

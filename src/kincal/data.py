@@ -6,7 +6,8 @@ registers a ``kincal.schema.Schema``: number of arms, measured and known entries
 ``Dataset`` checks any data set against its kind's schema. Files (CSV + YAML manifest) map onto it in
 ``kincal.io.datasets``; ground truth never lives here (see ``Truth`` in ``kincal.simulate``).
 
-``arms`` lists the arms involved (first is A for two-arm kinds). Unknown quantities (absent from ``known``)
+``arms`` lists the arms involved (first is A for two-arm kinds). ``q`` also holds the readings of the arms
+carrying them on a tree-structured robot (a torso: ``kincal.kinematics.tree``), as extra entries. Unknown quantities (absent from ``known``)
 become parameters of the calibration.
 
 ``frames`` (optional, role -> frame name) names the frames of the data set's roles (the kind's
@@ -85,6 +86,7 @@ class Dataset:
         for arm in arms:
             if arm not in self.q:
                 raise ShapeError(f"{where}: no joint readings for arm '{arm}'")
+        for arm in (*arms, *(a for a in self.q if a not in arms)):  # then the readings of the arms carrying them
             qa = np.asarray(self.q[arm], dtype=float)
             if qa.ndim != 2:
                 raise ShapeError(f"{where}: joint readings of arm '{arm}' must be (N, n), got shape {qa.shape}")

@@ -172,10 +172,12 @@ def _world_frame(g: _Geometry) -> np.ndarray:
     return np.eye(4)
 
 
-def _tool_groups(arm: str, names, types, g0: _Geometry) -> list[_Group]:
-    """The tool pose at the nominal zero in the world frame and, when the first two axes are revolute and not
-    parallel, in their frame: position, and rotation from the nominal tool orientation (about the frame's axes)."""
-    frames = [("world", "the world frame", _world_frame)]
+def _tool_groups(arm: str, names, types, g0: _Geometry, carrier: str | None = None) -> list[_Group]:
+    """The tool pose at the nominal zero in the world frame (for an arm mounted on ``carrier``: in the carrier's
+    tool frame, ``mount``) and, when the first two axes are revolute and not parallel, in their frame: position,
+    and rotation from the nominal tool orientation (about the frame's axes)."""
+    frames = [("world", "the world frame", _world_frame) if carrier is None else
+              ("mount", f"the tool frame of {carrier}, which carries the arm", _world_frame)]
     if len(names) > 1 and types[0] == REVOLUTE == types[1] and \
             np.linalg.norm(_cross(g0.dirs[0], g0.dirs[1])) >= PARALLEL_SIN:
         frames.insert(0, ("axes12", f"the frame of the axes of {names[0]} and {names[1]} (origin on the first at "
@@ -200,7 +202,8 @@ def _tool_groups(arm: str, names, types, g0: _Geometry) -> list[_Group]:
 def groups(nominal: State, arm: str) -> list[_Group]:
     """The derived quantities of ``arm``, their formulas chosen on the ``nominal`` state."""
     a, g0 = nominal.arms[arm], geometry(nominal, arm)
-    return _pair_groups(arm, a.joint_names, a.joint_types, g0) + _tool_groups(arm, a.joint_names, a.joint_types, g0)
+    return _pair_groups(arm, a.joint_names, a.joint_types, g0) + \
+        _tool_groups(arm, a.joint_names, a.joint_types, g0, nominal.mounts.get(arm))
 
 
 def names(arms_groups: dict) -> list[str]:

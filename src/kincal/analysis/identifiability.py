@@ -73,7 +73,8 @@ class Identifiability:
 
 
 def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol: float = 1e-9,
-             priority: Sequence[int] | None = None, report: bool = True) -> Identifiability:
+             priority: Sequence[int] | None = None, report: bool = True,
+             structural: np.ndarray | None = None) -> Identifiability:
     """The identifiability of the free coordinates at one linearization: the one entry point of the solver.
 
     Rank and null space of ``lin``'s whitened Jacobian with the exact symmetries held (the scale without a
@@ -81,6 +82,9 @@ def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol:
     a first joint axis, ``symmetries.rotation_nulls``). ``report``: also name the null directions in words
     (``naming``) and judge whether the data are degenerate; the solver's intermediate iterations need only the
     rank and null space. ``priority``: free-coordinate order for the pivots of the named directions.
+    ``structural`` (p, k): exact gauges of the start (natural units); those the estimate lifts only slightly
+    are reported as weakly identifiable with their names (``near_gauges``: a coupling of parallel axes, whose
+    exact gauge at the nominal model the estimated tilts of the axes lift a little).
     """
     names = [layout.names[i] for i in lin.free]
     scale = scale_null(lin, layout) if lin.every else None
@@ -90,7 +94,54 @@ def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol:
         return analyse(lin.Rf, names, rtol=rtol, priority=priority, scale=scale, held=held, gauges=gauges)
     ana = analyse(lin.Rf, names, rtol=rtol, scale=scale, priority=priority, held=held, gauges=gauges,
                   describe=describer(lin, layout, experiments), context=context(layout, experiments))
+    if structural is not None and structural.shape[1]:
+        ana = _with_lifted_gauges(ana, near_gauges(lin.Rf, structural))
     return replace(ana, degenerate=degenerate(lin.Rf, ana.rank, rtol, layout, lin.free))
+
+
+def coupling_gauges(state, first: "Identifiability | None") -> np.ndarray | None:
+    """The start's null basis when an arm has joint couplings (the ``structural`` of ``identify``), else None."""
+    coupled = any(getattr(a, "coupling", None) is not None for a in state.arms.values())
+    return first.null_space if coupled and first is not None else None
+
+
+NEAR_GAUGE_RTOL = 1e-2  # a start's exact gauge lifted to below this (relative singular value) is reported weak
+
+
+def near_gauges(J: np.ndarray, structural: np.ndarray, rtol: float = NEAR_GAUGE_RTOL) -> np.ndarray:
+    """The directions within span(``structural``) (p, k, natural units) whose relative singular value in the
+    column-scaled ``J`` is below ``rtol``: (p, j) natural units. Exact gauges of the nominal model that the
+    estimate lifts only by its own small deviations (three parallel axes coupled to sum to zero turn slightly
+    apart) rest on those deviations alone: little more than the noise determines them."""
+    Js, c = unit_columns(J)
+    G = _orth(c[:, None] * structural)
+    smax = np.linalg.norm(Js, 2) if Js.size else 0.0
+    if G.shape[1] == 0 or smax == 0:
+        return np.zeros((len(c), 0))
+    _, S, Vt = np.linalg.svd(Js @ G, full_matrices=False)
+    small = Vt[S < rtol * smax]
+    return (G @ small.T) / c[:, None]
+
+
+def _with_lifted_gauges(ana: Identifiability, near: np.ndarray) -> Identifiability:
+    """``ana`` with the directions of ``near`` (natural units) that are neither unidentifiable nor weak there
+    added to its weakly identifiable directions, named."""
+    known = np.column_stack([ana.null_space] + ([ana.weak_vectors] if ana.weak_vectors is not None else []))
+    Q = _orth(known) if known.shape[1] else known
+    new = []
+    for x in near.T:
+        x = x / np.linalg.norm(x)
+        if np.linalg.norm(x - Q @ (Q.T @ x)) > 0.5:  # a new dimension, not one already reported
+            new.append(x)
+            Q = _orth(np.column_stack([Q, x]))
+    if not new:
+        return ana
+    weak = tuple(_top_names(x, ana.names) for x in new)
+    words = [f"weakly identifiable direction (an exact gauge of the nominal model, e.g. of coupled parallel axes, "
+             f"that the estimate lifts only slightly; its estimate rests on little more than the noise): {w}"
+             for w in weak]
+    vectors = np.column_stack(([ana.weak_vectors] if ana.weak_vectors is not None else []) + new)
+    return replace(ana, weak=ana.weak + weak, weak_vectors=vectors, messages=ana.messages + tuple(words))
 
 
 def analyse(

@@ -11,6 +11,8 @@ import numpy as np
 from kincal.analysis.covariance import right_svd
 from kincal.analysis.linearization import Linearization, unit_columns
 from kincal.kinematics import chain
+from kincal.kinematics.model import lineage
+from kincal.kinematics.tree import composite
 from kincal.lie import se3
 from kincal.params import POSE, Block, Layout
 
@@ -81,11 +83,15 @@ def _joint_axes_and_frames(state, experiments) -> tuple[dict, dict]:
     axes, frames = {}, {}
     for e in experiments:
         for arm in e.arms:
-            a = state.arms[arm]
-            kin = chain(a.screws, e.dataset.q[arm][:1] + a.offsets, a.base, a.home, a.tool)
+            line = lineage(state.mounts, arm)  # a mounted arm's axes move with the arms carrying it
+            segs = [state.arms[s] for s in line]
+            comp = composite(segs)
+            theta = np.concatenate([e.dataset.q[s][:1] + a.offsets for s, a in zip(line, segs)], axis=-1)
+            kin = chain(comp.screws, theta, comp.base, comp.home, comp.tool)
             Ad = se3.adjoint(kin.prefixes[0, :-1])
-            for j, jn in enumerate(a.joint_names):
-                axes.setdefault(f"{arm}.{jn}", Ad[j] @ a.screws[j])
+            names = [f"{s}.{jn}" for s, a in zip(line, segs) for jn in a.joint_names]
+            for j, jn in enumerate(names):
+                axes.setdefault(jn, Ad[j] @ comp.screws[j])
         for role, G in e.increment_frames(state).items():
             frames[e.frames[role]] = G
     return axes, frames

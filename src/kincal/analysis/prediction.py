@@ -29,8 +29,9 @@ from kincal.errors import ModelError, ShapeError
 from kincal.analysis.columns import scatter_columns
 from kincal.analysis.error_budget import measurement_noise, model_error
 from kincal.analysis.linalg import svd
-from kincal.experiments._kernel import point_jacobian
+from kincal.experiments._kernel import ARM_PARTS, point_jacobian, tree_jacobians, tree_kin
 from kincal.kinematics import chain, loaded_chain, tool_jacobians
+from kincal.kinematics.model import lineage
 from kincal.lie import se3
 from kincal.noise import Noise
 from kincal.schema import BETWEEN, TOOL, WORLD, schema_of
@@ -118,8 +119,12 @@ def tool_jacobian(result, q, arm: str, with_jq: bool = False, wrench: np.ndarray
     world-frame left increment per free local coordinate of ``result`` (columns in ``result.covariance``
     order; experiment frames get zero columns); ``with_jq``: also the one w.r.t. the joint readings (N, 6, n).
     ``wrench`` (N, 6): the loads on the tool (tool frame, as data's ``wrench_tool``), which deflect compliant
-    joints as in the experiments: the compliances then move the tool (None: unloaded, they do not)."""
+    joints as in the experiments: the compliances then move the tool (None: unloaded, they do not).
+    A mounted arm (``Robot.mounts``) takes ``q`` as a mapping arm -> readings over its lineage; its Jacobian
+    covers the carriers' blocks, and the readings' one their joints too (lineage order)."""
     a = _arm_values(result, arm)
+    if len(lineage(result.state.mounts, arm)) > 1:
+        return _tree_tool_jacobian(result, q, arm, with_jq, wrench)
     q = _joints(q, a, arm)
     if wrench is None:
         kin = chain(a.screws, q + a.offsets, a.base, a.home, a.tool)
@@ -132,6 +137,19 @@ def tool_jacobian(result, q, arm: str, with_jq: bool = False, wrench: np.ndarray
     J = scatter_columns({f"{arm}.{part}": Jb for part, Jb in blocks.items()}, layout, np.flatnonzero(layout.free),
                         (len(q), 6))
     return (kin.tool, J, jq) if with_jq else (kin.tool, J)
+
+
+def _tree_tool_jacobian(result, q, arm: str, with_jq: bool, wrench=None):
+    line = lineage(result.state.mounts, arm)
+    if not isinstance(q, dict) or any(s not in q for s in line):
+        raise ShapeError(f"q: arm '{arm}' is mounted on {', '.join(line[:-1])}: expected readings of {', '.join(line)}")
+    q = {s: _joints(q[s], result.state.arms[s], s) for s in line}
+    kin = tree_kin(result.state, line, q, None if wrench is None else _loads(wrench, len(q[arm]), arm))
+    blocks, jqs = {}, {}
+    tree_jacobians(result.state, line, q, kin, np.broadcast_to(np.eye(6), (len(q[arm]), 6, 6)),
+                   {s: ARM_PARTS for s in line}, with_jq, blocks, jqs)
+    J = scatter_columns(blocks, result.layout, np.flatnonzero(result.layout.free), (len(q[arm]), 6))
+    return (kin.tool, J, np.concatenate([jqs[s] for s in line], axis=-1)) if with_jq else (kin.tool, J)
 
 
 def predicted_accuracy(result, q, arm: str, *, register: bool = True, register_tool: bool = False,
@@ -228,7 +246,8 @@ def validation_predictions(result, datasets, noise=()) -> tuple[tuple[str, Predi
             continue  # fitting its frame absorbs a single pose whole: nothing to predict or validate
         for arm in ds.arms:
             if arm in result.state.arms:  # an arm the calibration did not involve was not estimated
-                out.append((ds.name, predicted_accuracy(result, ds.q[arm], arm, register=register,
+                q = dict(ds.q) if arm in result.state.mounts else ds.q[arm]  # a mounted arm: with its carriers'
+                out.append((ds.name, predicted_accuracy(result, q, arm, register=register,
                                                         register_tool=register_tool, noise=nz,
                                                         wrench=ds.measured.get("wrench_tool"))))
     return tuple(out)

@@ -17,6 +17,7 @@ from kincal.analysis.covariance import right_svd
 from kincal.analysis.linalg import lstsq, svd
 from kincal.analysis.linearization import Linearization, unit_columns
 from kincal.kinematics import REVOLUTE
+from kincal.kinematics.model import lineage
 from kincal.lie import se3
 from kincal.params import Layout, scale_direction
 from kincal.schema import WORLD
@@ -68,7 +69,9 @@ def rotation_nulls(lin: Linearization, layout: Layout, experiments: Sequence) ->
     col = {int(i): k for k, i in enumerate(lin.free)}
     out = []
     for arm, a in lin.state.arms.items():
-        exps = [e for e in experiments if arm in e.arms]
+        if arm in lin.state.mounts:
+            continue  # a mounted arm's first axis moves with the arm carrying it: the root's turns the world
+        exps = [e for e in experiments if _carries(lin.state, arm, e)]
         if not exps or any(len(e.arms) > 1 for e in exps):
             continue  # another arm in the loop does not turn along
         i1 = layout.index(f"{arm}.{a.joint_names[0]}.offset")
@@ -84,6 +87,11 @@ def rotation_nulls(lin: Linearization, layout: Layout, experiments: Sequence) ->
         if np.linalg.norm(Jg - t) <= 1e-6 * (np.sum(np.linalg.norm(lin.J, axis=0) * np.abs(gf)) + np.linalg.norm(t)):
             out.append(gf)
     return out
+
+
+def _carries(state, arm: str, e) -> bool:
+    """Whether ``arm`` is one of the experiment's arms or carries one (``Robot.mounts``)."""
+    return any(arm in lineage(state.mounts, b) for b in e.arms)
 
 
 def _turned_frames(lin: Linearization, layout: Layout, exps, xi: np.ndarray, i1: int) -> np.ndarray | None:
@@ -108,7 +116,7 @@ def _turned_residuals(lin: Linearization, experiments, arm: str, w: np.ndarray) 
     target = []
     for e, W, r in zip(experiments, lin.W, lin.residuals):
         t = np.zeros_like(r)
-        if e.WORLD_VECTOR and arm in e.arms:
+        if e.WORLD_VECTOR and _carries(lin.state, arm, e):
             t = np.cross(w, r)
         target.append((W @ t[:, :, None]).ravel())
     target.append(np.zeros(len(lin.r) - sum(len(x) for x in target)))
@@ -171,7 +179,7 @@ def structure_key(lin: Linearization, layout: Layout, experiments: Sequence, rto
     for e, W, r in zip(experiments, lin.W, lin.residuals):
         m += r.size
         h.update(repr((type(e).__name__, e.kind, e.arms, sorted(dict(e.frames).items()))).encode())
-        for a in e.arms:
+        for a in sorted(e.dataset.q):  # the data set's arms and those carrying them
             h.update(np.ascontiguousarray(e.dataset.q[a], dtype=float).tobytes())
         for name, value in sorted(e.dataset.known.items()):  # known frames enter the Jacobian
             h.update(name.encode() + np.ascontiguousarray(value, dtype=float).tobytes())
@@ -219,12 +227,13 @@ def consistent_readings(e, state, W, enough: float = 0.0):
         if size <= enough or size > 0.1 * before or not res.jq:
             break
         before, last = size, e
-        A = np.concatenate([W @ res.jq[a] for a in e.arms], axis=-1)
+        arms = list(res.jq)  # the data set's arms and any arm carrying them (a torso)
+        A = np.concatenate([W @ res.jq[a] for a in arms], axis=-1)
         dq = -_min_norm_solve(A, wr)[:, :, 0]
         if not np.all(np.isfinite(dq)):
             break
-        cuts = np.cumsum([0] + [res.jq[a].shape[-1] for a in e.arms])
-        q = {a: e.dataset.q[a] + dq[:, cuts[k]: cuts[k + 1]] for k, a in enumerate(e.arms)}
+        cuts = np.cumsum([0] + [res.jq[a].shape[-1] for a in arms])
+        q = {**e.dataset.q, **{a: e.dataset.q[a] + dq[:, cuts[k]: cuts[k + 1]] for k, a in enumerate(arms)}}
         e = type(e)(replace(e.dataset, q=q), e.frames)
     return e
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from kincal.analysis import Identifiability, Linearization, correlated_pairs, covariance, identify
+from kincal.analysis.identifiability import coupling_gauges
 from kincal.analysis.naming import block_of
 from kincal.estimation import steps
 from kincal.estimation.gauge import gauge_basis
@@ -44,7 +45,8 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
     if lin is None:  # the loop stopped after a step: linearize the final state
         lin = steps.linearize(problem, run.state, None if problem.joint_noise else run.whiteners,
                               scale_test_needed(problem))
-    ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=list(run.order))
+    ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=list(run.order),
+                   structural=coupling_gauges(run.state, run.first))
     weights, slopes = robust_weights(lin.r, options.loss, options.f_scale)
     dof = len(lin.r) - ana.rank
     sigma2, sw = noise_variance_factor(problem, lin, ana, weights, slopes)

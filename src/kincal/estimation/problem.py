@@ -84,8 +84,8 @@ class Problem:
         require_memory(datasets)  # before frames are guessed from the data (forward kinematics of every sample)
         nominal_arms = State.from_robot(robot)
         exps, extras, unknown = build_experiments(datasets, nominal_arms)
-        arms = [a for a in robot.arms if any(a in e.arms for e in exps)]
-        nominal = State({a: nominal_arms.arms[a] for a in arms}, extras, frame_kinds(exps))
+        arms = [a for a in robot.arms if any(a in robot.lineage(b) for e in exps for b in e.arms)]  # with ancestors
+        nominal = State({a: nominal_arms.arms[a] for a in arms}, extras, frame_kinds(exps), robot.mounts)
         layout = build_layout(nominal, free, fixed=fixed, priors=priors, free_extras=unknown, arms=arms)
         require_memory(datasets, int(layout.free.sum()))  # before the solve allocates anything of the data's size
         for name in unknown:

@@ -21,6 +21,7 @@ import numpy as np
 from kincal.data import Dataset
 from kincal.errors import DataFormatError
 from kincal.experiments.base import KINDS, Experiment, Residual
+from kincal.kinematics.model import lineage
 from kincal.experiments.sharing import frame_kinds, frame_names, frame_values
 from kincal.params import State
 
@@ -39,19 +40,24 @@ __all__ = ["Experiment", "KINDS", "Residual", "build", "check_joints", "frame_ki
 
 
 def check_joints(ds: Dataset, state: State) -> None:
-    """Every arm of the data set exists in the model with the same number of joints."""
+    """Every arm of the data set, and every arm carrying one (``Robot.mounts``), exists in the model with the same
+    number of joints and has readings in the data set."""
     for arm in ds.arms:
         if arm not in state.arms:
             raise DataFormatError(
                 f"data set '{ds.name}': arm '{arm}' is not in the model (arms: {', '.join(state.arms)})"
             )
-        a = state.arms[arm]
-        n = ds.q[arm].shape[1]
-        if n != a.dof:
-            raise DataFormatError(
-                f"data set '{ds.name}': field q[{arm}] has {n} joints per sample, expected {a.dof} "
-                f"({', '.join(a.joint_names)}) for arm '{arm}' of the model"
-            )
+        for carrier in lineage(state.mounts, arm):
+            if carrier not in ds.q:
+                raise DataFormatError(f"data set '{ds.name}': field q[{carrier}]: no readings of arm '{carrier}', "
+                                      f"which carries arm '{arm}'; expected its joint readings in the data set")
+            a = state.arms[carrier]
+            n = ds.q[carrier].shape[1]
+            if n != a.dof:
+                raise DataFormatError(
+                    f"data set '{ds.name}': field q[{carrier}] has {n} joints per sample, expected {a.dof} "
+                    f"({', '.join(a.joint_names)}) for arm '{carrier}' of the model"
+                )
 
 
 def build(datasets: Sequence[Dataset], state: State) -> tuple[list[Experiment], dict[str, object], list[str]]:

@@ -7,8 +7,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from kincal.kinematics import Kinematics
-from kincal.kinematics.jacobians import TOOL_PARTS, tool_jacobians
+from kincal.kinematics import Kinematics, chain, loaded_chain
+from kincal.kinematics.jacobians import TOOL_PARTS, insertion_jacobians, tool_jacobians
+from kincal.kinematics.tree import composite, insertion_points
 from kincal.lie import se3, so3
 from kincal.params import ArmValues
 
@@ -21,6 +22,83 @@ def arm_jacobians(a: ArmValues, kin: Kinematics, G: np.ndarray, parts=ARM_PARTS,
     angle-dependent compliance needs (``ArmValues.compliance_basis``)."""
     basis = None if q is None else a.compliance_basis(q)
     return tool_jacobians(kin, G, a.screws, a.generators, a.joint_compliance, parts, with_jq, basis)
+
+
+def coupled(a: ArmValues, gq: np.ndarray) -> np.ndarray:
+    """``G @ J_q`` w.r.t. the arm's free readings: through its couplings (coupled joints' columns zero)."""
+    return gq if a.coupling is None else gq @ a.coupling
+
+
+def tree_kin(state, line, q, w=None) -> Kinematics:
+    """Kinematics of the composite chain of the arms ``line`` (root first, ``kincal.kinematics.tree``) at readings
+    ``q`` (arm -> (N, n)), deflected by the tool loads ``w`` (N, 6) if given (every segment's joints yield)."""
+    segs = [state.arms[s] for s in line]
+    comp = composite(segs)
+    theta0 = np.concatenate([q[s] + a.offsets for s, a in zip(line, segs)], axis=-1)
+    if w is None:
+        return chain(comp.screws, theta0, comp.base, comp.home, comp.tool)
+    cs = [a.compliance_at(q[s]) for s, a in zip(line, segs)]  # (n_k,), or (N, n_k) with angle-dependent ones
+    if any(x.ndim == 2 for x in cs):
+        cs = [np.broadcast_to(x, (len(theta0), x.shape[-1])) for x in cs]
+    c = np.concatenate(cs, axis=-1)
+    return loaded_chain(comp.screws, theta0, comp.base, comp.home, comp.tool, c, w)
+
+
+def _tree_compliance(segs, qs):
+    """The composite chain's compliance coefficients and basis (block diagonal; None when no joint has nodes)."""
+    coeffs = np.concatenate([a.joint_compliance for a in segs])
+    if not any(a.compliance_nodes for a in segs):
+        return coeffs, None
+    N = len(qs[0])
+    parts = [a.compliance_basis(q) or (np.broadcast_to(np.eye(a.dof), (N, a.dof, a.dof)), np.zeros((N, a.dof, a.dof)))
+             for a, q in zip(segs, qs)]
+    W = np.zeros((N, sum(a.dof for a in segs), len(coeffs)))
+    S = np.zeros_like(W)
+    r = c = 0
+    for Wk, Sk in parts:
+        W[:, r: r + Wk.shape[1], c: c + Wk.shape[2]] = Wk
+        S[:, r: r + Wk.shape[1], c: c + Wk.shape[2]] = Sk
+        r, c = r + Wk.shape[1], c + Wk.shape[2]
+    return coeffs, (W, S)
+
+
+def _add(out: dict, key: str, J: np.ndarray) -> None:
+    out[key] = out[key] + J if key in out else J
+
+
+def tree_jacobians(state, line, q, kin, G, parts, jq: bool, out: dict, jqs: dict) -> None:
+    """Blocks of every arm of ``line`` (root first; ``parts[arm]``: the wanted parts) for the tip's left
+    increment derivative G at readings ``q`` (arm -> (N, n)), added to ``out``; ``G @ J_q`` per arm added to
+    ``jqs`` (if ``jq``)."""
+    segs = [state.arms[s] for s in line]
+    comp = composite(segs)
+    coeffs, basis = _tree_compliance(segs, [q[s] for s in line])
+    wanted = set().union(*parts.values())
+    cparts = [p for p in ("offsets", "twists", "compliance") if p in wanted]
+    cparts += ["base"] * ("base" in parts[line[0]]) + [p for p in ("home", "tool") if p in parts[line[-1]]]
+    gens = comp.generators([a.generators for a in segs])
+    blocks, gq = tool_jacobians(kin, G, comp.screws, gens, coeffs, cparts, jq, basis)
+    widths = {"offsets": None, "twists": [sum(g.shape[1] for g in a.generators) for a in segs],
+              "compliance": [len(a.joint_compliance) for a in segs]}
+    for p, w in widths.items():
+        if p in blocks:
+            for s, J in zip(line, comp.split(blocks[p], w)):
+                if p in parts[s]:
+                    _add(out, f"{s}.{p}", J)
+    if "base" in blocks:
+        _add(out, f"{line[0]}.base", blocks["base"])
+    if "tool" in blocks:
+        _add(out, f"{line[-1]}.tool", blocks["tool"])
+    if "home" in blocks:
+        _add(out, f"{line[-1]}.home", blocks["home"] @ se3.adjoint(comp.frames[-1]))
+    pts = [(k, p, m, X) for k, p, m, X in insertion_points(comp, segs) if p in parts[line[k]]]
+    if pts:
+        Js = insertion_jacobians(kin, G, comp.screws, [(m, X) for _, _, m, X in pts], coeffs, basis)
+        for (k, p, _, _), J in zip(pts, Js):
+            _add(out, f"{line[k]}.{p}", J)
+    if jq:
+        for s, a, J in zip(line, segs, comp.split(gq)):
+            _add(jqs, s, coupled(a, J))
 
 
 def pose_gap(TA: np.ndarray, TB: np.ndarray):

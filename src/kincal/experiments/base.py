@@ -13,8 +13,9 @@ from typing import ClassVar, Mapping
 import numpy as np
 
 from kincal.data import Dataset
-from kincal.experiments._kernel import ARM_PARTS, arm_jacobians
+from kincal.experiments._kernel import ARM_PARTS, arm_jacobians, coupled, tree_jacobians, tree_kin
 from kincal.kinematics import Kinematics, chain, loaded_chain
+from kincal.kinematics.model import lineage
 from kincal.noise import Quantity
 from kincal.params import State
 from kincal.schema import NONE, Field, Schema, register
@@ -137,7 +138,11 @@ class Experiment:
         return role in self.frames and (want is None or self.frames[role] in want)
 
     def _kin(self, state: State, arm: str) -> Kinematics:
-        """The arm's kinematics at the data's readings; deflected by ``wrench_tool`` when the data has loads."""
+        """The arm's kinematics at the data's readings (the composite chain through its ancestors when mounted,
+        ``kincal.kinematics.tree``); deflected by ``wrench_tool`` when the data has loads."""
+        line = lineage(state.mounts, arm)
+        if len(line) > 1:
+            return tree_kin(state, line, self.dataset.q, self.dataset.measured.get("wrench_tool"))
         a = state.arms[arm]
         theta0 = self.dataset.q[arm] + a.offsets
         w = self.dataset.measured.get("wrench_tool")
@@ -152,11 +157,18 @@ class Experiment:
     def _arm_jac(self, state: State, arm: str, kin: Kinematics, G: np.ndarray, want, jq: bool, out: dict,
                  jqs: dict) -> None:
         """Add ``{arm.part: G @ J_part}`` to ``out`` and ``G @ J_q`` to ``jqs[arm]`` (if asked); G (N, k, 6) is
-        the residual's derivative w.r.t. the left increment of ``T_world_tool``."""
+        the residual's derivative w.r.t. the left increment of ``T_world_tool``. A mounted arm adds its
+        ancestors' blocks and readings too (added to what another arm of the data set put there)."""
+        line = lineage(state.mounts, arm)
+        if len(line) > 1:
+            parts = {s: self._parts(s, want) for s in line}
+            if any(parts.values()) or jq:
+                tree_jacobians(state, line, self.dataset.q, kin, G, parts, jq, out, jqs)
+            return
         parts = self._parts(arm, want)
         if not parts and not jq:
             return
         blocks, gq = arm_jacobians(state.arms[arm], kin, G, parts, with_jq=jq, q=self.dataset.q[arm])
         out.update({f"{arm}.{p}": J for p, J in blocks.items()})
         if jq:
-            jqs[arm] = gq
+            jqs[arm] = coupled(state.arms[arm], gq)

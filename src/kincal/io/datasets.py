@@ -41,6 +41,7 @@ from kincal.io.models import _Ctx, _mapping, _matrix, _number, _pose, _vector, l
 from kincal.io.references import model_reference, resolve, same_model
 from kincal.io.yamlfile import clip, quote, read_yaml
 from kincal.kinematics import PRISMATIC, Robot
+from kincal.kinematics.couplings import derive_readings
 from kincal.lie import se3
 from kincal.lie.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix
 from kincal.params import State, build_layout
@@ -112,11 +113,7 @@ def load_dataset(manifest, robot: Robot | None = None, *, job_model: str | None 
     noise = units.noise_from_file(top.get("noise") or {}, f"{ctx.file}: noise").as_si()
     csv_path = resolve(manifest, str(top["data"]), f"{manifest}: data", root)
     table = read_table(csv_path, integer={c for f in schema.measured if f.form == "index" for c in f.columns})
-    q = {}
-    for a in arms:
-        model = robot[a]
-        f = np.array([ctx.length if t == PRISMATIC else ctx.angle for t in model.joint_types])
-        q[a] = table.take([f"{a}.{j}" for j in model.joint_names]) * f
+    q = _readings(ctx, table, robot, arms)
     measured = _measured(ctx, schema, table, known)
     meta = {"noise": noise, "manifest": str(manifest), "description": top.get("description", ""),
             "file": str(csv_path), "lines": table.lines,  # header = line 1
@@ -135,6 +132,35 @@ def load_dataset(manifest, robot: Robot | None = None, *, job_model: str | None 
         raise DataFormatError(f"{manifest}: {exc}") from None
     _plausible_units(ctx, table, robot, ds, u)
     return ds
+
+
+COUPLING_TOL = 1e-4  # rad or m: a given reading of a coupled joint must agree this well with the derived one
+
+
+def _readings(ctx, table: Table, robot: Robot, arms) -> dict[str, np.ndarray]:
+    """Joint readings (SI) of the data set's arms and of every arm carrying them (``<torso>.<joint>`` columns on
+    a tree-structured robot). A coupled joint's column may be absent (its reading is derived from the joints it
+    depends on) or given (then checked against the derived value within ``COUPLING_TOL``, and the derived value
+    kept, so the coupling holds exactly)."""
+    q = {}
+    for a in [c for arm in arms for c in robot.lineage(arm)]:
+        if a in q:
+            continue
+        model = robot[a]
+        f = np.array([ctx.length if t == PRISMATIC else ctx.angle for t in model.joint_types])
+        free = [i for i, j in enumerate(model.joint_names) if j not in model.couplings or f"{a}.{j}" in table.header]
+        qa = np.zeros((len(table.lines), model.dof))
+        qa[:, free] = table.take([f"{a}.{model.joint_names[i]}" for i in free]) * f[free]
+        q[a] = derive_readings(model.couplings, model.joint_names, qa)
+        for i in free:
+            bad = np.flatnonzero(np.abs(q[a][:, i] - qa[:, i]) > COUPLING_TOL)
+            if bad.size:
+                r, j = bad[0], model.joint_names[i]
+                raise DataFormatError(f"{table.path}: line {table.lines[r]}, column '{a}.{j}': reading "
+                                      f"{qa[r, i] / f[i]:.6g} disagrees with the coupling of {j} "
+                                      f"({q[a][r, i] / f[i]:.6g} from the joints it follows; model field "
+                                      f"arms.{a}.couplings.{j})")
+    return q
 
 
 def _plausible_units(ctx, table: Table, robot: Robot, ds: Dataset, u: dict) -> None:
@@ -439,7 +465,7 @@ def write_dataset(
     if "t" in ds.meta:
         header.append("t")
         cols.append(np.asarray(ds.meta["t"], dtype=float)[:, None])
-    for a in ds.arms:
+    for a in ds.q:  # the data set's arms, then those carrying them (a torso)
         m = robot[a]
         header += [f"{a}.{j}" for j in m.joint_names]
         f = np.array([fl if t == PRISMATIC else fa for t in m.joint_types])
@@ -483,8 +509,8 @@ def write_truth(truth, directory, dataset: Dataset, *, overwrite: bool = False) 
         yaml.safe_dump(content, fh, sort_keys=False, default_flow_style=None, width=120)
     with open(_new_file(directory / "q_true.csv", overwrite), "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh, lineterminator="\n")
-        w.writerow([f"{a}.{j}" for a in dataset.arms for j in truth.robot[a].joint_names])
-        for row in np.concatenate([truth.q[a] for a in dataset.arms], axis=1):
+        w.writerow([f"{a}.{j}" for a in truth.q for j in truth.robot[a].joint_names])
+        for row in np.concatenate([truth.q[a] for a in truth.q], axis=1):
             w.writerow([_fmt(x) for x in row])
     return directory
 

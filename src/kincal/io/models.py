@@ -42,7 +42,8 @@ NEGATIVE_HINT = ("; a calibrated model's estimates below 0 load with 'allow_nega
                  "(kincal writes it)")
 
 _TOP_KEYS = {"format", "version", "name", "units", "meta", "arms", "orthonormalize"}
-_ARM_KEYS = {"joints", "base", "home", "tool", "controller_order", "meta", "allow_negative_compliance"}
+_ARM_KEYS = {"joints", "base", "home", "tool", "controller_order", "meta", "allow_negative_compliance",
+             "mount", "couplings"}
 _JOINT_KEYS = {"name", "type", "axis", "point", "twist", "offset", "limits", "gear_ratio", "compliance"}
 _POSE_KEYS = {"matrix", "xyz", "rpy", "quaternion_wxyz", "rotation", "orthonormalize"}
 
@@ -136,7 +137,11 @@ def robot_from_dict(data: Any, file: str = "<dict>", *, warn: bool = True) -> Ro
         arm_name = _string(ctx, arm_name, f"arms.{arm_name}")
         arms[arm_name] = _arm(ctx, arm_name, arm_data, f"arms.{arm_name}")
     meta = _meta(ctx, top.get("meta", {}), "meta")
-    return Robot(name, arms, meta)
+    mounts = _mounts(ctx, arms_data, arms)
+    try:
+        return Robot(name, arms, meta, mounts)
+    except KincalError as exc:
+        raise ctx.fail(f"arms.{_cycle_arm(exc, mounts)}.mount", str(exc)) from None
 
 
 def _arm(ctx: _Ctx, name: str, data: Any, path: str) -> ArmModel:
@@ -173,9 +178,58 @@ def _arm(ctx: _Ctx, name: str, data: Any, path: str) -> ArmModel:
             joint_types=tuple(p["type"] for p in parsed),
             meta=meta,
             allow_negative_compliance=negative,
+            couplings=_couplings(ctx, d.get("couplings"), dict(zip(names, (p["type"] for p in parsed))),
+                                 f"{path}.couplings"),
         )
     except KincalError as exc:  # cross-field problems the per-field checks cannot see
         raise ctx.fail(path, str(exc)) from None
+
+
+def _mounts(ctx: _Ctx, arms_data: dict, arms: dict) -> dict[str, str]:
+    """``mount: <parent arm>`` of each arm (docs/model-format.md, "Tree-structured robots")."""
+    out = {}
+    for arm_name, arm_data in arms_data.items():
+        if isinstance(arm_data, dict) and "mount" in arm_data:
+            path = f"arms.{arm_name}.mount"
+            parent = arm_data["mount"]
+            if not isinstance(parent, str) or parent not in arms:
+                raise ctx.fail(path, f"expected the name of another arm ({', '.join(arms)}), found {quote(parent)}")
+            if parent == arm_name:
+                raise ctx.fail(path, "an arm cannot be mounted on itself")
+            out[arm_name] = parent
+    return out
+
+
+def _cycle_arm(exc: Exception, mounts: dict) -> str:
+    """The arm a Robot's mount error names (``arm '<name>'``), for the field path of the message."""
+    return next((a for a in mounts if f"arm '{a}'" in str(exc)), next(iter(mounts), "?"))
+
+
+def _couplings(ctx: _Ctx, data: Any, types: dict[str, str], path: str) -> dict | None:
+    """``couplings: {joint: {other joint: coefficient, constant: c}}``: coefficients are plain numbers, a
+    constant is in the coupled joint's unit (the file's angle unit, or length unit for a prismatic joint)."""
+    names = list(types)
+    if data is None:
+        return None
+    if not isinstance(data, dict) or not data:
+        raise ctx.fail(path, f"expected a mapping joint -> {{joint: coefficient}}, found {_kind(data)}")
+    out = {}
+    for joint, terms in data.items():
+        at = _join(path, joint)
+        if joint not in names:
+            raise ctx.fail(at, f"expected a joint of this arm ({', '.join(names)}), found {quote(joint)}")
+        if not isinstance(terms, dict) or not terms:
+            raise ctx.fail(at, f"expected a mapping joint -> coefficient, found {_kind(terms)}")
+        row = {}
+        for other, coef in terms.items():
+            where = _join(at, other)
+            if other != "constant" and other not in names:
+                raise ctx.fail(where, f"expected a joint of this arm ({', '.join(names)}) or 'constant', "
+                                      f"found {quote(other)}")
+            unit = (ctx.angle if types[joint] == REVOLUTE else ctx.length) if other == "constant" else 1.0
+            row[other] = _number(ctx, coef, where) * unit
+        out[joint] = row
+    return out
 
 
 def _joint(ctx: _Ctx, data: Any, path: str, index: int, negative: bool = False) -> dict:
@@ -447,7 +501,8 @@ def robot_to_dict(robot: Robot) -> dict:
         "name": robot.name,
         "units": {"length": "m", "angle": "rad"},
         **({"meta": _plain(robot.meta)} if robot.meta else {}),
-        "arms": {key: _arm_to_dict(arm) for key, arm in robot.arms.items()},
+        "arms": {key: {**({"mount": robot.mounts[key]} if key in robot.mounts else {}), **_arm_to_dict(arm)}
+                 for key, arm in robot.arms.items()},
     }
 
 
@@ -478,6 +533,8 @@ def _arm_to_dict(arm: ArmModel) -> dict:
         out["controller_order"] = [arm.joint_names[i] for i in arm.controller_order]
     if arm.meta:
         out["meta"] = _plain(arm.meta)
+    if arm.couplings:
+        out["couplings"] = {j: dict(t) for j, t in arm.couplings.items()}
     out["joints"] = joints
     return out
 

@@ -8,6 +8,12 @@ Revolute/prismatic limits are kept (missing lower/upper attributes mean unlimite
 are unlimited. URDF axes are normalized (URDF
 treats ``axis`` as a direction). Mimic, floating and planar joints are refused.
 
+Branched URDFs (``tree_from_urdf``): one base link and several tip links (given, or every leaf link) become a
+``Robot`` with mounted arms (``Robot.mounts``), split at the links where the tips' chains part: the chain from
+the base to the first such link is an arm of its own (a torso, named after that link), and each arm below it is
+mounted on it with ``base`` = identity (its chain starts at the torso's end link, which is the torso's home).
+A segment without moving joints is folded into the bases of the segments below it.
+
 Export (``to_urdf``): one link per joint (named ``<joint>_link``), every joint frame parallel to the arm base
 frame at q = 0,
 so axes are generally not along z; joint offsets are folded into the origins
@@ -22,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from kincal.errors import DataFormatError, ModelError
-from kincal.kinematics.model import PRISMATIC, REVOLUTE, ArmModel
+from kincal.kinematics.model import PRISMATIC, REVOLUTE, ArmModel, Robot
 from kincal.lie import se3
 from kincal.lie.rotations import matrix_to_rpy
 
@@ -118,6 +124,53 @@ def from_urdf(source, base_link: str, tip_link: str, *, name: str | None = None,
     model_fields.setdefault("upper", upper)
     return ArmModel(name or f"{base_link}->{tip_link}", np.array(screws), T, joint_names=tuple(names),
                     joint_types=tuple(types), **model_fields)
+
+
+def tree_from_urdf(source, base_link: str, tips: dict[str, str] | None = None, *, name: str | None = None) -> Robot:
+    """A tree-structured Robot from a branched URDF: ``tips`` maps arm name -> tip link (default: every leaf link,
+    each arm named after its link). Arms are split at the links where the tips' chains part (module docstring);
+    joint names are the URDF's."""
+    robot, label = _load(source)
+    if tips is None:
+        parents = {j.parent for j in robot.joint_map.values()}
+        tips = {link: link for link in robot.link_map if link not in parents and link != base_link}
+    if not tips:
+        raise DataFormatError(f"{label}: no tip link below base_link {base_link!r}")
+    paths = {arm: [base_link] + [j.child for j in _chain(robot, base_link, tip, label)] for arm, tip in tips.items()}
+    splits = {_common(paths[a], paths[b])[-1] for a in paths for b in paths if a < b}
+    arms, mounts, carried = {}, {}, {}
+    for arm, path in paths.items():
+        cuts = [base_link] + [link for link in path[1:-1] if link in splits] + [path[-1]]
+        for start, end in zip(cuts[:-1], cuts[1:]):
+            key = arm if end == path[-1] else end
+            if key in arms or key in carried:
+                continue
+            base = carried.get(start, np.eye(4))  # a fixed segment above folds into this base
+            parent = next((k for k in arms if k == start), None)
+            try:
+                arms[key] = from_urdf(source, start, end, name=key, base=base)
+            except DataFormatError as exc:
+                if "no moving joint" not in str(exc):
+                    raise
+                carried[end] = base @ _fixed(robot, start, end, label)
+                continue
+            if parent is not None:
+                mounts[key] = parent
+    return Robot(name or robot.robot.name, arms, {"source": f"{label} (branched URDF from {base_link})"}, mounts)
+
+
+def _common(a: list, b: list) -> list:
+    """The common start of two link paths."""
+    n = next((i for i, (x, y) in enumerate(zip(a, b)) if x != y), min(len(a), len(b)))
+    return a[:n]
+
+
+def _fixed(robot, start: str, end: str, label: str) -> np.ndarray:
+    """``T_start_end`` of a chain of fixed joints."""
+    T = np.eye(4)
+    for joint in _chain(robot, start, end, label):
+        T = T @ (np.eye(4) if joint.origin is None else np.asarray(joint.origin, dtype=float))
+    return T
 
 
 def _origin_xml(T: np.ndarray) -> str:

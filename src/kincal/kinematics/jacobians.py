@@ -117,6 +117,34 @@ def torque_derivatives(kin: LoadedKinematics, generators: Sequence[np.ndarray], 
     return out
 
 
+def insertion_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, at, compliance=None,
+                        basis=None) -> list[np.ndarray]:
+    """``G @ d T_world_tool / d X_i`` (N, k, 6) per rigid transform ``X_i`` inserted in the chain: ``at`` lists
+    (m, F) with the transform at ``P_m F`` (prefix after m joints, F a constant), perturbed on the left there
+    (``F -> exp(d) F``, as ``home`` is at m = n). Under a load the torques of the joints before the insertion
+    change too (``insertion_torques``); ``compliance``/``basis`` as in ``tool_jacobians``."""
+    N, k = G.shape[:2]
+    P = np.stack([kin.prefixes[:, m] @ F for m, F in at], axis=1)
+    out = list(_project_prefixes(G, P).reshape(len(at), N, k, 6))
+    if not isinstance(kin, LoadedKinematics) or compliance is None:
+        return out
+    c = compliance if basis is None else basis[0] @ compliance
+    if not np.any(c):
+        return out
+    n = screws.shape[0]
+    jq = np.moveaxis((_project_prefixes(G, kin.prefixes[:, :n]) @ screws[:, :, None])[..., 0].reshape(n, N, k), 0, -1)
+    cjq = jq * np.asarray(c)[..., None, :]
+    return [J + cjq @ insertion_torques(kin, m, F) for J, (m, F) in zip(out, at)]
+
+
+def insertion_torques(kin: LoadedKinematics, m: int, F: np.ndarray) -> np.ndarray:
+    """``dtau/dd`` (N, n, 6) for a rigid transform at ``P_m F`` of the unloaded chain moved by ``exp(d)``: the
+    joints after it move with the tool (no change), those before it see the load turn (``h_i Ad(P_m F)``)."""
+    H = np.einsum("Ni,Nkij->Nkj", kin.wrench_space, se3.ad(kin.axes))  # (N, n, 6): h_i
+    before = (np.arange(H.shape[1]) < m)[None, :, None]
+    return (H * before) @ se3.adjoint(kin.unloaded.prefixes[:, m] @ F)
+
+
 def _add_compliance(kin: LoadedKinematics, generators, k_c: np.ndarray, basis, jq: np.ndarray, out: dict,
                     parts) -> np.ndarray:
     """Add the compliance block and the ``c * dtau/dp`` terms to ``out`` (in place); returns the corrected

@@ -10,6 +10,7 @@ import numpy as np
 
 from kincal._validate import as_array, check_transform
 from kincal.errors import ModelError
+from kincal.kinematics.couplings import checked_couplings
 from kincal.lie import se3
 
 REVOLUTE = "revolute"
@@ -84,6 +85,8 @@ class ArmModel:
     compliance: np.ndarray | None = None
     compliance_nodes: Mapping[str, np.ndarray] | None = None
     allow_negative_compliance: bool = False
+    # --- joint couplings (kincal.kinematics.couplings): joint -> {other joint: coefficient, "constant": c}
+    couplings: Mapping[str, Mapping[str, float]] | None = None
 
     def __post_init__(self) -> None:
         where = f"arm '{self.name}'"
@@ -149,6 +152,7 @@ class ArmModel:
             raise ModelError(f"{where}: controller_order must be a permutation of 0..{n - 1}, got {order}")
         set_("controller_order", order)
         set_("meta", MappingProxyType(dict(self.meta)))
+        set_("couplings", checked_couplings(self.couplings, names, where))
 
     @property
     def dof(self) -> int:
@@ -178,9 +182,14 @@ class ArmModel:
             and all(np.array_equal(getattr(self, a), getattr(other, a)) for a in arrays)
             and self.compliance_nodes.keys() == other.compliance_nodes.keys()
             and all(np.array_equal(v, other.compliance_nodes[k]) for k, v in self.compliance_nodes.items())
+            and _plain_couplings(self) == _plain_couplings(other)
         )
 
     __hash__ = None  # type: ignore[assignment]
+
+
+def _plain_couplings(arm: ArmModel) -> dict:
+    return {j: dict(t) for j, t in arm.couplings.items()}
 
 
 def _nodes(arm: ArmModel, where: str) -> dict[str, np.ndarray]:
@@ -215,11 +224,17 @@ def _nodes(arm: ArmModel, where: str) -> dict[str, np.ndarray]:
 
 @dataclass(frozen=True, eq=False)
 class Robot:
-    """One or more arms sharing a world frame (each arm's ``base`` is ``T_world_base``)."""
+    """One or more arms sharing a world frame (each arm's ``base`` is ``T_world_base``).
+
+    ``mounts`` (child arm -> parent arm): a tree-structured robot. A mounted arm's ``base`` is
+    ``T_parenttool_childbase`` (its base in the parent's tool frame), so its world pose follows the parent's
+    joints (a torso carrying two arms); the parent's parameters exist once (``kincal.kinematics.tree``).
+    """
 
     name: str
     arms: Mapping[str, ArmModel]
     meta: Mapping = field(default_factory=dict)
+    mounts: Mapping[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not self.arms:
@@ -229,6 +244,7 @@ class Robot:
                 raise ModelError(f"robot '{self.name}': arm '{key}' is {type(arm).__name__}, expected ArmModel")
         object.__setattr__(self, "arms", MappingProxyType(dict(self.arms)))
         object.__setattr__(self, "meta", MappingProxyType(dict(self.meta)))
+        object.__setattr__(self, "mounts", MappingProxyType(checked_mounts(self.mounts, self.arms, self.name)))
 
     def __getitem__(self, arm: str) -> ArmModel:
         try:
@@ -236,13 +252,50 @@ class Robot:
         except KeyError:
             raise ModelError(f"robot '{self.name}' has no arm '{arm}'; arms: {', '.join(self.arms)}") from None
 
+    def lineage(self, arm: str) -> tuple[str, ...]:
+        """The arms from the root to ``arm`` (``(arm,)`` for an arm mounted on nothing)."""
+        self[arm]
+        return lineage(self.mounts, arm)
+
     def replace_arm(self, arm: str, model: ArmModel) -> "Robot":
         self[arm]
-        return Robot(self.name, {**self.arms, arm: model}, self.meta)
+        return Robot(self.name, {**self.arms, arm: model}, self.meta, self.mounts)
 
     def __eq__(self, other) -> bool:
         if not isinstance(other, Robot):
             return NotImplemented
-        return self.name == other.name and dict(self.arms) == dict(other.arms)
+        return self.name == other.name and dict(self.arms) == dict(other.arms) and \
+            dict(self.mounts) == dict(other.mounts)
 
     __hash__ = None  # type: ignore[assignment]
+
+
+def lineage(mounts: Mapping[str, str], arm: str) -> tuple[str, ...]:
+    """The arms from the root to ``arm`` through ``mounts`` (child -> parent), which must be acyclic."""
+    out = [arm]
+    while out[-1] in mounts:
+        out.append(mounts[out[-1]])
+    return tuple(reversed(out))
+
+
+def checked_mounts(mounts, arms: Mapping, robot: str) -> dict[str, str]:
+    """``mounts`` (child -> parent) checked: both arms exist, no arm on itself, no cycle; one-line ModelError."""
+    out = {}
+    for child, parent in dict(mounts or {}).items():
+        at = f"robot '{robot}': arm '{child}': mount"
+        if child not in arms:
+            raise ModelError(f"{at}: no such arm; arms: {', '.join(arms)}")
+        if not isinstance(parent, str) or parent not in arms:
+            raise ModelError(f"{at}: expected the name of another arm ({', '.join(arms)}), found {parent!r}")
+        if parent == child:
+            raise ModelError(f"{at}: an arm cannot be mounted on itself")
+        out[str(child)] = parent
+    for child in out:
+        seen = [child]
+        while seen[-1] in out:
+            nxt = out[seen[-1]]
+            if nxt in seen:
+                cycle = " -> ".join(seen[seen.index(nxt):] + [nxt])
+                raise ModelError(f"robot '{robot}': arm '{child}': mount: the mounts form a cycle ({cycle})")
+            seen.append(nxt)
+    return out

@@ -14,6 +14,7 @@ import numpy as np
 
 from kincal.errors import ModelError
 from kincal.kinematics import ArmModel, Robot, conform_twists, tangent_basis, tangent_generators
+from kincal.kinematics.couplings import coupling_map
 from kincal.kinematics.elastic import compliance_basis, compliance_coefficients, node_angles
 from kincal.lie import se3, so3
 
@@ -33,6 +34,7 @@ class ArmValues:
     generators: tuple = ()  # per joint (6, k_i): Ad(exp(G d)) retraction generators at the linearization point
     compliance: np.ndarray | None = None  # (p,) coefficients, rad/(N m) or m/N; None: zeros
     compliance_nodes: tuple = ()  # per joint None or its compliance node angles (m,); (): no joint has nodes
+    coupling: np.ndarray | None = None  # (n, n) d readings / d free readings (kinematics.couplings); None: identity
 
     @property
     def dof(self) -> int:
@@ -77,6 +79,7 @@ class ArmValues:
             np.array(model.tool), bases(model.screws, model.joint_types), model.joint_names, model.joint_types,
             generators(model.screws, model.joint_types), compliance_coefficients(model),
             node_angles(model) if model.compliance_nodes else (),
+            coupling_map(model.couplings, model.joint_names)[0] if model.couplings else None,
         )
 
 
@@ -155,6 +158,7 @@ class State:
     arms: Mapping[str, ArmValues]
     extras: Mapping[str, object] = field(default_factory=dict)
     kinds: Mapping[str, object] = field(default_factory=dict)
+    mounts: Mapping[str, str] = field(default_factory=dict)  # child arm -> parent arm (``Robot.mounts``)
 
     def __post_init__(self) -> None:
         missing = [k for k in self.extras if k not in self.kinds]
@@ -165,13 +169,13 @@ class State:
     def from_robot(robot: Robot, extras: Mapping[str, object] | None = None,
                    kinds: Mapping[str, object] | None = None) -> "State":
         return State({k: ArmValues.from_model(m) for k, m in robot.arms.items()}, dict(extras or {}),
-                     dict(kinds or {}))
+                     dict(kinds or {}), dict(robot.mounts))
 
     def replace(self, arms: Mapping[str, ArmValues] | None = None, extras: Mapping[str, object] | None = None,
                 kinds: Mapping[str, object] | None = None) -> "State":
         """A new state with ``arms`` and/or ``extras`` (and their ``kinds``) replaced."""
         return State(dict(self.arms if arms is None else arms), dict(self.extras if extras is None else extras),
-                     {**self.kinds, **(kinds or {})})
+                     {**self.kinds, **(kinds or {})}, self.mounts)
 
     def to_robot(self, robot: Robot) -> Robot:
         """The calibrated Robot: ``robot`` with this state's (conformed) values."""
@@ -184,4 +188,4 @@ class State:
             screws = conform_twists(a.screws, a.joint_types)
             arms[key] = model.replace(
                 screws=screws, offsets=a.offsets, base=a.base, home=a.home, tool=a.tool, **_compliance_fields(a))
-        return Robot(robot.name, arms, dict(robot.meta))
+        return Robot(robot.name, arms, dict(robot.meta), robot.mounts)

@@ -130,7 +130,7 @@ def perturb_robot(
     for a in chosen:
         robot[a]
     new = {a: perturb_arm(m, p, rng) if a in chosen else m for a, m in robot.arms.items()}
-    return Robot(robot.name, new, {**robot.meta, "perturbation": str(level)})
+    return Robot(robot.name, new, {**robot.meta, "perturbation": str(level)}, robot.mounts)
 
 
 def with_errors(robot: Robot, errors) -> Robot:

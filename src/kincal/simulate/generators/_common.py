@@ -18,6 +18,8 @@ from kincal._validate import check_transform
 from kincal.data import Dataset
 from kincal.errors import DegenerateExperimentError, ModelError
 from kincal.kinematics import ArmModel, Robot, forward_kinematics
+from kincal.kinematics.tree import tip_pose
+from kincal.simulate.generators._tree import with_couplings
 from kincal.noise import Noise
 from kincal.schema import LENGTH, NONE
 from kincal.simulate.noise import joint_readings
@@ -128,10 +130,10 @@ def validation_set(robot: Robot, arms, n: int, rng: np.random.Generator, name: s
     """
     out = {}
     for a in arms:
-        q = random_configurations(robot[a], n, rng)
+        q = with_couplings(robot, {s: random_configurations(robot[s], n, rng) for s in robot.lineage(a)})
         out[a] = Dataset(
-            "pose", robot.name, (a,), {a: q},
-            measured={"T_tracker_tool": forward_kinematics(robot[a], q)},
+            "pose", robot.name, (a,), q,
+            measured={"T_tracker_tool": tip_pose(robot, a, q)},
             name=f"{name}-{a}", meta={"noise_free": True, "noise": dict(NOISE_FREE), "frame": "world (registered when evaluated)"},
         )
     return out

@@ -11,6 +11,7 @@ from kincal.kinematics import Robot
 from kincal.noise import Noise
 from kincal.schema import LENGTH
 from kincal.simulate.generators._clamped import explore_to_n, reachable_pose
+from kincal.simulate.generators._tree import tip_readings, uncoupled_tip
 from kincal.simulate.generators._common import (ARM, EXPLORE, WORKSPACE, Option, Progress, check_n, count_option,
                                                 dataset_meta, exploration_stats, generator, known_option,
                                                 noisy_readings, pick_arm, pose_or, validation_set)
@@ -45,13 +46,14 @@ def generate_clamp(
     ``selfmotion.explore`` (n_seeds, n_steps, step_rad, ...).
     """
     n, rng = check_n(n), np.random.default_rng(rng)
-    arm, model = pick_arm(robot, arm)
+    arm, _ = pick_arm(robot, arm)
+    model = uncoupled_tip(robot, arm, "clamp")  # with the arms carrying it (a torso)
     T_wf = pose_or(T_world_fixture, "T_world_fixture", lambda: reachable_pose(model, rng, workspace=workspace))
     ex, pick = explore_to_n(PoseConstraint(model, T_wf), n, rng, explore_options, progress)
     q = ex.q[pick]
     stats = exploration_stats(ex)
     log.info("clamp: %s", stats)
-    ds = Dataset("clamp", robot.name, (arm,), noisy_readings({arm: q}, noise, rng), {},
+    ds = Dataset("clamp", robot.name, (arm,), tip_readings(robot, arm, noisy_readings({arm: q}, noise, rng)[arm]), {},
                  {"T_world_fixture": T_wf} if known_fixture else {}, "clamp", dataset_meta("clamp", noise))
-    truth = Truth(robot, {"T_world_fixture": T_wf}, {arm: q}, noise, {"generator": "clamp", **stats})
+    truth = Truth(robot, {"T_world_fixture": T_wf}, tip_readings(robot, arm, q), noise, {"generator": "clamp", **stats})
     return ds, truth, validation_set(robot, (arm,), n_validation, rng)

@@ -14,7 +14,7 @@ from kincal.schema import LENGTH
 from kincal.simulate.generators._common import (EXPLORE, WORKSPACE, Option, Progress, check_n, count_option,
                                                 dataset_meta, exploration_stats, generator, known_option,
                                                 noisy_readings, validation_set)
-from kincal.simulate.ik import ClosedChainConstraint
+from kincal.simulate.generators._tree import SharedClosedChain, split, with_couplings
 from kincal.simulate.selfmotion import explore, pick_evenly
 from kincal.simulate.truth import Truth
 
@@ -47,33 +47,34 @@ def generate_dual(
     """Two arms clamped tool to tool by ``clamp`` = ``T_toolA_toolB`` (default ``BRACKET_90``), moved by hand.
 
     Both arms are solved jointly (``ClosedChainConstraint``) and walked along the 8-dimensional (7+7 DOF)
-    self-motion of the closed chain. ``workspace = (lower (3,), upper (3,))`` optionally keeps arm A's tool
+    self-motion of the closed chain; arms mounted on a torso (``Robot.mounts``) move it too (its readings are
+    in the data set). ``workspace = (lower (3,), upper (3,))`` optionally keeps arm A's tool
     inside a box in the world frame (e.g. in front of the robot).
     """
     n, rng = check_n(n), np.random.default_rng(rng)
     a, b = arms
-    ma, mb = robot[a], robot[b]
     C = BRACKET_90 if clamp is None else check_transform(clamp, "clamp", 1e-6)
+    constraint = SharedClosedChain(robot, a, b, C)  # arms on a torso: the torso moves with them
     accept = None
     if workspace is not None:
         lo, hi = (np.asarray(w, dtype=float) for w in workspace)
 
         def accept(qq):
-            p = forward_kinematics(ma, qq[:, : ma.dof])[:, :3, 3]
+            p = forward_kinematics(constraint.inner.model_a, constraint.tip_a(qq))[:, :3, 3]
             return np.all((p >= lo) & (p <= hi), axis=-1)
 
     # a workspace rejects most random starts: try more of them
     opts = {"n_seeds": 64 if accept is None else 192, "n_steps": max(40, 3 * n // 64), "momentum": 0.8,
             "accept": accept, **(explore_options or {})}
-    ex = explore(ClosedChainConstraint(ma, mb, C), rng, progress=progress, **opts)
+    ex = explore(constraint, rng, progress=progress, **opts)
     if ex.q.shape[0] < n:
         raise DegenerateExperimentError(
             f"dual: self-motion gave {ex.q.shape[0]} distinct configurations, {n} asked; raise n_seeds or n_steps"
         )
     q = ex.q[pick_evenly(ex.q.shape[0], n)]
-    q_clean = {a: q[:, : ma.dof], b: q[:, ma.dof :]}
+    q_clean = split(robot, constraint.names, q)
     stats = exploration_stats(ex)
-    ds = Dataset("dual", robot.name, (a, b), noisy_readings(q_clean, noise, rng), {},
+    ds = Dataset("dual", robot.name, (a, b), with_couplings(robot, noisy_readings(q_clean, noise, rng)), {},
                  {"T_toolA_toolB": C} if known_clamp else {}, "dual", dataset_meta("dual", noise))
     truth = Truth(robot, {"T_toolA_toolB": C}, q_clean, noise, {"generator": "dual", **stats})
     return ds, truth, validation_set(robot, (a, b), n_validation, rng)

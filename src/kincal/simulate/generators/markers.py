@@ -17,6 +17,8 @@ from kincal.simulate.generators._common import (ARM, NOISE_FREE, WRENCH, Option,
 from kincal.simulate.generators._payload import before_and_after, fixed_configurations, payload_wrenches
 from kincal.simulate.generators._tracker import (random_markers, random_tracker_pose, tool_loads, tool_poses,
                                                  validation_loads)
+from kincal.kinematics.tree import tip_model
+from kincal.simulate.generators._tree import coupled_readings, tip_readings
 from kincal.simulate.noise import tracker_points
 from kincal.simulate.truth import Truth
 
@@ -59,12 +61,13 @@ def generate_markers(
     payload's weight (``_payload``, seed 001 Sec. V); not with ``wrench``.
     """
     n, rng = check_n(n), np.random.default_rng(rng)
-    arm, model = pick_arm(robot, arm)
+    arm, _ = pick_arm(robot, arm)
+    model = tip_model(robot, arm)  # with the arms carrying it (a torso), whose readings the data set holds too
     p_tm = random_markers(int(markers), rng) if np.ndim(markers) == 0 else as_array(markers, "markers", (3,))
     if p_tm.ndim != 2 or len(p_tm) < 1:
         raise DegenerateExperimentError(f"markers: expected a count >= 1 or an (m, 3) array, got {markers!r}")
     T_wt = pose_or(T_world_tracker, "T_world_tracker", lambda: random_tracker_pose(robot, arm, rng))
-    q = random_configurations(model, n, rng, margin) if configurations is None else \
+    q = coupled_readings(model, random_configurations(model, n, rng, margin)) if configurations is None else \
         fixed_configurations(model, configurations)
     if payload is not None and wrench is not None:
         raise DegenerateExperimentError("payload and wrench_N: give one way of loading the tool")
@@ -85,16 +88,17 @@ def generate_markers(
     readings = noisy_readings({arm: configs}, noise, rng)  # a configuration's two measurements share its readings
     if payload is not None:
         readings = {arm: np.repeat(readings[arm], 2, axis=0)}
+    readings = tip_readings(robot, arm, readings[arm])
     ds = Dataset("markers", robot.name, (arm,), readings, measured, known, "markers",
                  dataset_meta("markers", noise))
-    truth = Truth(robot, {"T_world_tracker": T_wt, "p_tool_marker": p_tm}, {arm: q}, noise, {"generator": "markers"})
+    truth = Truth(robot, {"T_world_tracker": T_wt, "p_tool_marker": p_tm}, tip_readings(robot, arm, q), noise, {"generator": "markers"})
     # Validate what this experiment observes: marker positions at fresh configurations, noise-free, with the
     # tracker frame and marker offsets left unknown (refitted), not the world-frame tool pose (which a partial
     # pose measurement does not determine: the tracker gauge, and with one marker the tool orientation).
-    qv = random_configurations(model, n_validation, rng, margin)
+    qv = coupled_readings(model, random_configurations(model, n_validation, rng, margin))
     lv = validation_loads(wrench, loads, n_validation, rng) if payload is None else payload_wrenches(model, qv, *payload)
     pv = se3.transform_points((se3.inverse(T_wt) @ tool_poses(model, qv, lv))[:, None], p_tm[None])
     mv = {"p_tracker_marker": pv} if lv is None else {"p_tracker_marker": pv, "wrench_tool": lv}
-    validation = {arm: Dataset("markers", robot.name, (arm,), {arm: qv}, mv, {}, f"validation-{arm}",
+    validation = {arm: Dataset("markers", robot.name, (arm,), tip_readings(robot, arm, qv), mv, {}, f"validation-{arm}",
                                {"noise_free": True, "noise": dict(NOISE_FREE)})}
     return ds, truth, validation

@@ -12,6 +12,7 @@ from kincal.lie import se3, so3
 from kincal.noise import Noise
 from kincal.schema import LENGTH
 from kincal.simulate.generators._clamped import candidate_poses, explore_to_n
+from kincal.simulate.generators._tree import tip_readings, uncoupled_tip
 from kincal.simulate.generators._common import (ARM, EXPLORE, WORKSPACE, Option, Progress, check_n, count_option,
                                                 dataset_meta, exploration_stats, generator, known_option,
                                                 noisy_readings, pick_arm, pose_or, random_configurations,
@@ -65,7 +66,8 @@ def generate_plate(
     Samples are split evenly over the fixtures, fixture by fixture; ``measured["fixture"]`` holds the index.
     """
     n, rng = check_n(n), np.random.default_rng(rng)
-    arm, model = pick_arm(robot, arm)
+    arm, _ = pick_arm(robot, arm)
+    model = uncoupled_tip(robot, arm, "plate")  # with the arms carrying it (a torso)
     T_pf = plate_layout() if T_plate_fixture is None else check_transform(T_plate_fixture, "T_plate_fixture", 1e-6)
     if T_pf.ndim != 3 or len(T_pf) < 1:
         raise DegenerateExperimentError(f"T_plate_fixture: expected (K, 4, 4) with K >= 1, got {T_pf.shape}")
@@ -85,9 +87,9 @@ def generate_plate(
     known = {"T_plate_fixture": T_pf}
     if known_plate:
         known["T_world_plate"] = T_wp
-    ds = Dataset("plate", robot.name, (arm,), noisy_readings({arm: q}, noise, rng),
+    ds = Dataset("plate", robot.name, (arm,), tip_readings(robot, arm, noisy_readings({arm: q}, noise, rng)[arm]),
                  {"fixture": np.concatenate(fixture)}, known, "plate", dataset_meta("plate", noise))
-    truth = Truth(robot, {"T_world_plate": T_wp, "T_plate_fixture": T_pf}, {arm: q}, noise,
+    truth = Truth(robot, {"T_world_plate": T_wp, "T_plate_fixture": T_pf}, tip_readings(robot, arm, q), noise,
                   {"generator": "plate", "fixtures": stats})
     return ds, truth, validation_set(robot, (arm,), n_validation, rng)
 

@@ -13,6 +13,8 @@ from kincal.simulate.generators._common import (ARM, WRENCH, check_n, count_opti
                                                 known_option, noisy_readings, Option, pick_arm, pose_or,
                                                 random_configurations, validation_set)
 from kincal.simulate.generators._tracker import random_tracker_pose, tool_loads, tool_poses
+from kincal.kinematics.tree import tip_model
+from kincal.simulate.generators._tree import coupled_readings, tip_readings
 from kincal.simulate.noise import tracker_poses
 from kincal.simulate.truth import Truth
 
@@ -41,15 +43,16 @@ def generate_pose(
     by ``random_tracker_pose`` unless given. ``wrench``: loads on the tool (see ``generate_markers``).
     """
     n, rng = check_n(n), np.random.default_rng(rng)
-    arm, model = pick_arm(robot, arm)
+    arm, _ = pick_arm(robot, arm)
+    model = tip_model(robot, arm)  # with the arms carrying it (a torso), whose readings the data set holds too
     T_wt = pose_or(T_world_tracker, "T_world_tracker", lambda: random_tracker_pose(robot, arm, rng))
-    q = random_configurations(model, n, rng, margin)
+    q = coupled_readings(model, random_configurations(model, n, rng, margin))
     loads = tool_loads(wrench, n, rng)
     T = se3.inverse(T_wt) @ tool_poses(model, q, loads)
     measured = {"T_tracker_tool": tracker_poses(T, noise, rng)}
     if loads is not None:
         measured["wrench_tool"] = loads
-    ds = Dataset("pose", robot.name, (arm,), noisy_readings({arm: q}, noise, rng), measured,
+    ds = Dataset("pose", robot.name, (arm,), tip_readings(robot, arm, noisy_readings({arm: q}, noise, rng)[arm]), measured,
                  {"T_world_tracker": T_wt} if known_tracker else {}, "pose", dataset_meta("pose", noise))
-    truth = Truth(robot, {"T_world_tracker": T_wt}, {arm: q}, noise, {"generator": "pose"})
+    truth = Truth(robot, {"T_world_tracker": T_wt}, tip_readings(robot, arm, q), noise, {"generator": "pose"})
     return ds, truth, validation_set(robot, (arm,), n_validation, rng)

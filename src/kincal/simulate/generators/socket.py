@@ -10,6 +10,7 @@ from kincal.kinematics import Robot
 from kincal.noise import Noise
 from kincal.schema import LENGTH
 from kincal.simulate.generators._clamped import explore_to_n, reachable_pose
+from kincal.simulate.generators._tree import tip_readings, uncoupled_tip
 from kincal.simulate.generators._common import (ARM, EXPLORE, WORKSPACE, Option, Progress, check_n, count_option,
                                                 dataset_meta, exploration_stats, generator, known_option,
                                                 noisy_readings, pick_arm, validation_set)
@@ -37,7 +38,8 @@ def generate_socket(
 ) -> tuple[Dataset, Truth, dict]:
     """The tool point (tool frame origin, e.g. a ball) held in a socket: position fixed, orientation free."""
     n, rng = check_n(n), np.random.default_rng(rng)
-    arm, model = pick_arm(robot, arm)
+    arm, _ = pick_arm(robot, arm)
+    model = uncoupled_tip(robot, arm, "socket")  # with the arms carrying it (a torso)
     if p_world_socket is None:
         p = reachable_pose(model, rng, workspace=workspace)[:3, 3]
     else:
@@ -45,7 +47,7 @@ def generate_socket(
     options = {"momentum": 0.8, **(explore_options or {})}
     ex, pick = explore_to_n(PositionConstraint(model, p), n, rng, options, progress)
     q = ex.q[pick]
-    ds = Dataset("socket", robot.name, (arm,), noisy_readings({arm: q}, noise, rng), {},
+    ds = Dataset("socket", robot.name, (arm,), tip_readings(robot, arm, noisy_readings({arm: q}, noise, rng)[arm]), {},
                  {"p_world_socket": p} if known_socket else {}, "socket", dataset_meta("socket", noise))
-    truth = Truth(robot, {"p_world_socket": p}, {arm: q}, noise, {"generator": "socket", **exploration_stats(ex)})
+    truth = Truth(robot, {"p_world_socket": p}, tip_readings(robot, arm, q), noise, {"generator": "socket", **exploration_stats(ex)})
     return ds, truth, validation_set(robot, (arm,), n_validation, rng)
