@@ -19,6 +19,7 @@ together, thesis Sec. 2.11) is tested explicitly and reported as scale.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Callable, Sequence
 
 import numpy as np
@@ -79,14 +80,16 @@ def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol:
     measured length, ``symmetries.scale_null``, when ``lin`` has the scale test's columns; the rotations about
     a first joint axis, ``symmetries.rotation_nulls``). ``report``: also name the null directions in words
     (``naming``) and judge whether the data are degenerate; the solver's intermediate iterations need only the
-    rank and null space. ``priority``: free-coordinate order for the pivots of the named directions.
+    rank, the null space and the weak directions (``directions`` is then empty). ``priority``: free-coordinate
+    order for the pivots of the named directions.
     """
     names = [layout.names[i] for i in lin.free]
     scale = scale_null(lin, layout) if lin.every else None
     held = rotation_nulls(lin, layout, experiments)
-    gauges = consistent_nulls(lin, layout, experiments, rtol)
+    gauges = partial(consistent_nulls, lin, layout, experiments, rtol)
     if not report:
-        return analyse(lin.Rf, names, rtol=rtol, priority=priority, scale=scale, held=held, gauges=gauges)
+        return analyse(lin.Rf, names, rtol=rtol, priority=priority, scale=scale, held=held, gauges=gauges,
+                       name=False)
     ana = analyse(lin.Rf, names, rtol=rtol, scale=scale, priority=priority, held=held, gauges=gauges,
                   describe=describer(lin, layout, experiments), context=context(layout, experiments))
     return replace(ana, degenerate=degenerate(lin.Rf, ana.rank, rtol, layout, lin.free))
@@ -100,15 +103,21 @@ def analyse(
     weak_rtol: float = 1e-5,
     scale: np.ndarray | None = None,  # the scale direction (p,) when no measured length enters: always held
     held: Sequence[np.ndarray] = (),  # other exact symmetries of the cost (p,), held even where residuals lift them
-    gauges: np.ndarray | None = None,  # (p, k) basis of the noise-free problem's exact null space, held likewise
+    # (p, k) basis of the noise-free problem's exact null space, held likewise; or a function of the plain null
+    # space's dimension giving it (``symmetries.consistent_nulls``: a known structure skips the work)
+    gauges: np.ndarray | Callable[[int], np.ndarray | None] | None = None,
     priority: Sequence[int] | None = None,
     describe: Callable[[np.ndarray], str] | None = None,
     context: str = "",
+    name: bool = True,
 ) -> Identifiability:
-    """Analyse the whitened Jacobian J (m, p) whose columns are the parameters ``names``."""
+    """Analyse the whitened Jacobian J (m, p) whose columns are the parameters ``names``; ``name``: also the null
+    directions in reduced row-echelon form (``directions`` and their messages)."""
     names = tuple(names)
     p = J.shape[1]
     sv = _spectrum(J, rtol)
+    if callable(gauges):
+        gauges = gauges(p - sv.rank)
     has_scale = scale is not None and np.linalg.norm(scale) > 0
     Ns, rank, lifted, held_scale = _hold(sv, ([scale] if has_scale else []) + list(held), has_scale, gauges)
     identifiable = np.linalg.norm(Ns, axis=1) < IDENTIFIABLE_TOL
@@ -124,7 +133,7 @@ def analyse(
         Nd, scale_null_found, words = _scale_message(N, scale, names, held_scale)
         messages += words
     order = list(range(p)) if priority is None else list(priority)
-    directions = _directions(Nd, order, names, describe, context)
+    directions = _directions(Nd, order, names, describe, context) if name else []
     messages += [d.words for d in directions]
     messages += _weak_messages(weak, sv, weak_idx)
     return Identifiability(names, rank, sv.S, rtol, N, R, identifiable, scale_null_found, tuple(directions),
@@ -162,11 +171,13 @@ def _hold(sv: _Spectrum, symmetries: list, has_scale: bool, gauges: np.ndarray |
     if gauges is not None and gauges.shape[1]:
         # the null space is the gauges' (noise lifts exact gauges out of Ns, and a direction of Ns at the rank
         # threshold may only tilt towards them); both bases come from round-off-level singular values, so a
-        # dimension one lacks has singular value ~1 outside it, a tilt far less
+        # dimension one lacks has singular value ~1 outside it, a tilt far less. Where none was lifted, Ns is
+        # kept as it is: the structure cache (``consistent_nulls``) then gives the same basis without G.
         G = _orth(sv.c[:, None] * gauges)
         lifted += list(_outside(G, Ns).T)
-        Ns = np.column_stack([G, _outside(Ns, G)])
-        rank = len(sv.c) - Ns.shape[1]
+        if lifted:
+            Ns = np.column_stack([G, _outside(Ns, G)])
+            rank = len(sv.c) - Ns.shape[1]
     for k, h in enumerate(symmetries):
         hc = sv.c * h
         hc /= np.linalg.norm(hc)
