@@ -226,15 +226,16 @@ def _scale_message(N: np.ndarray, scale: np.ndarray, names, held_scale: bool):
 
 def _directions(Nd: np.ndarray, order, names, describe, context: str) -> list[Direction]:
     """The null directions in reduced row-echelon form, each named by its pivot in ``order``."""
-    directions = []
+    directions, order = [], np.asarray(order, dtype=int)
     for row in _rref(Nd.T, order):
-        piv = int(order[next(i for i, j in enumerate(order) if abs(row[j]) > 0.5)])
-        big = np.max(np.abs(row))
-        partners = tuple((names[j], float(row[j])) for j in np.argsort(-np.abs(row))
-                         if j != piv and abs(row[j]) > 1e-3 * big)
+        a = np.abs(row)
+        piv = int(order[np.argmax(a[order] > 0.5)])
+        js = np.argsort(-a)
+        js = js[(js != piv) & (a[js] > 1e-3 * a.max())]
+        partners = tuple((names[j], float(row[j])) for j in js.tolist())
         words = f"{names[piv]} cannot be identified{(' from ' + context) if context else ''}"
         if partners:
-            words += f": it trades off against {_list([f'{n} ({v:+.3g})' for n, v in partners])}"
+            words += f": it trades off against {_partner_list(partners)}"
         else:
             words += ": it does not affect any residual"
         extra = describe(row) if describe else ""
@@ -242,6 +243,13 @@ def _directions(Nd: np.ndarray, order, names, describe, context: str) -> list[Di
             words += f" ({extra})"
         directions.append(Direction(names[piv], partners, row, words))
     return directions
+
+
+def _partner_list(partners, limit: int = 6) -> str:
+    """``_list`` of the partners' words, formatting only those shown."""
+    shown = [f"{n} ({v:+.3g})" for n, v in partners[:limit]]
+    more = len(partners) - len(shown)
+    return ", ".join(shown) + (f" and {more} more" if more > 0 else "")
 
 
 def _weak_messages(weak, sv: _Spectrum, weak_idx) -> list[str]:

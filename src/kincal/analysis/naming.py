@@ -54,17 +54,17 @@ def describer(lin: Linearization, layout: Layout, experiments: Sequence) -> Call
     axes, frames = _joint_axes_and_frames(lin.state, experiments)
     loads = any("wrench_tool" in e.dataset.measured for e in experiments)
     col = {int(i): k for k, i in enumerate(lin.free)}
-    blocks = [block_of(layout, i) for i in lin.free]
-    pose_blocks = [(b, [col.get(i) for i in range(b.start, b.stop)]) for b in layout.blocks
-                   if b.kind is POSE]
+    part = np.array([b.part if b.arm is not None else "" for b in (block_of(layout, i) for i in lin.free)])
+    poses = []  # (name, columns, adjoint of its increment frame) of each pose frame with every coordinate free
+    for b in layout.blocks:
+        idx = [col.get(i) for i in range(b.start, b.stop)]
+        if b.kind is POSE and None not in idx:
+            poses.append((b.name, idx, se3.adjoint(frames.get(b.name, np.eye(4)))))
 
     def describe(row: np.ndarray) -> str:
-        words = []
-        for b, idx in pose_blocks:
-            if any(i is None for i in idx) or np.linalg.norm(row[idx]) < 1e-9:
-                continue
-            words.append(_frame_motion(b.name, se3.adjoint(frames.get(b.name, np.eye(4))) @ row[idx], axes))
-        moved = {blocks[k].part for k in np.flatnonzero(np.abs(row) > 1e-9) if blocks[k].arm is not None}
+        words = [_frame_motion(name, Ad @ row[idx], axes) for name, idx, Ad in poses
+                 if np.linalg.norm(row[idx]) >= 1e-9]
+        moved = set(part[np.abs(row) > 1e-9].tolist())
         if "compliance" in moved and not loads:
             words.append("no data set applies a load (wrench_tool), so joint compliance has no effect")
         if "offsets" in moved and moved & {"twists", "home"}:
