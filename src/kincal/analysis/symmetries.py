@@ -40,7 +40,7 @@ def scale_null(lin: Linearization, layout: Layout) -> np.ndarray | None:
         raise AssertionError("the scale test needs a linearization with every column")
     fixed = lin.fixed  # the fixed coordinates that scale with the robot
     Ra = lin.Rall  # (q, p + len(fixed)): free first
-    s_all = scale_direction(lin.state, layout)
+    s_all = scale_direction(lin.state, layout) if lin.scale is None else lin.scale
     s = np.concatenate([s_all[lin.free], s_all[fixed]])
     colnorm = np.linalg.norm(Ra, axis=0)
     if np.linalg.norm(Ra @ s - lin.Rlen) > 1e-6 * (np.sum(colnorm * np.abs(s)) + np.linalg.norm(lin.Rlen)):

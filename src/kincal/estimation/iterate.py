@@ -92,9 +92,10 @@ def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.nd
     robust loss) solves the inner problem when the full step does not reduce the cost as the linear model
     predicts (far from the optimum, strongly nonlinear), when Gauss-Newton has stopped converging fast, or when
     a robust loss is asked for."""
-    accepted, evaluations = False, 0
+    accepted, evaluations, moved = False, 0, None
     if options.loss == "linear" and fast:
-        r_new = problem.evaluate(lin.state, V @ z, lin.W, jac=False)[0]
+        moved = retract(lin.state, problem.layout, problem.full_delta(V @ z))  # retracted once: kept if accepted
+        r_new = problem.evaluate(moved, np.zeros(V.shape[0]), lin.W, jac=False)[0]
         evaluations += 1
         cost2_new = float(r_new @ r_new)
         accepted = lin.cost2 - cost2_new >= 0.25 * (lin.cost2 - r1sq)
@@ -109,7 +110,7 @@ def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.nd
         evaluations += nfev
     delta = V @ x
     step = float(np.linalg.norm(lin.Rf @ delta))
-    state = recentre(retract(lin.state, problem.layout, problem.full_delta(delta)))
+    state = recentre(moved if accepted else retract(lin.state, problem.layout, problem.full_delta(delta)))
     if options.progress:
         options.progress(it, 2 * cost)
     log.debug("outer %d (%s): cost %.6g, whitened step %.3g, max |delta| %.3g", it,
