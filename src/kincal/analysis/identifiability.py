@@ -92,7 +92,7 @@ def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol:
                        name=False)
     ana = analyse(lin.Rf, names, rtol=rtol, scale=scale, priority=priority, held=held, gauges=gauges,
                   describe=describer(lin, layout, experiments), context=context(layout, experiments))
-    return replace(ana, degenerate=degenerate(lin.Rf, ana.rank, rtol, layout, lin.free))
+    return replace(ana, degenerate=degenerate(lin.Rf, ana.rank, rtol, layout, lin.free, ana.singular_values))
 
 
 def analyse(

@@ -23,17 +23,19 @@ def block_of(layout: Layout, i: int) -> Block:
     raise IndexError(i)
 
 
-def degenerate(Rf: np.ndarray, rank: int, rtol: float, layout: Layout, free: np.ndarray) -> bool:
+def degenerate(Rf: np.ndarray, rank: int, rtol: float, layout: Layout, free: np.ndarray,
+               spectrum: np.ndarray | None = None) -> bool:
     """No combination of free arm coordinates is identifiable: the arm columns add no rank to the columns of
     the experiment frames (only frames move, or nothing does). Judged on subspaces, not single coordinates,
-    so an exact gauge (e.g. the whole arm moving with an unknown tracker) does not make data look useless."""
+    so an exact gauge (e.g. the whole arm moving with an unknown tracker) does not make data look useless.
+    ``spectrum``: the singular values of ``Rf`` with unit columns, when already known."""
     if rank == 0:
         return True
     arm = np.array([block_of(layout, i).arm is not None for i in free])
     if not arm.any() or arm.all():
         return False
     Js = unit_columns(Rf)[0]
-    s_all = right_svd(Js)[0]
+    s_all = right_svd(Js)[0] if spectrum is None else spectrum
     s_frames = right_svd(Js[:, ~arm])[0]
     tol = rtol * s_all[0]
     return int(np.sum(s_frames > tol)) >= int(np.sum(s_all > tol))

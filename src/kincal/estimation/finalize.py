@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 
 from kincal.analysis import Identifiability, Linearization, correlated_pairs, covariance, identify
-from kincal.analysis.naming import block_of
 from kincal.estimation import steps
 from kincal.estimation.gauge import gauge_basis
 from kincal.estimation.iterate import Iteration, scale_test_needed
@@ -214,10 +213,9 @@ def _twists(problem: Problem, state, cov: np.ndarray) -> tuple[TwistEstimate, ..
 def _estimates(problem: Problem, state, std, ok) -> list[Estimate]:
     layout = problem.layout
     disp, _ = displacement(state, problem.nominal, layout)
-    out = []
-    for k, i in enumerate(problem.free_idx):
-        b = block_of(layout, i)
-        nominal = float(b.kind.values(b.value(problem.nominal))[i - b.start]) if b.kind.absolute else 0.0
-        out.append(Estimate(layout.names[i], nominal + float(disp[i]), nominal, float(std[k]), layout.units[i],
-                            bool(ok[k])))
-    return out
+    nominal = np.zeros(layout.size)  # absolute kinds (offsets, compliance) report values, the others changes
+    for b in layout.blocks:
+        if b.kind.absolute:
+            nominal[b.slice] = b.kind.values(b.value(problem.nominal))
+    return [Estimate(layout.names[i], float(nominal[i]) + float(disp[i]), float(nominal[i]), float(std[k]),
+                     layout.units[i], bool(ok[k])) for k, i in enumerate(problem.free_idx.tolist())]
