@@ -304,10 +304,12 @@ def _rref(M: np.ndarray, order: Sequence[int]) -> list[np.ndarray]:
         i = rows_done + int(np.argmax(np.abs(M[rows_done:, j])))
         if abs(M[i, j]) < 1e-8:
             continue
-        M[[rows_done, i]] = M[[i, rows_done]]
+        if i != rows_done:
+            M[[rows_done, i]] = M[[i, rows_done]]
         M[rows_done] /= M[rows_done, j]
-        others = np.arange(k) != rows_done
-        M[others] -= np.outer(M[others, j], M[rows_done])
+        pivot = M[rows_done].copy()  # eliminate column j from every row, then put the pivot row back
+        M -= np.outer(M[:, j], pivot)
+        M[rows_done] = pivot
         rows_done += 1
     M[np.abs(M) < 1e-12] = 0.0
     return [M[i] for i in range(rows_done)]

@@ -99,5 +99,8 @@ def _frame_motion(name: str, tw: np.ndarray, axes: dict) -> str:
     if np.linalg.norm(w) < 1e-9 * max(np.linalg.norm(v), 1e-300):
         return f"a translation of the {name}"
     t = tw / np.linalg.norm(w)
-    match = [jn for jn, ax in axes.items() if min(np.linalg.norm(t - ax), np.linalg.norm(t + ax)) < 1e-4]
-    return f"a rotation of the {name} about the axis of {match[0]}" if match else f"a screw motion of the {name}"
+    names, A = list(axes), np.array(list(axes.values())).reshape(-1, 6)
+    near = np.minimum(np.linalg.norm(t - A, axis=1), np.linalg.norm(t + A, axis=1)) < 1e-4
+    match = np.flatnonzero(near)
+    return (f"a rotation of the {name} about the axis of {names[match[0]]}" if len(match)
+            else f"a screw motion of the {name}")
