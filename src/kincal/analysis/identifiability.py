@@ -58,6 +58,7 @@ class Identifiability:
     messages: tuple[str, ...] = field(default=())
     weak_vectors: np.ndarray | None = None  # (p, w) the directions of ``weak`` in natural units, unit norm
     degenerate: bool | None = None  # no arm parameter identifiable, only frames (judged by ``identify`` reports)
+    naming_basis: np.ndarray | None = field(default=None, repr=False)  # the null basis ``directions`` name
 
     @property
     def deficiency(self) -> int:
@@ -87,12 +88,24 @@ def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol:
     scale = scale_null(lin, layout) if lin.every else None
     held = rotation_nulls(lin, layout, experiments)
     gauges = partial(consistent_nulls, lin, layout, experiments, rtol)
-    if not report:
-        return analyse(lin.Rf, names, rtol=rtol, priority=priority, scale=scale, held=held, gauges=gauges,
-                       name=False)
-    ana = analyse(lin.Rf, names, rtol=rtol, scale=scale, priority=priority, held=held, gauges=gauges,
-                  describe=describer(lin, layout, experiments), context=context(layout, experiments))
-    return replace(ana, degenerate=degenerate(lin.Rf, ana.rank, rtol, layout, lin.free, ana.singular_values))
+    ana = analyse(lin.Rf, names, rtol=rtol, priority=priority, scale=scale, held=held, gauges=gauges, name=False)
+    return named(ana, lin, layout, experiments, priority) if report else ana
+
+
+def named(ana: Identifiability, lin: Linearization, layout: Layout, experiments: Sequence,
+          priority: Sequence[int] | None = None) -> Identifiability:
+    """``identify(lin, ..., report=True)`` from its ``report=False`` analysis ``ana`` of the same linearization
+    (the solver's last one, say) without analysing again: the null directions named in words (after the scale
+    message, before the weak ones) and the degenerate judgement. ``ana`` itself when it is named already."""
+    if ana.degenerate is not None:
+        return ana
+    order = list(range(len(ana.names))) if priority is None else list(priority)
+    directions = tuple(_directions(ana.naming_basis, order, ana.names, describer(lin, layout, experiments),
+                                   context(layout, experiments)))
+    k = int(ana.scale_unidentifiable)  # the scale message comes first
+    messages = ana.messages[:k] + tuple(d.words for d in directions) + ana.messages[k:]
+    return replace(ana, directions=directions, messages=messages,
+                   degenerate=degenerate(lin.Rf, ana.rank, ana.rtol, layout, lin.free, ana.singular_values))
 
 
 def analyse(
@@ -137,7 +150,7 @@ def analyse(
     messages += [d.words for d in directions]
     messages += _weak_messages(weak, sv, weak_idx)
     return Identifiability(names, rank, sv.S, rtol, N, R, identifiable, scale_null_found, tuple(directions),
-                           weak, tuple(messages), weak_vectors)
+                           weak, tuple(messages), weak_vectors, naming_basis=Nd)
 
 
 @dataclass(frozen=True)

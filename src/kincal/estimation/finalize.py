@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from kincal.analysis import Identifiability, Linearization, correlated_pairs, covariance, identify
+from kincal.analysis.identifiability import named
 from kincal.estimation import steps
 from kincal.estimation.gauge import gauge_basis
 from kincal.estimation.iterate import Iteration, scale_test_needed
@@ -41,7 +42,10 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
     if lin is None:  # the loop stopped after a step: linearize the final state
         lin = steps.linearize(problem, run.state, None if problem.joint_noise else run.whiteners,
                               scale_test_needed(problem))
-    ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=list(run.order))
+    if run.analysis is not None and run.linearization is not None:  # the loop analysed this linearization
+        ana = named(run.analysis, lin, problem.layout, problem.experiments, list(run.order))
+    else:
+        ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=list(run.order))
     weights, slopes = robust_weights(lin.r, options.loss, options.f_scale)
     dof = len(lin.r) - ana.rank
     sigma2 = variance_factor(lin.r, weights, slopes, ana.rank)

@@ -28,7 +28,7 @@ class Iteration:
     iterations (linearizations, the one that confirmed convergence included); ``evaluations``: residual
     evaluations spent on steps; ``linearization``: at ``state`` when the loop stopped without moving (else None);
     ``whiteners``: the ones held at the end; ``first``: the identifiability report at the start, with
-    ``before`` the residual statistics there."""
+    ``before`` the residual statistics there; ``analysis``: the identifiability at ``linearization``."""
 
     state: State
     status: str
@@ -39,6 +39,7 @@ class Iteration:
     first: Identifiability | None
     before: tuple[ResidualStats, ...]
     order: tuple[int, ...]  # the free coordinates' pivot order (``gauge.priority``)
+    analysis: Identifiability | None = None  # at ``linearization`` (``identify``, named or not), when it is kept
 
 
 def scale_test_needed(problem: Problem) -> bool:
@@ -50,7 +51,7 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
     """Run the outer loop from ``problem.start`` (module docstring)."""
     order = priority(problem, options.gauge)
     every = scale_test_needed(problem)
-    state, W, lin = problem.start, None, None
+    state, W, lin, ana = problem.start, None, None, None
     first, before = None, ()
     evaluations, status, it, fast = 0, "not converged", 0, True  # Gauss-Newton first while it converges fast
     for it in range(1, options.max_outer + 1):
@@ -80,7 +81,8 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
         if done:
             status = "converged"
             break
-    return Iteration(state, status, it, evaluations, lin, W, first, before, tuple(order))
+    return Iteration(state, status, it, evaluations, lin, W, first, before, tuple(order),
+                     None if lin is None else ana)
 
 
 def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.ndarray, z: np.ndarray,
