@@ -216,7 +216,7 @@ def _twists(problem: Problem, state, cov: np.ndarray) -> tuple[TwistEstimate, ..
 
 def _estimates(problem: Problem, state, std, ok) -> list[Estimate]:
     layout = problem.layout
-    disp, _ = displacement(state, problem.nominal, layout)
+    disp, _ = displacement(state, problem.nominal, layout, problem.free_idx)
     nominal = np.zeros(layout.size)  # absolute kinds (offsets, compliance) report values, the others changes
     for b in layout.blocks:
         if b.kind.absolute:
