@@ -20,6 +20,9 @@ The phase table times kincal at N = 50 (and the sizes in ``--phases``) with a ti
 listed in ``PHASES``: time inside a listed function counts for the innermost one, the rest of ``calibrate`` is
 "other". LAPACK's QR, SVD and lstsq are rows of their own wherever they are called.
 
+The fixed overhead per call is kincal's CPU time above the minimal solver's at the smallest N (the issue's goal:
+under 3 ms at N = 50); the intercepts of a straight-line fit of each solver's time over N are printed beside it.
+
 Run: python bench/bench_speed.py [--sizes 50 200 1000 5000] [--repeat 5] [--no-figaroh] [--phases 50 5000]
 """
 
@@ -289,6 +292,19 @@ def speed_table(rows, fig) -> str:
     return markdown(head, out)
 
 
+def overhead_line(rows) -> str:
+    """kincal's fixed cost per call: its CPU time above the minimal solver's at the smallest N (the issue's
+    measure, goal under 3 ms at N = 50), and both solvers' intercepts of a straight-line fit over N."""
+    sizes = sorted(rows)
+    k = np.array([rows[n]["kincal"][0] for n in sizes])
+    m = np.array([rows[n]["minimal"][0] for n in sizes])
+    out = f"fixed overhead per call at N = {sizes[0]} (kincal - minimal CPU): {(k[0] - m[0]) * 1e3:.1f} ms"
+    if len(sizes) > 1:
+        fit = lambda t: np.polyfit(sizes, t, 1)[1] * 1e3  # noqa: E731
+        out += f"; intercepts of a straight-line fit over N: kincal {fit(k):.1f} ms, minimal {fit(m):.1f} ms"
+    return out
+
+
 def accuracy_table(rows, fig) -> str:
     head = ["N", "kincal val RMS mm", "minimal val RMS mm", "FIGAROH structural", "FIGAROH excitation", "kincal",
             "minimal"]
@@ -329,6 +345,7 @@ def main() -> None:
           f"CPU medians of {args.repeat} (FIGAROH: {args.figaroh_repeat}); load average {os.getloadavg()[0]:.1f}")
     print(note)
     print(speed_table(rows, fig))
+    print(overhead_line(rows))
     print(f"\nvalidation on {N_VALIDATION} fresh configurations (marker in the tracker frame, noise-free truth):")
     print(accuracy_table(rows, fig))
     for table in tables:

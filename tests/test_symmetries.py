@@ -122,3 +122,66 @@ def test_exact_gauges_are_held_under_noise(case, seed):
     before = calibrate(robot, [check], [], noise=STATED)
     after = calibrate(res.robot, [check], [], noise=STATED)
     assert _rms(after) <= _rms(before) + 1e-9
+
+
+def _counting_consistent_nulls(monkeypatch):
+    """Calls of the consistent linearization (``symmetries._consistent_nulls``), counted in a list."""
+    from kincal.analysis import symmetries
+
+    calls, real = [], symmetries._consistent_nulls
+    monkeypatch.setattr(symmetries, "_consistent_nulls", lambda *a: calls.append(1) or real(*a))
+    return calls
+
+
+def test_structure_cache_remembers_a_gauged_structure_by_its_nullity(monkeypatch):
+    """Exact gauges the residuals do not lift (an unknown tracker and marker with the full kinematic model): the
+    structure's number of gauges is remembered, later linearizations of it skip the consistent one, and the
+    results are the same bit for bit as without the cache (issue 15)."""
+    from kincal.analysis import symmetries
+    from kincal.simulate import generate_markers
+
+    nominal = robots.load("ur10")
+    ds, _, _ = generate_markers(nominal, n=40, rng=3, noise=Noise(position=5e-5, joint=0.0), markers=1)
+    fit = lambda: calibrate(nominal, [ds], "kinematic", noise=Noise(position=5e-5, joint=0.0))  # noqa: E731
+    calls = _counting_consistent_nulls(monkeypatch)
+    symmetries.clear_structure_cache()
+    monkeypatch.setattr(symmetries, "NULLITY_ENTRIES", 0)  # nothing remembered: every linearization tests
+    cold = fit()
+    uncached = len(calls)
+    assert uncached == cold.iterations and len(symmetries._NULLITY) == 0  # each linearization (finalize reuses the last)
+    monkeypatch.setattr(symmetries, "NULLITY_ENTRIES", 256)
+    del calls[:]
+    first = fit()
+    assert 1 <= len(calls) < uncached
+    assert list(symmetries._NULLITY.values()) == [cold.identifiability.deficiency] and cold.identifiability.deficiency
+    del calls[:]
+    again = fit()
+    assert calls == []  # the structure is known: no consistent linearization at all
+    for res in (first, again):
+        assert res.identifiability.rank == cold.identifiability.rank == 27
+        assert [e.value for e in res.estimates] == [e.value for e in cold.estimates]
+        assert np.array_equal(res.covariance, cold.covariance) and res.status == cold.status == "converged"
+        assert res.messages == cold.messages and res.identifiability_before.messages == cold.identifiability_before.messages
+
+
+def test_structure_cache_keeps_testing_a_structure_whose_residuals_lift_gauges(monkeypatch):
+    """An unknown clamp's fixture turning with the last joint: noise lifts that gauge off the plain null space,
+    so the structure is marked (``LIFTS``) and every linearization takes the consistent one again; the gauge
+    stays held."""
+    from kincal.analysis import symmetries
+
+    robot, train, _ = _case("clamp")
+    rng = np.random.default_rng(0)
+    offsets = {a: rng.uniform(-0.01, 0.01, len(robot[a].joint_names)) for a in train.arms}
+    ds = _truth_readings(train, offsets, rng, JOINT)
+    calls = _counting_consistent_nulls(monkeypatch)
+    symmetries.clear_structure_cache()
+    runs = []
+    for _ in range(2):
+        del calls[:]
+        runs.append((calibrate(robot, [ds], "offsets", noise=STATED), len(calls)))
+    assert list(symmetries._NULLITY.values()) == [symmetries.LIFTS]
+    (a, n_a), (b, n_b) = runs
+    assert n_b >= b.iterations and n_a == n_b  # every linearization
+    assert [e.value for e in a.estimates] == [e.value for e in b.estimates]
+    assert not b.estimate("right.j7.offset").identifiable

@@ -19,6 +19,7 @@ together, thesis Sec. 2.11) is tested explicitly and reported as scale.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Callable, Sequence
 
 import numpy as np
@@ -58,6 +59,7 @@ class Identifiability:
     messages: tuple[str, ...] = field(default=())
     weak_vectors: np.ndarray | None = None  # (p, w) the directions of ``weak`` in natural units, unit norm
     degenerate: bool | None = None  # no arm parameter identifiable, only frames (judged by ``identify`` reports)
+    naming_basis: np.ndarray | None = field(default=None, repr=False)  # the null basis ``directions`` name
 
     @property
     def deficiency(self) -> int:
@@ -81,22 +83,37 @@ def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol:
     measured length, ``symmetries.scale_null``, when ``lin`` has the scale test's columns; the rotations about
     a first joint axis, ``symmetries.rotation_nulls``). ``report``: also name the null directions in words
     (``naming``) and judge whether the data are degenerate; the solver's intermediate iterations need only the
-    rank and null space. ``priority``: free-coordinate order for the pivots of the named directions.
-    ``structural`` (p, k): exact gauges of the start (natural units); those the estimate lifts only slightly
-    are reported as weakly identifiable with their names (``near_gauges``: a coupling of parallel axes, whose
-    exact gauge at the nominal model the estimated tilts of the axes lift a little).
+    rank, the null space and the weak directions (``directions`` is then empty). ``priority``: free-coordinate
+    order for the pivots of the named directions. ``structural`` (p, k): exact gauges of the start (natural
+    units); those the estimate lifts only slightly are reported as weakly identifiable with their names
+    (``near_gauges``: a coupling of parallel axes, whose exact gauge at the nominal model the estimated tilts
+    of the axes lift a little).
     """
     names = [layout.names[i] for i in lin.free]
     scale = scale_null(lin, layout) if lin.every else None
     held = rotation_nulls(lin, layout, experiments)
-    gauges = consistent_nulls(lin, layout, experiments, rtol)
-    if not report:
-        return analyse(lin.Rf, names, rtol=rtol, priority=priority, scale=scale, held=held, gauges=gauges)
-    ana = analyse(lin.Rf, names, rtol=rtol, scale=scale, priority=priority, held=held, gauges=gauges,
-                  describe=describer(lin, layout, experiments), context=context(layout, experiments))
+    gauges = partial(consistent_nulls, lin, layout, experiments, rtol)
+    ana = analyse(lin.Rf, names, rtol=rtol, priority=priority, scale=scale, held=held, gauges=gauges, name=False)
+    return named(ana, lin, layout, experiments, priority, structural) if report else ana
+
+
+def named(ana: Identifiability, lin: Linearization, layout: Layout, experiments: Sequence,
+          priority: Sequence[int] | None = None, structural: np.ndarray | None = None) -> Identifiability:
+    """``identify(lin, ..., report=True)`` from its ``report=False`` analysis ``ana`` of the same linearization
+    (the solver's last one, say) without analysing again: the null directions named in words (after the scale
+    message, before the weak ones) and the degenerate judgement; ``structural`` as in ``identify``. ``ana`` itself when it is named already."""
+    if ana.degenerate is not None:
+        return ana
+    order = list(range(len(ana.names))) if priority is None else list(priority)
+    directions = tuple(_directions(ana.naming_basis, order, ana.names, describer(lin, layout, experiments),
+                                   context(layout, experiments)))
+    k = int(ana.scale_unidentifiable)  # the scale message comes first
+    messages = ana.messages[:k] + tuple(d.words for d in directions) + ana.messages[k:]
+    ana = replace(ana, directions=directions, messages=messages,
+                  degenerate=degenerate(lin.Rf, ana.rank, ana.rtol, layout, lin.free, ana.singular_values))
     if structural is not None and structural.shape[1]:
         ana = _with_lifted_gauges(ana, near_gauges(lin.Rf, structural))
-    return replace(ana, degenerate=degenerate(lin.Rf, ana.rank, rtol, layout, lin.free))
+    return ana
 
 
 def coupling_gauges(state, first: "Identifiability | None") -> np.ndarray | None:
@@ -118,7 +135,7 @@ def near_gauges(J: np.ndarray, structural: np.ndarray, rtol: float = NEAR_GAUGE_
     smax = np.linalg.norm(Js, 2) if Js.size else 0.0
     if G.shape[1] == 0 or smax == 0:
         return np.zeros((len(c), 0))
-    _, S, Vt = np.linalg.svd(Js @ G, full_matrices=False)
+    _, S, Vt = svd(Js @ G, full_matrices=False)
     small = Vt[S < rtol * smax]
     return (G @ small.T) / c[:, None]
 
@@ -152,15 +169,21 @@ def analyse(
     weak_rtol: float = 1e-5,
     scale: np.ndarray | None = None,  # the scale direction (p,) when no measured length enters: always held
     held: Sequence[np.ndarray] = (),  # other exact symmetries of the cost (p,), held even where residuals lift them
-    gauges: np.ndarray | None = None,  # (p, k) basis of the noise-free problem's exact null space, held likewise
+    # (p, k) basis of the noise-free problem's exact null space, held likewise; or a function of the plain null
+    # space's dimension giving it (``symmetries.consistent_nulls``: a known structure skips the work)
+    gauges: np.ndarray | Callable[[int], np.ndarray | None] | None = None,
     priority: Sequence[int] | None = None,
     describe: Callable[[np.ndarray], str] | None = None,
     context: str = "",
+    name: bool = True,
 ) -> Identifiability:
-    """Analyse the whitened Jacobian J (m, p) whose columns are the parameters ``names``."""
+    """Analyse the whitened Jacobian J (m, p) whose columns are the parameters ``names``; ``name``: also the null
+    directions in reduced row-echelon form (``directions`` and their messages)."""
     names = tuple(names)
     p = J.shape[1]
     sv = _spectrum(J, rtol)
+    if callable(gauges):
+        gauges = gauges(p - sv.rank)
     has_scale = scale is not None and np.linalg.norm(scale) > 0
     Ns, rank, lifted, held_scale = _hold(sv, ([scale] if has_scale else []) + list(held), has_scale, gauges)
     identifiable = np.linalg.norm(Ns, axis=1) < IDENTIFIABLE_TOL
@@ -176,11 +199,11 @@ def analyse(
         Nd, scale_null_found, words = _scale_message(N, scale, names, held_scale)
         messages += words
     order = list(range(p)) if priority is None else list(priority)
-    directions = _directions(Nd, order, names, describe, context)
+    directions = _directions(Nd, order, names, describe, context) if name else []
     messages += [d.words for d in directions]
     messages += _weak_messages(weak, sv, weak_idx)
     return Identifiability(names, rank, sv.S, rtol, N, R, identifiable, scale_null_found, tuple(directions),
-                           weak, tuple(messages), weak_vectors)
+                           weak, tuple(messages), weak_vectors, naming_basis=Nd)
 
 
 @dataclass(frozen=True)
@@ -214,11 +237,13 @@ def _hold(sv: _Spectrum, symmetries: list, has_scale: bool, gauges: np.ndarray |
     if gauges is not None and gauges.shape[1]:
         # the null space is the gauges' (noise lifts exact gauges out of Ns, and a direction of Ns at the rank
         # threshold may only tilt towards them); both bases come from round-off-level singular values, so a
-        # dimension one lacks has singular value ~1 outside it, a tilt far less
+        # dimension one lacks has singular value ~1 outside it, a tilt far less. Where none was lifted, Ns is
+        # kept as it is: the structure cache (``consistent_nulls``) then gives the same basis without G.
         G = _orth(sv.c[:, None] * gauges)
         lifted += list(_outside(G, Ns).T)
-        Ns = np.column_stack([G, _outside(Ns, G)])
-        rank = len(sv.c) - Ns.shape[1]
+        if lifted:
+            Ns = np.column_stack([G, _outside(Ns, G)])
+            rank = len(sv.c) - Ns.shape[1]
     for k, h in enumerate(symmetries):
         hc = sv.c * h
         hc /= np.linalg.norm(hc)
@@ -267,15 +292,16 @@ def _scale_message(N: np.ndarray, scale: np.ndarray, names, held_scale: bool):
 
 def _directions(Nd: np.ndarray, order, names, describe, context: str) -> list[Direction]:
     """The null directions in reduced row-echelon form, each named by its pivot in ``order``."""
-    directions = []
+    directions, order = [], np.asarray(order, dtype=int)
     for row in _rref(Nd.T, order):
-        piv = int(order[next(i for i, j in enumerate(order) if abs(row[j]) > 0.5)])
-        big = np.max(np.abs(row))
-        partners = tuple((names[j], float(row[j])) for j in np.argsort(-np.abs(row))
-                         if j != piv and abs(row[j]) > 1e-3 * big)
+        a = np.abs(row)
+        piv = int(order[np.argmax(a[order] > 0.5)])
+        js = np.argsort(-a)
+        js = js[(js != piv) & (a[js] > 1e-3 * a.max())]
+        partners = tuple((names[j], float(row[j])) for j in js.tolist())
         words = f"{names[piv]} cannot be identified{(' from ' + context) if context else ''}"
         if partners:
-            words += f": it trades off against {_list([f'{n} ({v:+.3g})' for n, v in partners])}"
+            words += f": it trades off against {_partner_list(partners)}"
         else:
             words += ": it does not affect any residual"
         extra = describe(row) if describe else ""
@@ -283,6 +309,13 @@ def _directions(Nd: np.ndarray, order, names, describe, context: str) -> list[Di
             words += f" ({extra})"
         directions.append(Direction(names[piv], partners, row, words))
     return directions
+
+
+def _partner_list(partners, limit: int = 6) -> str:
+    """``_list`` of the partners' words, formatting only those shown."""
+    shown = [f"{n} ({v:+.3g})" for n, v in partners[:limit]]
+    more = len(partners) - len(shown)
+    return ", ".join(shown) + (f" and {more} more" if more > 0 else "")
 
 
 def _weak_messages(weak, sv: _Spectrum, weak_idx) -> list[str]:
@@ -337,10 +370,12 @@ def _rref(M: np.ndarray, order: Sequence[int]) -> list[np.ndarray]:
         i = rows_done + int(np.argmax(np.abs(M[rows_done:, j])))
         if abs(M[i, j]) < 1e-8:
             continue
-        M[[rows_done, i]] = M[[i, rows_done]]
+        if i != rows_done:
+            M[[rows_done, i]] = M[[i, rows_done]]
         M[rows_done] /= M[rows_done, j]
-        others = np.arange(k) != rows_done
-        M[others] -= np.outer(M[others, j], M[rows_done])
+        pivot = M[rows_done].copy()  # eliminate column j from every row, then put the pivot row back
+        M -= np.outer(M[:, j], pivot)
+        M[rows_done] = pivot
         rows_done += 1
     M[np.abs(M) < 1e-12] = 0.0
     return [M[i] for i in range(rows_done)]

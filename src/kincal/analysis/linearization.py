@@ -28,6 +28,7 @@ class Linearization:
     residuals: tuple  # per experiment (N, k) residual before whitening
     free: np.ndarray  # (p,) layout indices of the free coordinates: the columns of J
     fixed: np.ndarray | None = None  # layout indices of the fixed columns in R (with the length part), or None
+    scale: np.ndarray | None = None  # the layout's scale direction at ``state`` (``params.scale_direction``), or None
 
     @property
     def p(self) -> int:

@@ -25,17 +25,19 @@ def block_of(layout: Layout, i: int) -> Block:
     raise IndexError(i)
 
 
-def degenerate(Rf: np.ndarray, rank: int, rtol: float, layout: Layout, free: np.ndarray) -> bool:
+def degenerate(Rf: np.ndarray, rank: int, rtol: float, layout: Layout, free: np.ndarray,
+               spectrum: np.ndarray | None = None) -> bool:
     """No combination of free arm coordinates is identifiable: the arm columns add no rank to the columns of
     the experiment frames (only frames move, or nothing does). Judged on subspaces, not single coordinates,
-    so an exact gauge (e.g. the whole arm moving with an unknown tracker) does not make data look useless."""
+    so an exact gauge (e.g. the whole arm moving with an unknown tracker) does not make data look useless.
+    ``spectrum``: the singular values of ``Rf`` with unit columns, when already known."""
     if rank == 0:
         return True
     arm = np.array([block_of(layout, i).arm is not None for i in free])
     if not arm.any() or arm.all():
         return False
     Js = unit_columns(Rf)[0]
-    s_all = right_svd(Js)[0]
+    s_all = right_svd(Js)[0] if spectrum is None else spectrum
     s_frames = right_svd(Js[:, ~arm])[0]
     tol = rtol * s_all[0]
     return int(np.sum(s_frames > tol)) >= int(np.sum(s_all > tol))
@@ -56,17 +58,17 @@ def describer(lin: Linearization, layout: Layout, experiments: Sequence) -> Call
     axes, frames = _joint_axes_and_frames(lin.state, experiments)
     loads = any("wrench_tool" in e.dataset.measured for e in experiments)
     col = {int(i): k for k, i in enumerate(lin.free)}
-    blocks = [block_of(layout, i) for i in lin.free]
-    pose_blocks = [(b, [col.get(i) for i in range(b.start, b.stop)]) for b in layout.blocks
-                   if b.kind is POSE]
+    part = np.array([b.part if b.arm is not None else "" for b in (block_of(layout, i) for i in lin.free)])
+    poses = []  # (name, columns, adjoint of its increment frame) of each pose frame with every coordinate free
+    for b in layout.blocks:
+        idx = [col.get(i) for i in range(b.start, b.stop)]
+        if b.kind is POSE and None not in idx:
+            poses.append((b.name, idx, se3.adjoint(frames.get(b.name, np.eye(4)))))
 
     def describe(row: np.ndarray) -> str:
-        words = []
-        for b, idx in pose_blocks:
-            if any(i is None for i in idx) or np.linalg.norm(row[idx]) < 1e-9:
-                continue
-            words.append(_frame_motion(b.name, se3.adjoint(frames.get(b.name, np.eye(4))) @ row[idx], axes))
-        moved = {blocks[k].part for k in np.flatnonzero(np.abs(row) > 1e-9) if blocks[k].arm is not None}
+        words = [_frame_motion(name, Ad @ row[idx], axes) for name, idx, Ad in poses
+                 if np.linalg.norm(row[idx]) >= 1e-9]
+        moved = set(part[np.abs(row) > 1e-9].tolist())
         if "compliance" in moved and not loads:
             words.append("no data set applies a load (wrench_tool), so joint compliance has no effect")
         if "offsets" in moved and moved & {"twists", "home"}:
@@ -103,5 +105,8 @@ def _frame_motion(name: str, tw: np.ndarray, axes: dict) -> str:
     if np.linalg.norm(w) < 1e-9 * max(np.linalg.norm(v), 1e-300):
         return f"a translation of the {name}"
     t = tw / np.linalg.norm(w)
-    match = [jn for jn, ax in axes.items() if min(np.linalg.norm(t - ax), np.linalg.norm(t + ax)) < 1e-4]
-    return f"a rotation of the {name} about the axis of {match[0]}" if match else f"a screw motion of the {name}"
+    names, A = list(axes), np.array(list(axes.values())).reshape(-1, 6)
+    near = np.minimum(np.linalg.norm(t - A, axis=1), np.linalg.norm(t + A, axis=1)) < 1e-4
+    match = np.flatnonzero(near)
+    return (f"a rotation of the {name} about the axis of {names[match[0]]}" if len(match)
+            else f"a screw motion of the {name}")

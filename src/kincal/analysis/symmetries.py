@@ -42,7 +42,7 @@ def scale_null(lin: Linearization, layout: Layout) -> np.ndarray | None:
         raise AssertionError("the scale test needs a linearization with every column")
     fixed = lin.fixed  # the fixed coordinates that scale with the robot
     Ra = lin.Rall  # (q, p + len(fixed)): free first
-    s_all = scale_direction(lin.state, layout)
+    s_all = scale_direction(lin.state, layout) if lin.scale is None else lin.scale
     s = np.concatenate([s_all[lin.free], s_all[fixed]])
     colnorm = np.linalg.norm(Ra, axis=0)
     if np.linalg.norm(Ra @ s - lin.Rlen) > 1e-6 * (np.sum(colnorm * np.abs(s)) + np.linalg.norm(lin.Rlen)):
@@ -129,7 +129,8 @@ CONSISTENT_SAMPLES = 120
 _PROJECTIONS = 4  # Gauss-Newton steps of the joint readings onto the model (quadratic: misfit 1e-2 -> 1e-16)
 
 
-def consistent_nulls(lin: Linearization, layout: Layout, experiments: Sequence, rtol: float) -> np.ndarray | None:
+def consistent_nulls(lin: Linearization, layout: Layout, experiments: Sequence, rtol: float,
+                     plain: int | None = None) -> np.ndarray | None:
     """A basis (p, k) of the exact null directions (natural units, free coordinates) of the noise-free problem
     at ``lin.state``, or None when the residuals are too small to lift any.
 
@@ -140,33 +141,57 @@ def consistent_nulls(lin: Linearization, layout: Layout, experiments: Sequence, 
     with the same whitening and the same prior and constraint rows: its null space (relative singular value
     below ``rtol`` after scaling columns to unit norm) is the noise-free problem's, whatever the noise.
     Residuals below a tenth of ``rtol`` of the largest column lift nothing visibly: the test is skipped there,
-    and the readings are moved only until their residual is that small."""
+    and the readings are moved only until their residual is that small.
+
+    ``plain``: the dimension of ``lin``'s own null space (at ``rtol``), when known. Residuals only lift exact
+    gauges out of it, so where it has as many dimensions as this structure's noise-free null space had, at a
+    state where the residuals lifted none (the structure cache, below), it is that space: an empty basis is
+    returned (nothing to add) without the consistent linearization."""
     enough = 0.1 * rtol * np.max(np.linalg.norm(lin.Rf, axis=0), initial=0.0)
     if np.linalg.norm(lin.r) <= enough:
         return None
     key = structure_key(lin, layout, experiments, rtol)
-    if key in _FULL_RANK:
-        _FULL_RANK.move_to_end(key)
+    known = 0 if key in _FULL_RANK else _NULLITY.get(key)
+    if known == 0 or (known == plain and plain):
+        _remember(key, known)
         return np.zeros((len(lin.free), 0))
-    null = _consistent_nulls(lin, layout, experiments, rtol, enough)
+    null, reached = _consistent_nulls(lin, layout, experiments, rtol, enough)
     if null is not None and null.shape[1] == 0:
-        _FULL_RANK[key] = None
-        while len(_FULL_RANK) > FULL_RANK_ENTRIES:
-            _FULL_RANK.popitem(last=False)
+        _remember(key, 0)
+    elif null is not None and reached and plain is not None:
+        _remember(key, null.shape[1] if plain == null.shape[1] else LIFTS)  # a lifting structure stays uncached
     return null
 
 
 # Structures whose noise-free problem had no exact null direction (``consistent_nulls``). Full rank is an open
 # condition: the same free coordinates, experiments and joint readings with other measurements (the
 # next outer iteration, another repeat of a Monte Carlo study) have none either, so the consistent linearization
-# (a third of a small calibration's cost) is skipped for them. Only "none" is remembered: a structure with exact
-# gauges recomputes their basis at every state. ``clear_structure_cache`` forgets everything.
+# (a third of a small calibration's cost) is skipped for them. A structure with exact gauges is remembered apart
+# (``_NULLITY``), by their number only, never their basis (it moves with the state), and only from a state where
+# the readings reached the model and the residuals lifted none of them out of the plain null space: lifting
+# residuals (a clamp's fixture-frame gap) lift them at other states too, and such a structure is marked
+# ``LIFTS`` for good. ``clear_structure_cache`` forgets everything.
 FULL_RANK_ENTRIES = 256
 _FULL_RANK: OrderedDict[bytes, None] = OrderedDict()
+NULLITY_ENTRIES = 256
+_NULLITY: OrderedDict[bytes, int] = OrderedDict()
+LIFTS = -1
+
+
+def _remember(key: bytes, nullity: int) -> None:
+    """Note (most recent last) that structure ``key`` has ``nullity`` exact gauges (0: full rank)."""
+    if nullity > 0 and _NULLITY.get(key) == LIFTS:
+        return
+    cache, limit = (_FULL_RANK, FULL_RANK_ENTRIES) if nullity == 0 else (_NULLITY, NULLITY_ENTRIES)
+    cache[key] = None if nullity == 0 else nullity
+    cache.move_to_end(key)
+    while len(cache) > limit:
+        cache.popitem(last=False)
 
 
 def clear_structure_cache() -> None:
     _FULL_RANK.clear()
+    _NULLITY.clear()
 
 
 def structure_key(lin: Linearization, layout: Layout, experiments: Sequence, rtol: float) -> bytes:
@@ -189,9 +214,11 @@ def structure_key(lin: Linearization, layout: Layout, experiments: Sequence, rto
 
 
 def _consistent_nulls(lin: Linearization, layout: Layout, experiments: Sequence, rtol: float,
-                      enough: float) -> np.ndarray | None:
+                      enough: float) -> tuple[np.ndarray | None, bool]:
+    """(the null basis, whether every experiment's readings reached a residual below ``enough``: the noise-free
+    problem's own null space, not one the residuals that no reading explains still lift)."""
     want = {b.name for b in layout.blocks if np.any((lin.free >= b.start) & (lin.free < b.stop))}
-    rows, m = [], 0
+    rows, m, reached = [], 0, True
     for e, W, r in zip(experiments, lin.W, lin.residuals):
         m += r.size
         idx = np.unique(np.linspace(0, e.size - 1, min(e.size, CONSISTENT_SAMPLES)).astype(int))
@@ -199,17 +226,18 @@ def _consistent_nulls(lin: Linearization, layout: Layout, experiments: Sequence,
         Wi = W[idx]
         sub = consistent_readings(sub, lin.state, Wi, enough)
         res = sub.residual(lin.state, want=want, jq=False)
+        reached = reached and float(np.linalg.norm(Wi @ res.r[:, :, None])) <= enough
         J = scatter_columns(res.jac, layout, lin.free, res.r.shape)
         rows.append((Wi @ J).reshape(-1, len(lin.free)))
     rows.append(lin.J[m:])  # priors and known distances do not depend on the readings
     J = np.concatenate(rows, axis=0)
     if not np.all(np.isfinite(J)) or J.shape[1] == 0:
-        return None
+        return None, False
     Js, c = unit_columns(J)
     S, Vt = right_svd(Js) if Js.shape[0] >= Js.shape[1] else svd(Js)[1:]
     S = np.concatenate([S, np.zeros(Js.shape[1] - len(S))])
     null = Vt[S <= rtol * S[0]] if S[0] > 0 else Vt
-    return null.T / c[:, None]
+    return null.T / c[:, None], reached
 
 
 def consistent_readings(e, state, W, enough: float = 0.0):

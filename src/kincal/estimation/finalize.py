@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from kincal.analysis import Identifiability, Linearization, correlated_pairs, covariance, identify
-from kincal.analysis.identifiability import coupling_gauges
-from kincal.analysis.naming import block_of
+from kincal.analysis.identifiability import coupling_gauges, named
 from kincal.estimation import steps
 from kincal.estimation.gauge import gauge_basis
 from kincal.estimation.iterate import Iteration, scale_test_needed
@@ -45,8 +44,12 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
     if lin is None:  # the loop stopped after a step: linearize the final state
         lin = steps.linearize(problem, run.state, None if problem.joint_noise else run.whiteners,
                               scale_test_needed(problem))
-    ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=list(run.order),
-                   structural=coupling_gauges(run.state, run.first))
+    structural = coupling_gauges(run.state, run.first)
+    if run.analysis is not None and run.linearization is not None:  # the loop analysed this linearization
+        ana = named(run.analysis, lin, problem.layout, problem.experiments, list(run.order), structural)
+    else:
+        ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=list(run.order),
+                       structural=structural)
     weights, slopes = robust_weights(lin.r, options.loss, options.f_scale)
     dof = len(lin.r) - ana.rank
     sigma2, sw = noise_variance_factor(problem, lin, ana, weights, slopes)
@@ -235,11 +238,10 @@ def _twists(problem: Problem, state, cov: np.ndarray) -> tuple[TwistEstimate, ..
 
 def _estimates(problem: Problem, state, std, ok) -> list[Estimate]:
     layout = problem.layout
-    disp, _ = displacement(state, problem.nominal, layout)
-    out = []
-    for k, i in enumerate(problem.free_idx):
-        b = block_of(layout, i)
-        nominal = float(b.kind.values(b.value(problem.nominal))[i - b.start]) if b.kind.absolute else 0.0
-        out.append(Estimate(layout.names[i], nominal + float(disp[i]), nominal, float(std[k]), layout.units[i],
-                            bool(ok[k])))
-    return out
+    disp, _ = displacement(state, problem.nominal, layout, problem.free_idx)
+    nominal = np.zeros(layout.size)  # absolute kinds (offsets, compliance) report values, the others changes
+    for b in layout.blocks:
+        if b.kind.absolute:
+            nominal[b.slice] = b.kind.values(b.value(problem.nominal))
+    return [Estimate(layout.names[i], float(nominal[i]) + float(disp[i]), float(nominal[i]), float(std[k]),
+                     layout.units[i], bool(ok[k])) for k, i in enumerate(problem.free_idx.tolist())]

@@ -28,7 +28,7 @@ class Iteration:
     iterations (linearizations, the one that confirmed convergence included); ``evaluations``: residual
     evaluations spent on steps; ``linearization``: at ``state`` when the loop stopped without moving (else None);
     ``whiteners``: the ones held at the end; ``first``: the identifiability report at the start, with
-    ``before`` the residual statistics there."""
+    ``before`` the residual statistics there; ``analysis``: the identifiability at ``linearization``."""
 
     state: State
     status: str
@@ -39,6 +39,7 @@ class Iteration:
     first: Identifiability | None
     before: tuple[ResidualStats, ...]
     order: tuple[int, ...]  # the free coordinates' pivot order (``gauge.priority``)
+    analysis: Identifiability | None = None  # at ``linearization`` (``identify``, named or not), when it is kept
 
 
 def scale_test_needed(problem: Problem) -> bool:
@@ -50,7 +51,7 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
     """Run the outer loop from ``problem.start`` (module docstring)."""
     order = priority(problem, options.gauge)
     every = scale_test_needed(problem)
-    state, W, lin = problem.start, None, None
+    state, W, lin, ana = problem.start, None, None, None
     first, before = None, ()
     evaluations, status, it, fast = 0, "not converged", 0, True  # Gauss-Newton first while it converges fast
     for it in range(1, options.max_outer + 1):
@@ -80,7 +81,8 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
         if done:
             status = "converged"
             break
-    return Iteration(state, status, it, evaluations, lin, W, first, before, tuple(order))
+    return Iteration(state, status, it, evaluations, lin, W, first, before, tuple(order),
+                     None if lin is None else ana)
 
 
 def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.ndarray, z: np.ndarray,
@@ -92,9 +94,10 @@ def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.nd
     robust loss) solves the inner problem when the full step does not reduce the cost as the linear model
     predicts (far from the optimum, strongly nonlinear), when Gauss-Newton has stopped converging fast, or when
     a robust loss is asked for."""
-    accepted, evaluations = False, 0
+    accepted, evaluations, moved = False, 0, None
     if options.loss == "linear" and fast:
-        r_new = problem.evaluate(lin.state, V @ z, lin.W, jac=False)[0]
+        moved = retract(lin.state, problem.layout, problem.full_delta(V @ z))  # retracted once: kept if accepted
+        r_new = problem.evaluate(moved, np.zeros(V.shape[0]), lin.W, jac=False)[0]
         evaluations += 1
         cost2_new = float(r_new @ r_new)
         accepted = lin.cost2 - cost2_new >= 0.25 * (lin.cost2 - r1sq)
@@ -109,7 +112,7 @@ def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.nd
         evaluations += nfev
     delta = V @ x
     step = float(np.linalg.norm(lin.Rf @ delta))
-    state = recentre(retract(lin.state, problem.layout, problem.full_delta(delta)))
+    state = recentre(moved if accepted else retract(lin.state, problem.layout, problem.full_delta(delta)))
     if options.progress:
         options.progress(it, 2 * cost)
     log.debug("outer %d (%s): cost %.6g, whitened step %.3g, max |delta| %.3g", it,

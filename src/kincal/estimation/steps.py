@@ -22,10 +22,11 @@ def linearize(problem: Problem, state: State, W, every: bool) -> Linearization:
     ``every``: also the fixed columns the scale test needs, those that scale with the robot (lengths,
     compliances), and the residual's length part."""
     p = len(problem.free_idx)
-    fixed = np.zeros(0, int)
+    fixed, scale = np.zeros(0, int), None
     if every:
         layout = problem.layout
-        moves = (np.array(layout.units) == "m") | (scale_direction(state, layout) != 0)
+        scale = scale_direction(state, layout)  # kept for the scale test (``symmetries.scale_null``)
+        moves = (np.array(layout.units) == "m") | (scale != 0)
         fixed = np.flatnonzero(~layout.free & moves)
     r, J, W, raw = problem.linearize(state, W, np.concatenate([problem.free_idx, fixed]))
     if not np.all(np.isfinite(r)) or not np.all(np.isfinite(J)):
@@ -36,7 +37,7 @@ def linearize(problem: Problem, state: State, W, every: bool) -> Linearization:
     else:
         A = np.column_stack([J, r])
     R = np.linalg.qr(A, mode="r")
-    return Linearization(state, r, J, R, tuple(W), tuple(raw), problem.free_idx, fixed if every else None)
+    return Linearization(state, r, J, R, tuple(W), tuple(raw), problem.free_idx, fixed if every else None, scale)
 
 
 # A constant residual with a zero Jacobian row, added to the inner LM problem: MINPACK's relative ftol then

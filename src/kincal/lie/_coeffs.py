@@ -44,11 +44,18 @@ def _horner(coeffs: np.ndarray, t2: np.ndarray) -> np.ndarray:
     return out
 
 
+def _horner_float(coeffs: np.ndarray, t2: float) -> np.float64:
+    out = float(coeffs[-1])
+    for c in coeffs[-2::-1].tolist():
+        out = out * t2 + c
+    return np.float64(out)
+
+
 def _branch(theta: np.ndarray, coeffs: np.ndarray, closed_form) -> np.ndarray:
     theta = np.asarray(theta, dtype=float)
     small = theta < _TAYLOR_BELOW
-    if theta.ndim == 0:
-        return _horner(coeffs, theta * theta) if small else closed_form(theta)
+    if theta.ndim == 0:  # one angle: Horner on Python floats (the same IEEE operations, without array overhead)
+        return _horner_float(coeffs, float(theta * theta)) if small else closed_form(theta)
     out = np.empty_like(theta)
     out[small] = _horner(coeffs, theta[small] ** 2)
     large = ~small

@@ -23,7 +23,10 @@ def split(xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def join(v: np.ndarray, w: np.ndarray) -> np.ndarray:
-    v, w = np.broadcast_arrays(np.asarray(v, dtype=float), np.asarray(w, dtype=float))
+    v, w = np.asarray(v, dtype=float), np.asarray(w, dtype=float)
+    if v.shape == w.shape:  # nothing to broadcast (one twist, or batches alike)
+        return np.concatenate([v, w], axis=-1)
+    v, w = np.broadcast_arrays(v, w)
     return np.concatenate([v, w], axis=-1)
 
 

@@ -15,6 +15,9 @@ from kincal.lie._coeffs import log_coeff, one_minus_cos_over_t2, sin_over_t, t_m
 def hat(w: np.ndarray) -> np.ndarray:
     """Skew-symmetric matrix of w: hat(a) @ b == cross(a, b). (..., 3) -> (..., 3, 3)."""
     w = np.asarray(w, dtype=float)
+    if w.shape == (3,):  # one vector: a literal beats six strided assignments
+        x, y, z = w.tolist()
+        return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
     out = np.zeros(w.shape + (3,))
     out[..., 0, 1] = -w[..., 2]
     out[..., 0, 2] = w[..., 1]
@@ -39,6 +42,10 @@ def angle(w: np.ndarray) -> np.ndarray:
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a x b over the last axis (faster than np.cross for large batches)."""
+    if a.shape == b.shape == (3,):  # one pair (tangent bases, frames): Python floats beat nine array indexings
+        a0, a1, a2 = a.tolist()
+        b0, b1, b2 = b.tolist()
+        return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
     out = np.empty(np.broadcast_shapes(a.shape, b.shape))
     out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
     out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
@@ -79,6 +86,8 @@ def log(R: np.ndarray) -> np.ndarray:
     sin_t = np.linalg.norm(s, axis=-1)
     t = np.arctan2(sin_t, c)
     w_small = s / sin_over_t(t)[..., None]
+    if R.ndim == 2 and c >= 0.0:  # one rotation below pi/2: the skew part alone (what np.where picks below)
+        return w_small
 
     # Near pi: R + R^T = 2 c I + 2 (1 - c) a a^T; read a from the largest diagonal entry.
     # Evaluated everywhere, but with the identity standing in where c >= 0 (its result is unused there).

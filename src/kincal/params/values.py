@@ -94,13 +94,12 @@ def generators(screws, types) -> tuple:
 def retract_twists(a: ArmValues, d: np.ndarray) -> ArmValues:
     """Exact retraction of the joint screws: xi_j = Ad(exp(G_j d_j)) xi_j, which stays a valid joint screw,
     with the basis at d: d xi_j = -ad(xi_j) J_l(G_j d_j) G_j dd_j."""
-    screws, bs, gens, c = a.screws.copy(), [], [], 0
-    for j, G in enumerate(a.generators):
-        g = G @ d[c: c + G.shape[1]]
-        c += G.shape[1]
-        screws[j] = se3.adjoint(se3.exp(g)) @ a.screws[j]
-        gens.append(se3.left_jacobian(g) @ G)  # retracting again from here keeps basis == -ad(xi) G
-        bs.append(-se3.ad(screws[j]) @ gens[-1])
+    cuts = np.cumsum([0] + [G.shape[1] for G in a.generators])
+    g = np.stack([G @ d[i:k] for G, i, k in zip(a.generators, cuts[:-1], cuts[1:])])  # all joints at once
+    screws = np.einsum("jab,jb->ja", se3.adjoint(se3.exp(g)), a.screws)
+    Jl, ad = se3.left_jacobian(g), se3.ad(screws)
+    gens = [Jl[j] @ G for j, G in enumerate(a.generators)]  # retracting again from here keeps basis == -ad(xi) G
+    bs = [-ad[j] @ G for j, G in enumerate(gens)]
     return replace(a, screws=screws, bases=tuple(bs), generators=tuple(gens))
 
 
