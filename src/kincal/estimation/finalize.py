@@ -240,8 +240,10 @@ def _estimates(problem: Problem, state, std, ok) -> list[Estimate]:
     layout = problem.layout
     disp, _ = displacement(state, problem.nominal, layout, problem.free_idx)
     nominal = np.zeros(layout.size)  # absolute kinds (offsets, compliance) report values, the others changes
+    value = disp.copy()
     for b in layout.blocks:
-        if b.kind.absolute:
+        if b.kind.absolute:  # the state's own value, bit for bit what the returned model carries
             nominal[b.slice] = b.kind.values(b.value(problem.nominal))
-    return [Estimate(layout.names[i], float(nominal[i]) + float(disp[i]), float(nominal[i]), float(std[k]),
+            value[b.slice] = b.kind.values(b.value(state))
+    return [Estimate(layout.names[i], float(value[i]), float(nominal[i]), float(std[k]),
                      layout.units[i], bool(ok[k])) for k, i in enumerate(problem.free_idx.tolist())]
