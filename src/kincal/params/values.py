@@ -15,6 +15,7 @@ import numpy as np
 from kincal.errors import ModelError
 from kincal.kinematics import ArmModel, Robot, conform_twists, tangent_basis, tangent_generators
 from kincal.kinematics.elastic import compliance_basis, compliance_coefficients, node_angles
+from kincal.kinematics.gravity import GravityLoad, gravity_load
 from kincal.lie import se3, so3
 
 
@@ -33,6 +34,7 @@ class ArmValues:
     generators: tuple = ()  # per joint (6, k_i): Ad(exp(G d)) retraction generators at the linearization point
     compliance: np.ndarray | None = None  # (p,) coefficients, rad/(N m) or m/N; None: zeros
     compliance_nodes: tuple = ()  # per joint None or its compliance node angles (m,); (): no joint has nodes
+    weights: GravityLoad | None = None  # the arm's own weight (fixed, not a parameter); None: no gravity load
 
     @property
     def dof(self) -> int:
@@ -76,7 +78,7 @@ class ArmValues:
             np.array(model.screws), np.array(model.offsets), np.array(model.base), np.array(model.home),
             np.array(model.tool), bases(model.screws, model.joint_types), model.joint_names, model.joint_types,
             generators(model.screws, model.joint_types), compliance_coefficients(model),
-            node_angles(model) if model.compliance_nodes else (),
+            node_angles(model) if model.compliance_nodes else (), gravity_load(model),
         )
 
 

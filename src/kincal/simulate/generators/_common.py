@@ -17,7 +17,7 @@ import numpy as np
 from kincal._validate import check_transform
 from kincal.data import Dataset
 from kincal.errors import DegenerateExperimentError, ModelError
-from kincal.kinematics import ArmModel, Robot, forward_kinematics
+from kincal.kinematics import ArmModel, Robot, loaded_forward_kinematics
 from kincal.noise import Noise
 from kincal.schema import LENGTH, NONE
 from kincal.simulate.noise import joint_readings
@@ -131,7 +131,7 @@ def validation_set(robot: Robot, arms, n: int, rng: np.random.Generator, name: s
         q = random_configurations(robot[a], n, rng)
         out[a] = Dataset(
             "pose", robot.name, (a,), {a: q},
-            measured={"T_tracker_tool": forward_kinematics(robot[a], q)},
+            measured={"T_tracker_tool": loaded_forward_kinematics(robot[a], q)},  # sags under its weight
             name=f"{name}-{a}", meta={"noise_free": True, "noise": dict(NOISE_FREE), "frame": "world (registered when evaluated)"},
         )
     return out
