@@ -231,3 +231,5 @@ def test_urdf_inertials_are_lumped_per_joint_in_the_arm_base_frame():
     assert arm.has_gravity_load and arm.payload_mass == 0.0  # base_link's own mass does not load the joints
     assert not from_urdf(URDF, "base_link", "tip", inertials=False).link_masses.any()
     assert not from_urdf(URDF, "base_link", "tip").has_gravity_load  # URDF has no gravity vector
+    with pytest.raises(DataFormatError, match=r"<urdf string>: link 'l2': inertial mass must be >= 0 kg, found -3"):
+        from_urdf(URDF.replace('<mass value="3"/>', '<mass value="-3"/>'), "base_link", "tip")

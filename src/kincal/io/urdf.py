@@ -123,7 +123,7 @@ def from_urdf(source, base_link: str, tip_link: str, *, name: str | None = None,
     model_fields.setdefault("lower", lower)
     model_fields.setdefault("upper", upper)
     if inertials:
-        masses, coms = _link_inertials(robot, base_link, names)
+        masses, coms = _link_inertials(robot, base_link, names, label)
         if np.any(masses):
             model_fields.setdefault("link_masses", masses)
             model_fields.setdefault("link_coms", coms)
@@ -131,7 +131,7 @@ def from_urdf(source, base_link: str, tip_link: str, *, name: str | None = None,
                     joint_types=tuple(types), **model_fields)
 
 
-def _link_inertials(robot, base_link: str, joints: list[str]) -> tuple[np.ndarray, np.ndarray]:
+def _link_inertials(robot, base_link: str, joints: list[str], label: str) -> tuple[np.ndarray, np.ndarray]:
     """Per moving chain joint (``joints``, in order) the mass (kg) of the links it carries before the next one,
     and their centre of mass in base_link's frame at q = 0 (zeros without mass)."""
     index = {name: i for i, name in enumerate(joints)}
@@ -143,6 +143,8 @@ def _link_inertials(robot, base_link: str, joints: list[str]) -> tuple[np.ndarra
     while stack:  # every link below base_link once (URDF links form a tree)
         link, T, owner = stack.pop()
         inertial = robot.link_map[link].inertial
+        if inertial is not None and inertial.mass is not None and not float(inertial.mass) >= 0:
+            raise DataFormatError(f"{label}: link {link!r}: inertial mass must be >= 0 kg, found {inertial.mass}")
         if owner is not None and inertial is not None and inertial.mass:
             origin = np.eye(4) if inertial.origin is None else np.asarray(inertial.origin, dtype=float)
             mass[owner] += float(inertial.mass)
