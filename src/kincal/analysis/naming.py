@@ -56,7 +56,8 @@ def describer(lin: Linearization, layout: Layout, experiments: Sequence) -> Call
     """Words for a null direction (p,) over the free coordinates of ``lin``: what the frames do (a translation,
     a rotation about a named joint axis, a screw motion), and the known trade-offs of the arm parameters."""
     axes, frames = _joint_axes_and_frames(lin.state, experiments)
-    loads = any("wrench_tool" in e.dataset.measured for e in experiments)
+    loads = any("wrench_tool" in e.dataset.measured or any(lin.state.arms[a].weights is not None for a in e.arms)
+                for e in experiments)  # tool loads, or the arm's own weight (kincal.kinematics.gravity)
     col = {int(i): k for k, i in enumerate(lin.free)}
     part = np.array([b.part if b.arm is not None else "" for b in (block_of(layout, i) for i in lin.free)])
     poses = []  # (name, columns, adjoint of its increment frame) of each pose frame with every coordinate free
@@ -70,7 +71,8 @@ def describer(lin: Linearization, layout: Layout, experiments: Sequence) -> Call
                  if np.linalg.norm(row[idx]) >= 1e-9]
         moved = set(part[np.abs(row) > 1e-9].tolist())
         if "compliance" in moved and not loads:
-            words.append("no data set applies a load (wrench_tool), so joint compliance has no effect")
+            words.append("no data set applies a load (wrench_tool) and no arm has a mass model with gravity, so joint "
+                         "compliance has no effect")
         if "offsets" in moved and moved & {"twists", "home"}:
             words.append("in a full POE model a joint offset equals rotating the later joint axes and the home pose "
                          "about that joint's axis")

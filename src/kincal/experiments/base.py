@@ -139,17 +139,18 @@ class Experiment:
 
     def _kin(self, state: State, arm: str) -> Kinematics:
         """The arm's kinematics at the data's readings (the composite chain through its ancestors when mounted,
-        ``kincal.kinematics.tree``); deflected by ``wrench_tool`` when the data has loads."""
+        ``kincal.kinematics.tree``); deflected by ``wrench_tool`` when the data has loads and by the arm's own
+        weight when its model has masses and gravity (``kincal.kinematics.gravity``; not for mounted arms yet)."""
         line = lineage(state.mounts, arm)
         if len(line) > 1:
             return tree_kin(state, line, self.dataset.q, self.dataset.measured.get("wrench_tool"))
         a = state.arms[arm]
         theta0 = self.dataset.q[arm] + a.offsets
         w = self.dataset.measured.get("wrench_tool")
-        if w is None:
+        if w is None and a.weights is None:
             return chain(a.screws, theta0, a.base, a.home, a.tool)
         c = a.compliance_at(self.dataset.q[arm])  # (n,), or (N, n) when a joint's compliance depends on its angle
-        return loaded_chain(a.screws, theta0, a.base, a.home, a.tool, c, w)
+        return loaded_chain(a.screws, theta0, a.base, a.home, a.tool, c, w, a.weights)
 
     def _fk(self, state: State, arm: str) -> np.ndarray:
         return self._kin(state, arm).tool

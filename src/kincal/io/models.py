@@ -43,8 +43,8 @@ NEGATIVE_HINT = ("; a calibrated model's estimates below 0 load with 'allow_nega
 
 _TOP_KEYS = {"format", "version", "name", "units", "meta", "arms", "orthonormalize"}
 _ARM_KEYS = {"joints", "base", "home", "tool", "controller_order", "meta", "allow_negative_compliance",
-             "mount", "couplings"}
-_JOINT_KEYS = {"name", "type", "axis", "point", "twist", "offset", "limits", "gear_ratio", "compliance"}
+             "mount", "couplings", "payload", "gravity"}
+_JOINT_KEYS = {"name", "type", "axis", "point", "twist", "offset", "limits", "gear_ratio", "compliance", "mass", "com"}
 _POSE_KEYS = {"matrix", "xyz", "rpy", "quaternion_wxyz", "rotation", "orthonormalize"}
 
 
@@ -180,6 +180,7 @@ def _arm(ctx: _Ctx, name: str, data: Any, path: str) -> ArmModel:
             allow_negative_compliance=negative,
             couplings=_couplings(ctx, d.get("couplings"), dict(zip(names, (p["type"] for p in parsed))),
                                  f"{path}.couplings"),
+            **_mass_model(ctx, d, parsed, path),
         )
     except KincalError as exc:  # cross-field problems the per-field checks cannot see
         raise ctx.fail(path, str(exc)) from None
@@ -282,7 +283,30 @@ def _joint(ctx: _Ctx, data: Any, path: str, index: int, negative: bool = False) 
             raise ctx.fail(f"{path}.compliance", f"expected a compliance >= 0 ({unit}), found "
                            f"{quote(compliance / scale)}{NEGATIVE_HINT}")
     return {"name": name, "type": kind, "twist": twist, "offset": offset, "lower": lower, "upper": upper,
-            "gear_ratio": ratio, "compliance": compliance}
+            "gear_ratio": ratio, "compliance": compliance, **_link_mass(ctx, d, path)}
+
+
+def _link_mass(ctx: _Ctx, d: dict, path: str) -> dict:
+    """A joint's ``mass`` (kg) and ``com`` (length units, arm base frame at q = 0) of the link it moves."""
+    if ("mass" in d) != ("com" in d):
+        raise ctx.fail(path, "give a link's 'mass' (kg) and 'com' (its centre of mass) together")
+    mass = _number(ctx, d.get("mass", 0.0), f"{path}.mass")
+    if mass < 0:
+        raise ctx.fail(f"{path}.mass", f"expected a mass >= 0 kg, found {quote(d['mass'])}")
+    return {"mass": mass, "com": _vector(ctx, d.get("com", [0.0, 0.0, 0.0]), f"{path}.com", 3) * ctx.length}
+
+
+def _mass_model(ctx: _Ctx, d: dict, joints: list[dict], path: str) -> dict:
+    """ArmModel's mass fields: link masses from the joints, the arm's ``payload`` {mass, com (tool frame)} and
+    ``gravity`` (m/s^2, world frame)."""
+    out = {"link_masses": [j["mass"] for j in joints], "link_coms": [j["com"] for j in joints]}
+    if "payload" in d:
+        p = _mapping(ctx, d["payload"], f"{path}.payload", {"mass", "com"}, required=("mass", "com"))
+        out.update(_link_mass(ctx, p, f"{path}.payload"))
+        out["payload_mass"], out["payload_com"] = out.pop("mass"), out.pop("com")
+    if "gravity" in d:
+        out["gravity"] = _vector(ctx, d["gravity"], f"{path}.gravity", 3)
+    return out
 
 
 def _compliance_nodes(ctx: _Ctx, data: dict, path: str, kind: str, limits, negative: bool) -> np.ndarray:
@@ -521,6 +545,8 @@ def _arm_to_dict(arm: ArmModel) -> dict:
             j["compliance"] = {"nodes": _floats(t[:, 0]), "values": _floats(t[:, 1])}
         elif arm.compliance[i] != 0:
             j["compliance"] = float(arm.compliance[i])
+        if arm.link_masses[i] != 0 or np.any(arm.link_coms[i]):
+            j.update(mass=float(arm.link_masses[i]), com=_floats(arm.link_coms[i]))
         joints.append(j)
     out = {
         "base": {"matrix": [_floats(r) for r in arm.base]},
@@ -535,7 +561,18 @@ def _arm_to_dict(arm: ArmModel) -> dict:
         out["meta"] = _plain(arm.meta)
     if arm.couplings:
         out["couplings"] = {j: dict(t) for j, t in arm.couplings.items()}
+    out.update(_mass_to_dict(arm))
     out["joints"] = joints
+    return out
+
+
+def _mass_to_dict(arm: ArmModel) -> dict:
+    """The arm's ``payload`` and ``gravity`` keys, when set (link masses are joint keys)."""
+    out = {}
+    if arm.payload_mass != 0 or np.any(arm.payload_com):
+        out["payload"] = {"mass": float(arm.payload_mass), "com": _floats(arm.payload_com)}
+    if arm.gravity is not None:
+        out["gravity"] = _floats(arm.gravity)
     return out
 
 

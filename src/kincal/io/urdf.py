@@ -7,6 +7,10 @@ transform). Joint i with URDF origin ``O_i`` and unit axis ``a_i`` (in its own f
 Revolute/prismatic limits are kept (missing lower/upper attributes mean unlimited); continuous joints
 are unlimited. URDF axes are normalized (URDF
 treats ``axis`` as a direction). Mimic, floating and planar joints are refused.
+Inertials (``inertials=True``): each link's ``<inertial>`` mass and origin, lumped per moving joint of the chain
+(a link belongs to the last chain joint on its path from base_link: links on fixed joints, side branches and
+links beyond tip_link included, other joints at zero), centres of mass in base_link's frame at q = 0; the
+gravity vector is not in URDF: give ``gravity=`` (``ArmModel``) for the weights to load the joints.
 
 Branched URDFs (``tree_from_urdf``): one base link and several tip links (given, or every leaf link) become a
 ``Robot`` with mounted arms (``Robot.mounts``), split at the links where the tips' chains part: the chain from
@@ -78,11 +82,13 @@ def _chain(robot, base_link: str, tip_link: str, label: str) -> list:
     return chain[::-1]
 
 
-def from_urdf(source, base_link: str, tip_link: str, *, name: str | None = None, **model_fields) -> ArmModel:
+def from_urdf(source, base_link: str, tip_link: str, *, name: str | None = None, inertials: bool = True,
+              **model_fields) -> ArmModel:
     """ArmModel of the URDF chain from ``base_link`` to ``tip_link`` (``home = T_base_link_tip_link`` at q = 0).
 
-    ``source`` is a URDF file path or URDF text. ``model_fields`` go to ArmModel (base, tool, gear_ratios, ...).
-    Joint names are the URDF joint names.
+    ``source`` is a URDF file path or URDF text. ``model_fields`` go to ArmModel (base, tool, gear_ratios,
+    gravity, ...). Joint names are the URDF joint names. ``inertials``: read the links' masses and centres of
+    mass (module docstring).
     """
     robot, label = _load(source)
     T = np.eye(4)
@@ -122,6 +128,11 @@ def from_urdf(source, base_link: str, tip_link: str, *, name: str | None = None,
         raise DataFormatError(f"{label}: no moving joint between {base_link!r} and {tip_link!r}")
     model_fields.setdefault("lower", lower)
     model_fields.setdefault("upper", upper)
+    if inertials:
+        masses, coms = _link_inertials(robot, base_link, names, label)
+        if np.any(masses):
+            model_fields.setdefault("link_masses", masses)
+            model_fields.setdefault("link_coms", coms)
     return ArmModel(name or f"{base_link}->{tip_link}", np.array(screws), T, joint_names=tuple(names),
                     joint_types=tuple(types), **model_fields)
 
@@ -171,6 +182,30 @@ def _fixed(robot, start: str, end: str, label: str) -> np.ndarray:
     for joint in _chain(robot, start, end, label):
         T = T @ (np.eye(4) if joint.origin is None else np.asarray(joint.origin, dtype=float))
     return T
+
+
+def _link_inertials(robot, base_link: str, joints: list[str], label: str) -> tuple[np.ndarray, np.ndarray]:
+    """Per moving chain joint (``joints``, in order) the mass (kg) of the links it carries before the next one,
+    and their centre of mass in base_link's frame at q = 0 (zeros without mass)."""
+    index = {name: i for i, name in enumerate(joints)}
+    children: dict[str, list] = {}
+    for j in robot.joint_map.values():
+        children.setdefault(j.parent, []).append(j)
+    mass, moment = np.zeros(len(joints)), np.zeros((len(joints), 3))
+    stack = [(base_link, np.eye(4), None)]
+    while stack:  # every link below base_link once (URDF links form a tree)
+        link, T, owner = stack.pop()
+        inertial = robot.link_map[link].inertial
+        if inertial is not None and inertial.mass is not None and not float(inertial.mass) >= 0:
+            raise DataFormatError(f"{label}: link {link!r}: inertial mass must be >= 0 kg, found {inertial.mass}")
+        if owner is not None and inertial is not None and inertial.mass:
+            origin = np.eye(4) if inertial.origin is None else np.asarray(inertial.origin, dtype=float)
+            mass[owner] += float(inertial.mass)
+            moment[owner] += float(inertial.mass) * (T @ origin)[:3, 3]
+        for j in children.get(link, []):
+            origin = np.eye(4) if j.origin is None else np.asarray(j.origin, dtype=float)
+            stack.append((j.child, T @ origin, index.get(j.name, owner)))
+    return mass, np.divide(moment, mass[:, None], out=np.zeros_like(moment), where=mass[:, None] > 0)
 
 
 def _origin_xml(T: np.ndarray) -> str:

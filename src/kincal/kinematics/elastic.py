@@ -24,6 +24,9 @@ are calibrated and the compliance has no offset derivative. Every compliance is 
 
 In world coordinates ``tau_i = xi_s_i . F_s`` with ``xi_s_i = Ad(P_{i-1}) xi_i`` the current joint axis and
 ``F_s = Ad(T_world_tool^-1)^T wrench`` the load as a spatial wrench (the same number in any frame).
+
+The arm's own weight (``ArmModel`` mass model and gravity, ``kincal.kinematics.gravity``) adds the weight beyond
+each joint to the load it transmits: ``tau_i = xi_s_i . (W_i + F_s)``, same sign and first-order model.
 """
 
 from __future__ import annotations
@@ -33,7 +36,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from kincal._validate import as_array
-from kincal.kinematics.fk import Kinematics, chain, joint_array
+from kincal.kinematics.fk import Kinematics, chain, forward_kinematics, joint_array
+from kincal.kinematics.gravity import GravityLoad, gravity_load, mass_beyond, weight_wrenches
 from kincal.kinematics.model import ArmModel
 from kincal.lie import se3
 
@@ -43,24 +47,41 @@ class LoadedKinematics(Kinematics):
     """Kinematics at the deflected joint values, with the unloaded pass that gave the load torques.
 
     ``unloaded``: the chain at ``theta0``; ``wrench_space`` (..., 6): ``F_s``; ``axes`` (..., n, 6): ``xi_s_i`` at
-    ``theta0``; ``tau`` (..., n): load torques (N m; N for prismatic joints).
+    ``theta0``; ``tau`` (..., n): load torques (N m; N for prismatic joints). With weights
+    (``kincal.kinematics.gravity``): ``gravity`` (3,), the mass beyond each joint ``masses_beyond`` (n + 1,), its
+    first moment ``moments_beyond`` (..., n + 1, 3) and ``wrench_beyond`` (..., n + 1, 6), weights plus ``F_s``.
     """
 
     unloaded: Kinematics | None = None
     wrench_space: np.ndarray | None = None
     axes: np.ndarray | None = None
     tau: np.ndarray | None = None
+    gravity: np.ndarray | None = None
+    masses_beyond: np.ndarray | None = None
+    moments_beyond: np.ndarray | None = None
+    wrench_beyond: np.ndarray | None = None
 
 
-def loaded_chain(screws, theta0, base, home, tool, compliance, wrench_tool) -> LoadedKinematics:
-    """Unvalidated kernel on raw arrays: ``theta0`` (..., n) unloaded joint values, ``wrench_tool`` (..., 6),
-    ``compliance`` (n,) or per sample (..., n)."""
+def loaded_chain(screws, theta0, base, home, tool, compliance, wrench_tool,
+                 weights: GravityLoad | None = None) -> LoadedKinematics:
+    """Unvalidated kernel on raw arrays: ``theta0`` (..., n) unloaded joint values, ``wrench_tool`` (..., 6) or
+    None (no tool load), ``compliance`` (n,) or per sample (..., n), ``weights`` the arm's mass model or None."""
     kin0 = chain(screws, theta0, base, home, tool)
-    F_s = np.einsum("...ji,...j->...i", se3.adjoint_inv(kin0.tool), wrench_tool)  # Ad(T^-1)^T F_b
+    if wrench_tool is None:
+        F_s = np.zeros(kin0.theta.shape[:-1] + (6,))
+    else:
+        F_s = np.einsum("...ji,...j->...i", se3.adjoint_inv(kin0.tool), wrench_tool)  # Ad(T^-1)^T F_b
     axes = np.einsum("...kij,kj->...ki", se3.adjoint(kin0.prefixes[..., :-1, :, :]), screws)
-    tau = np.einsum("...ki,...i->...k", axes, F_s)
+    extra = ()
+    if weights is None:
+        tau = np.einsum("...ki,...i->...k", axes, F_s)
+    else:
+        M, S = mass_beyond(weights, kin0.prefixes, kin0.tool)
+        W = weight_wrenches(M, S, weights.g) + F_s[..., None, :]
+        tau = np.einsum("...ki,...ki->...k", axes, W[..., :-1, :])
+        extra = (weights.g, M, S, W)
     kin = chain(screws, kin0.theta + compliance * tau, base, home, tool)
-    return LoadedKinematics(kin.theta, kin.exps, kin.prefixes, kin.flange, kin.tool, kin0, F_s, axes, tau)
+    return LoadedKinematics(kin.theta, kin.exps, kin.prefixes, kin.flange, kin.tool, kin0, F_s, axes, tau, *extra)
 
 
 def compliance_coefficients(model: ArmModel) -> np.ndarray:
@@ -115,19 +136,24 @@ def _wrench(wrench_tool, shape) -> np.ndarray:
     return np.broadcast_to(w, shape + (6,))
 
 
-def loaded_kinematics(model: ArmModel, q, wrench_tool) -> LoadedKinematics:
-    """Forward kinematics of ``model`` at readings q (..., n) under ``wrench_tool`` (6,) or (..., 6)."""
+def loaded_kinematics(model: ArmModel, q, wrench_tool=None) -> LoadedKinematics:
+    """Forward kinematics of ``model`` at readings q (..., n) under ``wrench_tool`` (6,) or (..., 6) (None: no
+    tool load) and the model's own weight when it has a mass model and gravity."""
     q = joint_array(model, q)
-    w = _wrench(wrench_tool, q.shape[:-1])
+    w = None if wrench_tool is None else _wrench(wrench_tool, q.shape[:-1])
     c = joint_compliance(model, q)
-    return loaded_chain(model.screws, q + model.offsets, model.base, model.home, model.tool, c, w)
+    return loaded_chain(model.screws, q + model.offsets, model.base, model.home, model.tool, c, w, gravity_load(model))
 
 
-def loaded_forward_kinematics(model: ArmModel, q, wrench_tool) -> np.ndarray:
-    """``T_world_tool`` of the deflected arm: (..., n) readings, (6,) or (..., 6) loads -> (..., 4, 4)."""
+def loaded_forward_kinematics(model: ArmModel, q, wrench_tool=None) -> np.ndarray:
+    """``T_world_tool`` of the deflected arm: (..., n) readings, (6,) or (..., 6) loads (None: none) -> (..., 4, 4);
+    deflected by the arm's own weight too when the model has one (the rigid pose when nothing loads it)."""
+    if wrench_tool is None and not model.has_gravity_load:
+        return forward_kinematics(model, q)
     return loaded_kinematics(model, q, wrench_tool).tool
 
 
-def load_torques(model: ArmModel, q, wrench_tool) -> np.ndarray:
-    """Joint load torques ``J_b(q + o)^T wrench_tool`` (..., n) at the unloaded configuration."""
+def load_torques(model: ArmModel, q, wrench_tool=None) -> np.ndarray:
+    """Joint load torques ``J_b(q + o)^T wrench_tool`` (..., n) at the unloaded configuration, plus the arm's
+    own weight when the model has a mass model and gravity."""
     return loaded_kinematics(model, q, wrench_tool).tau

@@ -20,7 +20,8 @@ position k of the chain (after the prefix ``P_k``); it moves the axes after it a
 ``dtau_i = [i <= k] h_i . zeta`` with ``h_i = F_s^T ad(xi_s_i)``: only the axes the parameter does not carry see
 the load turn. Offset j inserts ``xi_s_j`` at k = j (0-based: rows i < j), a twist tangent ``+Ad(P_j) G_j``
 before joint j and ``-Ad(P_{j+1}) G_j`` after it, home ``Ad(P_n)`` and tool ``Ad(T_world_flange)`` after every
-joint; the base moves everything (no change).
+joint; the base moves everything (no change). The arm's own weight does not turn with the arm: its torques'
+derivatives (the base's too) are in ``kincal.kinematics.gravity``.
 
 Angle-dependent compliance (``kincal.kinematics.elastic``): with ``c(q) = W(q) k`` the block is w.r.t. the
 coefficients k, ``sum_i Jq[..., i] tau_i W[i, :]``, and a joint reading also moves its own compliance:
@@ -35,6 +36,7 @@ import numpy as np
 
 from kincal.kinematics.elastic import LoadedKinematics
 from kincal.kinematics.fk import Kinematics
+from kincal.kinematics.gravity import gravity_torque_derivatives
 from kincal.lie import se3
 
 TOOL_PARTS = ("offsets", "twists", "home", "base", "tool", "compliance")
@@ -63,7 +65,8 @@ def tool_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, generator
     """
     N, k = G.shape[:2]
     n = screws.shape[0]
-    loaded = isinstance(kin, LoadedKinematics) and (with_jq or any(p != "base" for p in parts))
+    loaded = isinstance(kin, LoadedKinematics) and (with_jq or any(p != "base" for p in parts)
+                                                     or kin.gravity is not None)  # weights: the base matters
     joints = with_jq or "offsets" in parts or loaded
     twists = "twists" in parts
     idx = [*range(n + 1)] if twists else ([*range(n)] if joints else []) + ([n] if "home" in parts else [])
@@ -94,7 +97,10 @@ def tool_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, generator
 
 
 def torque_derivatives(kin: LoadedKinematics, generators: Sequence[np.ndarray], parts) -> dict[str, np.ndarray]:
-    """``dtau/dp`` (N, n, d) for the parts in ``parts`` among offsets, twists, home, tool (unloaded chain)."""
+    """``dtau/dp`` (N, n, d) for the parts in ``parts`` among offsets, twists, home, tool (unloaded chain); with
+    weights (``kincal.kinematics.gravity``) also base."""
+    if kin.gravity is not None:
+        return gravity_torque_derivatives(kin, generators, parts)
     k0 = kin.unloaded
     n = len(generators)
     H = np.einsum("Ni,Nkij->Nkj", kin.wrench_space, se3.ad(kin.axes))  # (N, n, 6): h_i
@@ -152,13 +158,14 @@ def _add_compliance(kin: LoadedKinematics, generators, k_c: np.ndarray, basis, j
     jt = jq * kin.tau[:, None, :]
     if "compliance" in parts:
         out["compliance"] = jt if basis is None else jt @ basis[0]
-    want = [p for p in _CORRECTED if p in parts] + ([] if "offsets" in parts else ["offsets"])
+    corrected = _CORRECTED + (("base",) if kin.gravity is not None else ())
+    want = [p for p in corrected if p in parts] + ([] if "offsets" in parts else ["offsets"])
     c = k_c if basis is None else basis[0] @ k_c  # (n,) or per sample (N, n)
     if not np.any(c):
         return jq
     cjq = jq * c[..., None, :]
     D = torque_derivatives(kin, generators, want)
-    for p in _CORRECTED:
+    for p in corrected:
         if p in parts:
             out[p] = out[p] + cjq @ D[p]
     own = 0.0 if basis is None else jt * (basis[1] @ k_c)[:, None, :]  # a reading moves its own compliance

@@ -65,6 +65,18 @@ class ArmModel:
         0-based model joint index carried by each controller channel (Frida: (0, 1, 3, 4, 5, 6, 2):
         its axes are numbered 1, 2, 7, 3, 4, 5, 6 from the base, so channel 7 carries model joint 3).
     joint_names, joint_types : tuple of str
+    link_masses : ndarray, shape (n,)
+        Mass (kg) of link i, the body moved by joint i (and by no later joint); default zeros.
+    link_coms : ndarray, shape (n, 3)
+        Centre of mass of link i (m) in the arm base frame at q = 0, like the screws; default zeros.
+    payload_mass : float
+        Mass (kg) carried by the tool; default 0.
+    payload_com : ndarray, shape (3,)
+        The payload's centre of mass (m) in the tool frame.
+    gravity : ndarray, shape (3,), optional
+        Gravitational acceleration (m/s^2) in the world frame, e.g. (0, 0, -9.81); None (default): the mass
+        model loads nothing. With masses and gravity, the weights load the joint compliances in every
+        configuration (``kincal.kinematics.gravity``).
     meta : mapping
         Free-form provenance (source, notes); not used in computation.
     """
@@ -87,6 +99,12 @@ class ArmModel:
     allow_negative_compliance: bool = False
     # --- joint couplings (kincal.kinematics.couplings): joint -> {other joint: coefficient, "constant": c}
     couplings: Mapping[str, Mapping[str, float]] | None = None
+    # mass model (kincal.kinematics.gravity): one block, validated by _mass_fields
+    link_masses: np.ndarray | None = None
+    link_coms: np.ndarray | None = None
+    payload_mass: float = 0.0
+    payload_com: np.ndarray | None = None
+    gravity: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         where = f"arm '{self.name}'"
@@ -147,6 +165,8 @@ class ArmModel:
 
         set_("allow_negative_compliance", bool(self.allow_negative_compliance))
         set_("compliance_nodes", MappingProxyType(_nodes(self, where)))
+        for key, value in _mass_fields(self, where).items():
+            set_(key, value)
         order = tuple(range(n)) if self.controller_order is None else tuple(int(i) for i in self.controller_order)
         if sorted(order) != list(range(n)):
             raise ModelError(f"{where}: controller_order must be a permutation of 0..{n - 1}, got {order}")
@@ -157,6 +177,12 @@ class ArmModel:
     @property
     def dof(self) -> int:
         return self.screws.shape[0]
+
+    @property
+    def has_gravity_load(self) -> bool:
+        """Whether gravity acts on some mass of this arm (``kincal.kinematics.gravity``)."""
+        return self.gravity is not None and bool(np.any(self.gravity)) and (
+            bool(np.any(self.link_masses)) or self.payload_mass > 0)
 
     def replace(self, **changes) -> "ArmModel":
         """A copy with some fields changed (validated again)."""
@@ -173,7 +199,8 @@ class ArmModel:
     def __eq__(self, other) -> bool:
         if not isinstance(other, ArmModel):
             return NotImplemented
-        arrays = ("screws", "home", "base", "tool", "offsets", "lower", "upper", "gear_ratios", "compliance")
+        arrays = ("screws", "home", "base", "tool", "offsets", "lower", "upper", "gear_ratios", "compliance",
+                  "link_masses", "link_coms", "payload_mass", "payload_com")
         return (
             self.name == other.name
             and self.joint_names == other.joint_names
@@ -183,6 +210,8 @@ class ArmModel:
             and self.compliance_nodes.keys() == other.compliance_nodes.keys()
             and all(np.array_equal(v, other.compliance_nodes[k]) for k, v in self.compliance_nodes.items())
             and _plain_couplings(self) == _plain_couplings(other)
+            and (self.gravity is None) == (other.gravity is None)
+            and (self.gravity is None or np.array_equal(self.gravity, other.gravity))
         )
 
     __hash__ = None  # type: ignore[assignment]
@@ -219,6 +248,27 @@ def _nodes(arm: ArmModel, where: str) -> dict[str, np.ndarray]:
         if np.any(t[:, 1] < 0) and not arm.allow_negative_compliance:
             raise ModelError(f"{at}: compliances must be >= 0 (rad/(N m)), got {t[:, 1].tolist()}")
         out[name] = _frozen(t)
+    return out
+
+
+def _mass_fields(arm: ArmModel, where: str) -> dict:
+    """The mass model checked: masses >= 0, finite centres of mass, gravity (3,) or None."""
+    n = arm.dof
+
+    def finite(key, value, shape, default):
+        a = np.full(shape, default, dtype=float) if value is None else np.asarray(value, dtype=float)
+        if a.shape != shape or not np.all(np.isfinite(a)):
+            raise ModelError(f"{where}: {key} must be finite with shape {shape}, got {np.round(a, 6).tolist()}")
+        return _frozen(a)
+
+    out = {"link_masses": finite("link_masses", arm.link_masses, (n,), 0.0),
+           "link_coms": finite("link_coms", arm.link_coms, (n, 3), 0.0),
+           "payload_mass": float(finite("payload_mass", arm.payload_mass, (), 0.0)),
+           "payload_com": finite("payload_com", arm.payload_com, (3,), 0.0),
+           "gravity": None if arm.gravity is None else finite("gravity", arm.gravity, (3,), 0.0)}
+    if np.any(out["link_masses"] < 0) or out["payload_mass"] < 0:
+        raise ModelError(f"{where}: masses must be >= 0 kg, got link masses {out['link_masses'].tolist()}, "
+                         f"payload {out['payload_mass']:g}")
     return out
 
 
@@ -298,4 +348,8 @@ def checked_mounts(mounts, arms: Mapping, robot: str) -> dict[str, str]:
                 cycle = " -> ".join(seen[seen.index(nxt):] + [nxt])
                 raise ModelError(f"robot '{robot}': arm '{child}': mount: the mounts form a cycle ({cycle})")
             seen.append(nxt)
+    loaded = next((a for c, p in out.items() for a in (c, p) if arms[a].has_gravity_load), None)
+    if loaded is not None:  # the weights of one branch load the carriers' joints: not modelled yet
+        raise ModelError(f"robot '{robot}': arm '{loaded}': gravity loads (a mass model with gravity) are not "
+                         "supported on mounted arms or their carriers yet; give the tree without gravity")
     return out

@@ -16,6 +16,7 @@ from kincal.errors import ModelError
 from kincal.kinematics import ArmModel, Robot, conform_twists, tangent_basis, tangent_generators
 from kincal.kinematics.couplings import coupling_map
 from kincal.kinematics.elastic import compliance_basis, compliance_coefficients, node_angles
+from kincal.kinematics.gravity import GravityLoad, gravity_load
 from kincal.lie import se3, so3
 
 
@@ -35,6 +36,7 @@ class ArmValues:
     compliance: np.ndarray | None = None  # (p,) coefficients, rad/(N m) or m/N; None: zeros
     compliance_nodes: tuple = ()  # per joint None or its compliance node angles (m,); (): no joint has nodes
     coupling: np.ndarray | None = None  # (n, n) d readings / d free readings (kinematics.couplings); None: identity
+    weights: GravityLoad | None = None  # the arm's own weight (fixed, not a parameter); None: no gravity load
 
     @property
     def dof(self) -> int:
@@ -80,6 +82,7 @@ class ArmValues:
             generators(model.screws, model.joint_types), compliance_coefficients(model),
             node_angles(model) if model.compliance_nodes else (),
             coupling_map(model.couplings, model.joint_names)[0] if model.couplings else None,
+            gravity_load(model),
         )
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from kincal._validate import check_transform
 from kincal.data import Dataset
 from kincal.errors import DegenerateExperimentError, ModelError
-from kincal.kinematics import ArmModel, Robot, forward_kinematics
+from kincal.kinematics import ArmModel, Robot, loaded_forward_kinematics
 from kincal.kinematics.tree import tip_pose
 from kincal.simulate.generators._tree import with_couplings
 from kincal.noise import Noise
@@ -133,7 +133,8 @@ def validation_set(robot: Robot, arms, n: int, rng: np.random.Generator, name: s
         q = with_couplings(robot, {s: random_configurations(robot[s], n, rng) for s in robot.lineage(a)})
         out[a] = Dataset(
             "pose", robot.name, (a,), q,
-            measured={"T_tracker_tool": tip_pose(robot, a, q)},
+            measured={"T_tracker_tool": tip_pose(robot, a, q) if len(q) > 1  # mounted: through its carriers
+                      else loaded_forward_kinematics(robot[a], q[a])},  # sags under its weight
             name=f"{name}-{a}", meta={"noise_free": True, "noise": dict(NOISE_FREE), "frame": "world (registered when evaluated)"},
         )
     return out

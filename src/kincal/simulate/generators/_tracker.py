@@ -6,7 +6,7 @@ import numpy as np
 
 from kincal._validate import as_array
 from kincal.errors import ModelError
-from kincal.kinematics import ArmModel, Robot, forward_kinematics, loaded_forward_kinematics
+from kincal.kinematics import ArmModel, Robot, loaded_forward_kinematics
 from kincal.lie import se3, so3
 
 
@@ -61,5 +61,6 @@ def validation_loads(wrench, loads, n: int, rng) -> np.ndarray | None:
 
 
 def tool_poses(model: ArmModel, q, loads) -> np.ndarray:
-    """True tool poses: deflected by the loads (with the model's compliance) when there are loads."""
-    return forward_kinematics(model, q) if loads is None else loaded_forward_kinematics(model, q, loads)
+    """True tool poses: deflected by the loads and the arm's own weight (with the model's compliance) when there
+    are loads or the model has a mass model and gravity."""
+    return loaded_forward_kinematics(model, q, loads)
