@@ -37,13 +37,27 @@ from kincal.experiments.base import KINDS
 
 PER_ROW = 450.0
 PER_CELL = 8.0
+# A problem larger than one block of this many bytes of working memory is evaluated block by block
+# (``estimation.blocks``); what stays of the data's size is ``KEPT_PER_ROW`` doubles per residual row (residual,
+# whiteners, encoder Jacobians, statistics).
+CHUNK_BYTES = 64 * 2**20
+KEPT_PER_ROW = 60.0
 ENV = "KINCAL_MEMORY_LIMIT"
 _SUFFIX = {"": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
 
 
 def solve_bytes(rows: int, free: int) -> int:
-    """The peak memory (bytes) a solve with ``rows`` residual rows and ``free`` free coordinates allocates."""
-    return int(8 * rows * (PER_ROW + PER_CELL * free))
+    """The peak memory (bytes) a solve with ``rows`` residual rows and ``free`` free coordinates allocates: a
+    problem of more than one block holds the block's working memory and ``KEPT_PER_ROW`` per row."""
+    block = chunk_rows(free)
+    if rows <= block:
+        return int(8 * rows * (PER_ROW + PER_CELL * free))
+    return int(8 * (block * (PER_ROW + PER_CELL * free) + rows * KEPT_PER_ROW))
+
+
+def chunk_rows(free: int) -> int:
+    """Residual rows per block of a large problem (``estimation.blocks``): ``CHUNK_BYTES`` of working memory."""
+    return max(int(CHUNK_BYTES / (8 * (PER_ROW + PER_CELL * free))), 1)
 
 
 def memory_limit() -> tuple[int, str]:

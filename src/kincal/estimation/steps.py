@@ -12,6 +12,7 @@ import numpy as np
 
 from kincal.analysis import Linearization
 from kincal.errors import DegenerateExperimentError
+from kincal.estimation import blocks
 from kincal.estimation.problem import Problem
 from kincal.params import State, scale_direction
 
@@ -26,9 +27,12 @@ def linearize(problem: Problem, state: State, W, every: bool) -> Linearization:
         layout = problem.layout
         moves = (np.array(layout.units) == "m") | (scale_direction(state, layout) != 0)
         fixed = np.flatnonzero(~layout.free & moves)
-    r, J, W, raw = problem.linearize(state, W, np.concatenate([problem.free_idx, fixed]))
+    cols = np.concatenate([problem.free_idx, fixed])
+    if problem.blocked:
+        return _linearize_blocks(problem, state, W, cols, every)
+    r, J, W, raw = problem.linearize(state, W, cols)
     if not np.all(np.isfinite(r)) or not np.all(np.isfinite(J)):
-        raise DegenerateExperimentError("residuals or Jacobian are not finite at the starting values")
+        raise DegenerateExperimentError(NOT_FINITE)
     if every:
         A = np.column_stack([J, problem.length_part(raw, W), r])
         J = J[:, :p]
@@ -36,6 +40,19 @@ def linearize(problem: Problem, state: State, W, every: bool) -> Linearization:
         A = np.column_stack([J, r])
     R = np.linalg.qr(A, mode="r")
     return Linearization(state, r, J, R, tuple(W), tuple(raw), problem.free_idx, fixed if every else None)
+
+
+NOT_FINITE = "residuals or Jacobian are not finite at the starting values"
+
+
+def _linearize_blocks(problem: Problem, state: State, W, cols: np.ndarray, every: bool) -> Linearization:
+    """``linearize`` of a large problem block by block (``estimation.blocks``): the same factor, up to row signs."""
+    r, R, W, raw = blocks.linearize(problem, state, W, cols, every)
+    if not np.all(np.isfinite(r)) or not np.all(np.isfinite(R)):
+        raise DegenerateExperimentError(NOT_FINITE)
+    J = blocks.BlockJacobian(problem, state, W, problem.free_idx, sum(x.size for x in raw))
+    return Linearization(state, r, J, R, tuple(W), tuple(raw), problem.free_idx,
+                         cols[len(problem.free_idx):] if every else None)
 
 
 # A constant residual with a zero Jacobian row, added to the inner LM problem: MINPACK's relative ftol then
