@@ -41,18 +41,24 @@ PER_CELL = 8.0
 # (``estimation.blocks``); what stays of the data's size is ``KEPT_PER_ROW`` doubles per residual row (residual,
 # whiteners, encoder Jacobians, statistics).
 CHUNK_BYTES = 64 * 2**20
-KEPT_PER_ROW = 60.0
+KEPT_PER_ROW = 120.0
 ENV = "KINCAL_MEMORY_LIMIT"
 _SUFFIX = {"": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
 
 
 def solve_bytes(rows: int, free: int) -> int:
-    """The peak memory (bytes) a solve with ``rows`` residual rows and ``free`` free coordinates allocates: a
-    problem of more than one block holds the block's working memory and ``KEPT_PER_ROW`` per row."""
+    """The peak memory (bytes) a solve with ``rows`` residual rows and ``free`` free coordinates allocates when
+    it holds them all at once (one block)."""
+    return int(8 * rows * (PER_ROW + PER_CELL * free))
+
+
+def need_bytes(rows: int, free: int) -> int:
+    """The peak memory (bytes) of the solve as it runs: ``solve_bytes`` up to one block; a larger problem holds one
+    block's working memory and ``KEPT_PER_ROW`` doubles per row (``estimation.blocks``)."""
     block = chunk_rows(free)
     if rows <= block:
-        return int(8 * rows * (PER_ROW + PER_CELL * free))
-    return int(8 * (block * (PER_ROW + PER_CELL * free) + rows * KEPT_PER_ROW))
+        return solve_bytes(rows, free)
+    return min(solve_bytes(rows, free), solve_bytes(block, free) + int(8 * rows * KEPT_PER_ROW))
 
 
 def chunk_rows(free: int) -> int:
@@ -83,7 +89,7 @@ def require_memory(datasets, free: int = 0) -> None:
     in ``memory_limit()``. With ``free=0`` (before the parameter layout is known) it refuses what the data
     alone make too large."""
     rows = residual_rows(datasets)
-    need = solve_bytes(rows, free)
+    need = need_bytes(rows, free)
     limit, source = memory_limit()
     if need > limit:
         raise ResourceError(

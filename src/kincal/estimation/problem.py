@@ -147,9 +147,9 @@ class Problem:
 
     @property
     def blocked(self) -> bool:
-        """Whether a data set has more configurations than one block: the problem is then evaluated by blocks."""
-        per = chunk_rows(len(self.free_idx))
-        return any(e.size > max(per // len(e.components()), 1) for e in self.experiments)
+        """Whether a data set has more configurations than one block (decided once, with ``parts``): the problem
+        is then evaluated by blocks."""
+        return len(self.parts()) > len(self.experiments)
 
     @property
     def free_names(self) -> list[str]:
