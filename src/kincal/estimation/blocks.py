@@ -16,6 +16,7 @@ from dataclasses import replace
 import numpy as np
 
 from kincal.experiments.base import Residual
+from kincal.params import pose_retraction_jacobians, retract
 
 
 def split(experiments, configurations) -> list[tuple[int, slice]]:
@@ -132,3 +133,45 @@ class BlockJacobian:
 
     def __len__(self) -> int:
         return self.shape[0]
+
+    def weighted_factor(self, weights: np.ndarray) -> np.ndarray:
+        """The triangular factor of ``sqrt(weights) * J`` (rows weighted), by blocks."""
+        R, start, w = None, 0, np.sqrt(weights)
+        for J in self.blocks():
+            R = fold(R, w[start: start + len(J), None] * J)
+            start += len(J)
+        return R
+
+
+def weighted_factor(J, weights: np.ndarray) -> np.ndarray:
+    """The triangular factor of the rows of J weighted by ``sqrt(weights)`` (a ``BlockJacobian`` by blocks)."""
+    if isinstance(J, BlockJacobian):
+        return J.weighted_factor(weights)
+    return np.linalg.qr(np.sqrt(weights)[:, None] * J, mode="r")
+
+
+def rows_at(problem, state0, delta_free: np.ndarray, W, jac: bool):
+    """The whitened residual rows (and Jacobian of the free coordinates) at ``retract(state0, delta)``, block by
+    block, the tail last: what ``Problem.evaluate`` stacks, never all at once."""
+    delta = problem.full_delta(delta_free)
+    state = retract(state0, problem.layout, delta)
+    Rl = {k: v for k, v in pose_retraction_jacobians(problem.layout, delta).items() if k in problem.want} if jac else {}
+    want = problem.want if jac else set()
+    cols = problem.free_idx if jac else None
+    for i, rows, part in problem.parts():
+        res = [part.experiments[0].residual(state, want=want, jq=False)]
+        yield part._stack(state, res, [W[i][rows]], cols, Rl)
+    tail = problem.tail()
+    if tail is not None:
+        yield tail._stack(state, [], [], cols, Rl)
+
+
+def evaluate(problem, state0, delta_free: np.ndarray, W, V: np.ndarray | None):
+    """``Problem.evaluate`` by blocks, the Jacobian projected on the columns ``V`` as each block comes: the
+    whitened residual (m,) and ``J @ V`` (m, V.shape[1]) or None (``V`` None)."""
+    rs, JV = [], []
+    for r, J in rows_at(problem, state0, delta_free, W, V is not None):
+        rs.append(r)
+        if V is not None:
+            JV.append(J @ V)
+    return np.concatenate(rs), None if V is None else np.concatenate(JV)

@@ -7,6 +7,7 @@ import numpy as np
 from kincal.analysis import Identifiability, Linearization, correlated_pairs, covariance, identify
 from kincal.analysis.naming import block_of
 from kincal.estimation import steps
+from kincal.estimation.blocks import weighted_factor
 from kincal.estimation.gauge import gauge_basis
 from kincal.estimation.iterate import Iteration, scale_test_needed
 from kincal.estimation.options import SolverOptions
@@ -151,7 +152,7 @@ def _uncertainty(lin: Linearization, ana: Identifiability, options: SolverOption
     """Covariance (p, p) in the solve's gauge (of the robustly weighted problem with a robust loss) scaled by
     ``sigma2``, standard deviations (nan where not identifiable) and the mask of identifiable coordinates."""
     p = lin.p
-    Rf = lin.Rf if options.loss == "linear" else np.linalg.qr(np.sqrt(weights)[:, None] * lin.J, mode="r")
+    Rf = lin.Rf if options.loss == "linear" else weighted_factor(lin.J, weights)
     V = gauge_basis(Rf, ana, options.gauge, list(order))
     cov = covariance(Rf, V, sigma2 if np.isfinite(sigma2) else 1.0) if V.shape[1] else np.zeros((p, p))
     std = np.sqrt(np.clip(np.diag(cov), 0, None))

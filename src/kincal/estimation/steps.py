@@ -79,8 +79,7 @@ def inner_solve(problem: Problem, state: State, lin: Linearization, V: np.ndarra
         key = z.tobytes()
         if key not in cache or (need_jac and cache[key][1] is None):
             cache.clear()
-            r, J = problem.evaluate(state, V @ z, lin.W, jac=need_jac)
-            cache[key] = (r, None if J is None else J @ V)
+            cache[key] = _evaluate_in(problem, state, V, z, lin.W, need_jac)
         return cache[key]
 
     sol = least_squares(
@@ -91,6 +90,15 @@ def inner_solve(problem: Problem, state: State, lin: Linearization, V: np.ndarra
     )
     cost = float(sol.cost) - 0.5 * float(floor[0] ** 2) if method == "lm" else float(sol.cost)
     return sol.x, max(cost, 0.0), sol.nfev
+
+
+def _evaluate_in(problem: Problem, state: State, V: np.ndarray, z: np.ndarray, W, jac: bool):
+    """The whitened residual at ``retract(state, V z)`` and, with ``jac``, its Jacobian in ``z`` (``J V``): a
+    large problem by blocks, so only ``J V`` is ever held whole."""
+    if problem.blocked:
+        return blocks.evaluate(problem, state, V @ z, W, V if jac else None)
+    r, J = problem.evaluate(state, V @ z, W, jac=jac)
+    return r, None if J is None else J @ V
 
 
 def converged(step: float, r0_norm: float, cost: float, dof: int) -> bool:
