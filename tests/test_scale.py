@@ -4,13 +4,14 @@ with working memory that does not grow with the number of configurations. A tiny
 block path runs on a small Frida dual problem."""
 
 import tracemalloc
-from dataclasses import replace
+from dataclasses import fields, replace
 
 import numpy as np
 import pytest
 
 from kincal.analysis import identify
 from kincal.estimation import blocks, calibrate, memory, steps
+from kincal.estimation.crossval import held_out_prediction
 from kincal.estimation.gauge import gauge_basis, priority
 from kincal.estimation.problem import Problem
 from kincal.estimation.outliers import REFERENCE_ROWS, beyond, row_threshold
@@ -155,3 +156,15 @@ def test_the_blocked_inner_solve_reaches_the_minimum_least_squares_finds(small, 
     # ftol (1e-10): on a flat minimum that is ~sqrt(ftol) in the step, whatever order the rows came in
     tol = 1e-9 if loss == "linear" else 1e-4
     np.testing.assert_allclose(d1, d0, rtol=0, atol=tol * np.max(np.abs(d0)))
+
+
+def test_held_out_predictions_by_blocks_are_the_whole_sets(small, monkeypatch):
+    robot, ds = small
+    res = calibrate(robot, [ds.subset(slice(0, 80))], FREE)
+    held = [ds.subset(slice(80, 120))]
+    whole = held_out_prediction(res, held)
+    monkeypatch.setattr(memory, "CHUNK_BYTES", TINY // 4)  # blocks of 5 configurations
+    by_blocks = held_out_prediction(res, held)
+    for a, b in zip(whole, by_blocks):
+        for f in fields(a):
+            np.testing.assert_allclose(getattr(b, f.name), getattr(a, f.name), rtol=1e-12)

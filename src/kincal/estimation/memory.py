@@ -21,6 +21,11 @@ the copies the solver keeps of it (whitened, restricted to the identifiable subs
 resident size also holds what the allocator keeps and BLAS buffers. The constants below bound every case
 measured, with a margin of at least 20 %.
 
+That is the peak of a problem held in one block. A larger one (more rows than ``chunk_rows``) is evaluated in
+blocks (``estimation.blocks``): ``need_bytes`` is then one block's working memory plus ``KEPT_PER_ROW`` doubles per
+row (residuals, whiteners, encoder Jacobians, statistics: measured 64 on Frida's dual arm with encoder noise by
+tracemalloc, about 80 as resident size at 100,000 configurations, tests/test_scale.py and bench/bench_scale.py).
+
 The limit is the memory available now: ``MemAvailable`` in /proc/meminfo (else the system's available pages),
 and below a cgroup's ``memory.max`` when one is set; ``KINCAL_MEMORY_LIMIT`` (bytes, or with K, M, G, T)
 overrides it.
