@@ -47,8 +47,11 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
 
+from kincal.data import Dataset  # noqa: E402
 from kincal.estimation import calibrate, memory  # noqa: E402
 from kincal.io.datasets import load_scenario, scenario_path  # noqa: E402
+from kincal.simulate.generators import GENERATORS  # noqa: E402
+from kincal.simulate.perturb import perturb_robot  # noqa: E402
 from kincal.simulate.scenario import build_scenario, run  # noqa: E402
 
 
@@ -64,16 +67,40 @@ copyreg.pickle(types.MappingProxyType, lambda m: (_read_only, (dict(m),)))
 SCENARIO = "frida_dual_bracket"
 FREE = ["kinematic", "clamp"]
 HUGE = 1_000_000
+SIM_BLOCK = 100_000  # configurations simulated at a time
 IMPORTS = "import kincal; import kincal.estimation"
 MiB = 1024 * 1024
 
 
 def simulate(n: int, path: Path) -> None:
-    """The scenario with ``n`` configurations and the clamp unknown, pickled with its nominal robot."""
+    """The scenario with ``n`` configurations and the clamp unknown, pickled with its nominal robot. Above
+    ``SIM_BLOCK`` configurations in blocks of that many, each from its own random stream with the same true
+    robot (the scenario's robot stream, as ``run`` draws it), so the simulation's memory stays that of one
+    block plus the joint readings."""
     scenario = build_scenario(load_scenario(scenario_path(SCENARIO)))
-    scenario = replace(scenario, options=dict(scenario.options, n=n, known_clamp=False), n_validation=1)
+    scenario = replace(scenario, options=dict(scenario.options, n=min(n, SIM_BLOCK), known_clamp=False),
+                       n_validation=1)
     ds = run(scenario)[1]
+    if n > SIM_BLOCK:
+        robot_rng = np.random.default_rng(np.random.SeedSequence(scenario.seed).spawn(2)[0])
+        true = perturb_robot(scenario.robot, scenario.perturbation, robot_rng, arms=scenario.perturb_arms)
+        more = [GENERATORS[scenario.kind](true, rng=np.random.default_rng([scenario.seed, 1 + j]), noise=scenario.noise,
+                                          n_validation=1, **scenario.options)[0]
+                for j in range((n - 1) // SIM_BLOCK)]
+        ds = Dataset(ds.kind, ds.robot, ds.arms, {a: np.concatenate([d.q[a] for d in [ds] + more])[:n] for a in ds.q},
+                     {k: np.concatenate([d.measured[k] for d in [ds] + more])[:n] for k in ds.measured}, ds.known,
+                     ds.name, ds.meta, ds.frames)
     path.write_bytes(pickle.dumps((scenario.robot, ds)))
+
+
+def tile(path: Path, n: int, out: Path) -> None:
+    """The pickled data set repeated to ``n`` configurations (identical rows: the same least-squares minimum)."""
+    robot, ds = pickle.loads(path.read_bytes())
+    reps = -(-n // ds.size)
+    ds = Dataset(ds.kind, ds.robot, ds.arms, {a: np.tile(v, (reps, 1))[:n] for a, v in ds.q.items()},
+                 {k: np.tile(v, (reps,) + (1,) * (v.ndim - 1))[:n] for k, v in ds.measured.items()}, ds.known,
+                 ds.name, ds.meta, ds.frames)
+    out.write_bytes(pickle.dumps((robot, ds)))
 
 
 def resident() -> int:
@@ -111,14 +138,18 @@ def child(*args: str) -> dict | None:
     return json.loads(lines[-1]) if lines else None
 
 
-def scale_rows(sizes, cache: Path, stacked=()):
+def scale_rows(sizes, cache: Path, stacked=(), tiled: bool = False):
     """One row per size: simulate (cached), then solve in a fresh process that reports its own peak RSS
     (``getrusage(RUSAGE_SELF)`` at its end: the parent's RUSAGE_CHILDREN is a maximum over every child, the
-    simulations included); at ``stacked`` sizes also the stacked solve, its estimates compared."""
+    simulations included); at ``stacked`` sizes also the stacked solve, its estimates compared. ``tiled``: N above
+    ``SIM_BLOCK`` is the ``SIM_BLOCK`` set repeated (``tile``)."""
     rows = []
     for n in sorted(sizes):
         path = cache / f"{SCENARIO}-{n}.pkl"
-        if not path.exists():
+        if tiled and n > SIM_BLOCK:
+            path = cache / f"{SCENARIO}-{n}-tiled.pkl"
+            tile(cache / f"{SCENARIO}-{SIM_BLOCK}.pkl", n, path)
+        elif not path.exists():
             t0 = time.perf_counter()
             child("--simulate", str(n), str(path))
             print(f"simulated N = {n} in {time.perf_counter() - t0:.0f} s ({path})", flush=True)
@@ -186,6 +217,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[1000, 10_000, 100_000])
     ap.add_argument("--huge", action="store_true", help=f"also N = {HUGE:,} (simulation and solve: minutes)")
+    ap.add_argument("--tiled", action="store_true",
+                    help=f"with --huge: the {SIM_BLOCK:,} set repeated instead of a fresh simulation (which takes long)")
     ap.add_argument("--stacked", type=int, nargs="*", default=[10_000], help="sizes also solved stacked")
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "kincal-bench-scale")
     ap.add_argument("--import-runs", type=int, default=5)
@@ -200,7 +233,7 @@ def main() -> None:
         return solve(Path(args.solve), stacked=args.solve_stacked)
     args.cache.mkdir(parents=True, exist_ok=True)
     median, mods = import_times(args.import_runs)
-    rows = scale_rows(args.sizes + ([HUGE] if args.huge else []), args.cache, set(args.stacked))
+    rows = scale_rows(args.sizes + ([HUGE] if args.huge else []), args.cache, set(args.stacked), args.tiled)
     print(f"\nFrida dual arm, {SCENARIO}, clamp unknown, free {FREE}; BLAS on one thread; one call per size; "
           f"load average {os.getloadavg()[0]:.1f}")
     print(scale_table(rows))

@@ -45,7 +45,7 @@ PER_CELL = 8.0
 # A problem larger than one block of this many bytes of working memory is evaluated block by block
 # (``estimation.blocks``); what stays of the data's size is ``KEPT_PER_ROW`` doubles per residual row (residual,
 # whiteners, encoder Jacobians, statistics).
-CHUNK_BYTES = 64 * 2**20
+CHUNK_BYTES = 32 * 2**20
 KEPT_PER_ROW = 120.0
 ENV = "KINCAL_MEMORY_LIMIT"
 _SUFFIX = {"": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
