@@ -19,7 +19,7 @@ from kincal.io.datasets import load_scenario, scenario_path
 from kincal.simulate.scenario import build_scenario, run
 
 FREE = ["kinematic", "clamp"]
-TINY = 1_200_000  # bytes of working memory per block: about 20 Frida dual configurations
+TINY = 600_000  # bytes of working memory per block: about 10 Frida dual configurations (by blocks from 90)
 
 
 def frida(n: int, seed: int = 0):
@@ -119,6 +119,7 @@ def test_the_memory_estimate_of_a_blocked_solve_holds_one_block():
     free = 88
     block = memory.chunk_rows(free)
     assert memory.need_bytes(block, free) == memory.solve_bytes(block, free)
+    assert not memory.by_blocks(memory.BLOCKS * block, free) and memory.by_blocks((memory.BLOCKS + 1) * block, free)
     big = 100 * block
     assert memory.need_bytes(big, free) == memory.solve_bytes(block, free) + 8 * big * memory.KEPT_PER_ROW
     assert memory.need_bytes(big, free) < memory.solve_bytes(big, free) / 5
@@ -163,7 +164,7 @@ def test_held_out_predictions_by_blocks_are_the_whole_sets(small, monkeypatch):
     res = calibrate(robot, [ds.subset(slice(0, 80))], FREE)
     held = [ds.subset(slice(80, 120))]
     whole = held_out_prediction(res, held)
-    monkeypatch.setattr(memory, "CHUNK_BYTES", TINY // 4)  # blocks of 5 configurations
+    monkeypatch.setattr(memory, "CHUNK_BYTES", TINY // 2)  # blocks of 5 configurations
     by_blocks = held_out_prediction(res, held)
     for a, b in zip(whole, by_blocks):
         for f in fields(a):

@@ -21,7 +21,7 @@ from kincal.data import Dataset
 from kincal.errors import ModelError
 from kincal.estimation import blocks
 from kincal.estimation.constraints import FrameDistance, constraint_rows
-from kincal.estimation.memory import chunk_rows, require_memory
+from kincal.estimation.memory import by_blocks, chunk_rows, require_memory
 from kincal.estimation.start import starting_state
 from kincal.estimation.stats import ResidualStats, residual_norms
 from kincal.experiments import Experiment, build as build_experiments, frame_kinds
@@ -134,7 +134,8 @@ class Problem:
         """(experiment index, row range, sub-problem) of every block of configurations (``estimation.blocks``);
         the sub-problems hold no prior or constraint rows (``tail``)."""
         if self.cache.parts is None:
-            per = chunk_rows(len(self.free_idx))
+            rows = sum(e.size * len(e.components()) for e in self.experiments)
+            per = chunk_rows(len(self.free_idx)) if by_blocks(rows, len(self.free_idx)) else rows
             self.cache.parts = [(i, rows, blocks.part_problem(self, i, rows, ResidualCache()))
                                 for i, rows in blocks.split(self.experiments, lambda e: max(per // len(e.components()), 1))]
         return self.cache.parts
@@ -147,8 +148,7 @@ class Problem:
 
     @property
     def blocked(self) -> bool:
-        """Whether a data set has more configurations than one block (decided once, with ``parts``): the problem
-        is then evaluated by blocks."""
+        """Whether the problem is evaluated by blocks (``memory.by_blocks``; decided once, with ``parts``)."""
         return len(self.parts()) > len(self.experiments)
 
     @property
