@@ -73,6 +73,10 @@ def test_the_blocked_jacobian_reads_as_the_stacked_one(small, monkeypatch):
     scale = np.max(np.abs(stacked.linearization.J))
     np.testing.assert_allclose(J @ X, stacked.linearization.J @ X, atol=1e-7 * scale * np.abs(X).sum(0).max())
     np.testing.assert_allclose(np.asarray(J), stacked.linearization.J, atol=1e-7 * scale)
+    m = J.shape[0]
+    for rows in (slice(0, 5), slice(37, 200), slice(m - 61, None), slice(None), slice(m, None), slice(9, 9)):
+        np.testing.assert_allclose(J[rows], stacked.linearization.J[rows], atol=1e-7 * scale)
+        assert J[rows].shape == stacked.linearization.J[rows].shape
     # the triangular factors have the same Gram matrix
     Ra, Rb = stacked.linearization.Rf, blocked.linearization.Rf
     np.testing.assert_allclose(Rb.T @ Rb, Ra.T @ Ra, atol=1e-7 * np.max(np.abs(Ra.T @ Ra)))

@@ -112,19 +112,33 @@ class BlockJacobian:
         self.shape = (rows + len(self.tail), len(self.cols))
         self.dtype = np.dtype(float)
 
-    def blocks(self):
-        """The Jacobian's rows, block by block, the tail last."""
+    def blocks(self, start: int = 0, stop: int | None = None):
+        """The Jacobian's rows, block by block, the tail last; only the blocks that meet rows ``start:stop``."""
+        stop = self.shape[0] if stop is None else stop
+        at = 0
         for i, rows, part in self.problem.parts():
-            yield part.linearize(self.state, [self.W[i][rows]], self.cols)[1]
-            part.cache.put(None, None)
-        yield self.tail
+            n = (rows.stop - rows.start) * len(part.experiments[0].components())
+            if at < stop and at + n > start:
+                yield part.linearize(self.state, [self.W[i][rows]], self.cols)[1]
+                part.cache.put(None, None)
+            at += n
+        if stop > at:
+            yield self.tail
 
     def __matmul__(self, X):
         return np.concatenate([J @ X for J in self.blocks()])
 
     def __getitem__(self, key):
-        if isinstance(key, slice) and key.start == self.shape[0] - len(self.tail) and key.stop is None:
-            return self.tail
+        """Rows ``a:b`` evaluate the blocks that hold them (the tail is held); other keys the whole matrix."""
+        if isinstance(key, slice) and key.step in (None, 1):
+            start, stop, _ = key.indices(self.shape[0])
+            first = 0  # the first row of the first block that meets start:stop
+            for i, rows, part in self.problem.parts():
+                n = (rows.stop - rows.start) * len(part.experiments[0].components())
+                if first + n > start:
+                    break
+                first += n
+            return np.concatenate(list(self.blocks(start, stop)) or [self.tail[:0]])[start - first: stop - first]
         return np.asarray(self)[key]
 
     def __array__(self, dtype=None, copy=None):
