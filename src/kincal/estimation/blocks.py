@@ -1,7 +1,7 @@
 """Large problems in blocks of configurations: the whitened Jacobian is never held whole.
 
-A problem whose data sets have more configurations than one block (``memory.chunk_rows``) is evaluated block by
-block: each block is a sub-problem over a row range of one data set, without the prior and constraint rows
+A problem that would need more than a few blocks' memory held at once (``memory.by_blocks``) is evaluated in
+blocks of ``memory.chunk_rows`` residual rows: each block is a sub-problem over a row range of one data set, without the prior and constraint rows
 (the "tail", evaluated once). The linearization folds each block's ``[J | r_len | r]`` into the triangular
 factor as it goes (TSQR: ``R = qr([R_prev; A_block])``): orthogonal transformations only, so the factor has the
 conditioning of a QR of the stacked matrix, not the squared one of the normal equations. Everything the solver
@@ -100,8 +100,8 @@ def linearize(problem, state, W, cols: np.ndarray, every: bool):
 
 class BlockJacobian:
     """The whitened Jacobian (m, len(cols)) of a blocked linearization, evaluated again block by block when read:
-    ``J @ X`` by blocks, ``J[m_exp:]`` (the prior and constraint rows) held; anything else (``np.asarray``)
-    builds the whole matrix."""
+    ``J @ X`` by blocks, row ranges ``J[a:b]`` from the blocks that hold them (the prior and constraint rows are
+    held); anything else (``np.asarray``) builds the whole matrix."""
 
     ndim = 2
 
