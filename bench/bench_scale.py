@@ -192,8 +192,8 @@ def markdown(head, rows) -> str:
 def scale_table(rows) -> str:
     out = []
     for r in rows:
-        for x, how in [(r, "blocks" if r["blocked"] else "one block")] + (
-                [(r["stacked"], "stacked")] if "stacked" in r else []):
+        for x in [r] + ([r["stacked"]] if "stacked" in r else []):
+            how = "blocks" if x["blocked"] else "stacked"
             per = (x["peak"] - x["before"]) / x["n"]
             same = f"{r['stacked']['difference']:.1e}" if "stacked" in r and x is r else ""
             out.append([f"{x['n']:,}", how, f"{x['wall']:.2f} s", f"{x['cpu']:.2f} s", f"{x['peak'] / MiB:.0f} MiB",
