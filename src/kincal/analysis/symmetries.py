@@ -84,7 +84,8 @@ def rotation_nulls(lin: Linearization, layout: Layout, experiments: Sequence) ->
         gf = g[lin.free]
         t = _turned_residuals(lin, experiments, arm, se3.split(xi)[1])
         Jg = lin.J @ gf
-        if np.linalg.norm(Jg - t) <= 1e-6 * (np.sum(np.linalg.norm(lin.J, axis=0) * np.abs(gf)) + np.linalg.norm(t)):
+        colnorm = np.linalg.norm(lin.Rf, axis=0)  # J's column norms (R is J's triangular factor): J is not read whole
+        if np.linalg.norm(Jg - t) <= 1e-6 * (np.sum(colnorm * np.abs(gf)) + np.linalg.norm(t)):
             out.append(gf)
     return out
 

@@ -25,6 +25,7 @@ from kincal.analysis.error_budget import component_noise, unexplained_error
 from kincal.data import Dataset
 from kincal.errors import ModelError
 from kincal.estimation.outliers import DEFAULT_THRESHOLD, beyond, scaled_chi2, states_noise
+from kincal.estimation.memory import chunk_rows
 from kincal.estimation.problem import VARIANCE_FLOOR
 from kincal.noise import ORIENTATION, POSITION
 
@@ -160,20 +161,16 @@ def held_out_prediction(result, datasets: Sequence[Dataset],
         if ds.name not in by_name:
             raise ModelError(f"held-out data set '{ds.name}' was not calibrated from: no frames for it")
         exp, nz = by_name[ds.name]
-        exp = type(exp)(ds, exp.frames)
-        res = exp.residual(result.state, want=problem.want, jq=True)
-        N, c = res.r.shape
-        J = scatter_columns(res.jac, problem.layout, problem.free_idx, (N, c))
-        param = np.sum((J @ result.covariance) * J, axis=-1).clip(0)  # diag(J C J^T), (N, c)
-        noise = component_noise(exp, nz, res.jq)
+        r, param, noise = _held_out_rows(result, type(exp)(ds, exp.frames), nz)
+        N, c = r.shape
         keep = np.ones(N, bool)
         if threshold is not None and states_noise(ds, nz):
-            keep[beyond(scaled_chi2(np.sum(res.r**2 / np.maximum(noise, VARIANCE_FLOOR), axis=1), c)[1],
+            keep[beyond(scaled_chi2(np.sum(r**2 / np.maximum(noise, VARIANCE_FLOOR), axis=1), c)[1],
                         threshold)] = False
         for q in sums:
             mask = np.array([x == q for x in exp.components()], bool)
             if mask.any():
-                sums[q] = sums[q] + _sums(res.r[:, mask], param[:, mask], noise[:, mask], keep,
+                sums[q] = sums[q] + _sums(r[:, mask], param[:, mask], noise[:, mask], keep,
                                           _finite(model[q]) ** 2 / 3, _groups(q, int(mask.sum())))
     return sums[POSITION], sums[ORIENTATION]
 
@@ -192,6 +189,21 @@ def _groups(q, count: int) -> int:
     if q == POSITION:
         return count // 3 if count % 3 == 0 and count > 1 else count
     return 1
+
+
+def _held_out_rows(result, exp, nz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per held-out row and component of ``exp`` at ``result``: residual, parameter variance ``diag(J C J^T)``
+    and noise variance (N, c) each; evaluated in blocks of ``memory.chunk_rows`` rows, so the Jacobian of a
+    large held-out set is never held whole."""
+    problem = result.problem
+    step = max(chunk_rows(len(problem.free_idx)) // len(exp.components()), 1)
+    out = []
+    for a in range(0, exp.size, step):
+        part = exp if step >= exp.size else type(exp)(exp.dataset.subset(slice(a, a + step)), exp.frames)
+        res = part.residual(result.state, want=problem.want, jq=True)
+        J = scatter_columns(res.jac, problem.layout, problem.free_idx, res.r.shape)
+        out.append((res.r, np.sum((J @ result.covariance) * J, axis=-1).clip(0), component_noise(part, nz, res.jq)))
+    return tuple(np.concatenate(x) for x in zip(*out))
 
 
 def _finite(x: float) -> float:

@@ -7,6 +7,7 @@ import numpy as np
 from kincal.analysis import Identifiability, Linearization, correlated_pairs, covariance, identify
 from kincal.analysis.identifiability import coupling_gauges, named
 from kincal.estimation import steps
+from kincal.estimation.blocks import weighted_factor
 from kincal.estimation.gauge import gauge_basis
 from kincal.estimation.iterate import Iteration, scale_test_needed
 from kincal.estimation.options import SolverOptions
@@ -172,7 +173,7 @@ def _uncertainty(lin: Linearization, ana: Identifiability, options: SolverOption
     ``sigma2`` (the sandwich ``sw`` where the fit is not weighted by the noise), standard deviations (nan where
     not identifiable) and the mask of identifiable coordinates."""
     p = lin.p
-    Rf = lin.Rf if options.loss == "linear" else np.linalg.qr(np.sqrt(weights)[:, None] * lin.J, mode="r")
+    Rf = lin.Rf if options.loss == "linear" else weighted_factor(lin.J, weights)
     V = gauge_basis(Rf, ana, options.gauge, list(order))
     s2 = sigma2 if np.isfinite(sigma2) else 1.0
     if not V.shape[1]:

@@ -21,6 +21,11 @@ the copies the solver keeps of it (whitened, restricted to the identifiable subs
 resident size also holds what the allocator keeps and BLAS buffers. The constants below bound every case
 measured, with a margin of at least 20 %.
 
+That is the peak of a problem held at once. A problem that would need more than ``BLOCKS`` blocks of
+``CHUNK_BYTES`` so (``by_blocks``) is evaluated in blocks of ``chunk_rows`` rows (``estimation.blocks``): ``need_bytes`` is then one block's working memory plus ``KEPT_PER_ROW`` doubles per
+row (residuals, whiteners, encoder Jacobians, statistics: measured 64 on Frida's dual arm with encoder noise by
+tracemalloc, about 80 as resident size at 100,000 configurations, tests/test_scale.py and bench/bench_scale.py).
+
 The limit is the memory available now: ``MemAvailable`` in /proc/meminfo (else the system's available pages),
 and below a cgroup's ``memory.max`` when one is set; ``KINCAL_MEMORY_LIMIT`` (bytes, or with K, M, G, T)
 overrides it.
@@ -37,13 +42,41 @@ from kincal.experiments.base import KINDS
 
 PER_ROW = 450.0
 PER_CELL = 8.0
+# A problem larger than one block of this many bytes of working memory is evaluated block by block
+# (``estimation.blocks``); what stays of the data's size is ``KEPT_PER_ROW`` doubles per residual row (residual,
+# whiteners, encoder Jacobians, statistics).
+CHUNK_BYTES = 32 * 2**20
+# Only a problem that would need more than this many blocks' memory held at once is evaluated by blocks: below,
+# the stacked path is faster (one evaluation of the whole Jacobian serves every reader of it).
+BLOCKS = 8
+KEPT_PER_ROW = 120.0
 ENV = "KINCAL_MEMORY_LIMIT"
 _SUFFIX = {"": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
 
 
 def solve_bytes(rows: int, free: int) -> int:
-    """The peak memory (bytes) a solve with ``rows`` residual rows and ``free`` free coordinates allocates."""
+    """The peak memory (bytes) a solve with ``rows`` residual rows and ``free`` free coordinates allocates when
+    it holds them all at once (one block)."""
     return int(8 * rows * (PER_ROW + PER_CELL * free))
+
+
+def need_bytes(rows: int, free: int) -> int:
+    """The peak memory (bytes) of the solve as it runs: ``solve_bytes`` up to one block; a larger problem holds one
+    block's working memory and ``KEPT_PER_ROW`` doubles per row (``estimation.blocks``)."""
+    if not by_blocks(rows, free):
+        return solve_bytes(rows, free)
+    return min(solve_bytes(rows, free), solve_bytes(chunk_rows(free), free) + int(8 * rows * KEPT_PER_ROW))
+
+
+def by_blocks(rows: int, free: int) -> bool:
+    """Whether a problem of ``rows`` residual rows and ``free`` free coordinates is evaluated by blocks: held at
+    once it would need more than ``BLOCKS`` blocks' memory."""
+    return solve_bytes(rows, free) > BLOCKS * CHUNK_BYTES
+
+
+def chunk_rows(free: int) -> int:
+    """Residual rows per block of a large problem (``estimation.blocks``): ``CHUNK_BYTES`` of working memory."""
+    return max(int(CHUNK_BYTES / (8 * (PER_ROW + PER_CELL * free))), 1)
 
 
 def memory_limit() -> tuple[int, str]:
@@ -69,7 +102,7 @@ def require_memory(datasets, free: int = 0) -> None:
     in ``memory_limit()``. With ``free=0`` (before the parameter layout is known) it refuses what the data
     alone make too large."""
     rows = residual_rows(datasets)
-    need = solve_bytes(rows, free)
+    need = need_bytes(rows, free)
     limit, source = memory_limit()
     if need > limit:
         raise ResourceError(

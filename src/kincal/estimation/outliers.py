@@ -3,7 +3,10 @@
 The rule (docs/calibration.md "Outliers"): per configuration, the whitened residual's chi^2 over its ``k``
 components, divided by a robust scale (the median row's chi^2 over the chi^2 median at ``k`` dof, at least 1: a
 model error shared by all rows is not an outlier, stated noise that is too large is not shrunk). A row whose
-scaled chi^2 has a tail probability below ``threshold`` (default ``DEFAULT_THRESHOLD``) is an outlier.
+scaled chi^2 has a tail probability below ``threshold`` (default ``DEFAULT_THRESHOLD``) is an outlier; in a data
+set of more than ``REFERENCE_ROWS`` rows the threshold shrinks by ``REFERENCE_ROWS / N`` (``row_threshold``), so
+that clean Gaussian rows give at most ``threshold * REFERENCE_ROWS`` false alarms per data set whatever its size
+(a fixed per-row threshold flags ``N * threshold`` of them: one in ten solves at N = 100,000).
 """
 
 from __future__ import annotations
@@ -22,6 +25,8 @@ DEFAULT_THRESHOLD = 1e-6
 ROBUST_LOSS, ROBUST_F_SCALE = "cauchy", 3.0
 # At most this fraction of a data set's rows is rejected: beyond it the model, not the rows, is wrong.
 MAX_FRACTION = 0.5
+# Rows up to which the threshold is per row; beyond, it is per this many rows (Bonferroni), see the module doc.
+REFERENCE_ROWS = 1000
 
 
 @dataclass(frozen=True)
@@ -63,10 +68,16 @@ def scaled_chi2(c: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     return c / scale, chdtrc(k, c / scale)  # upper tail probability
 
 
+def row_threshold(threshold: float, n: int) -> float:
+    """The tail probability below which one of ``n`` rows is an outlier: ``threshold`` up to ``REFERENCE_ROWS``
+    rows, ``threshold * REFERENCE_ROWS / n`` beyond (the expected false alarms on clean data stay bounded)."""
+    return threshold * min(1.0, REFERENCE_ROWS / max(n, 1))
+
+
 def beyond(p: np.ndarray, threshold: float) -> np.ndarray:
-    """Sorted indices of the rows whose tail probability ``p`` is below ``threshold``: the worst
-    ``MAX_FRACTION`` of the rows at most."""
-    bad = np.flatnonzero(p < threshold)
+    """Sorted indices of the rows whose tail probability ``p`` is below ``row_threshold(threshold, len(p))``:
+    the worst ``MAX_FRACTION`` of the rows at most."""
+    bad = np.flatnonzero(p < row_threshold(threshold, len(p)))
     return np.sort(bad[np.argsort(p[bad])][: int(MAX_FRACTION * len(p))])
 
 
@@ -96,7 +107,7 @@ def states_noise(ds, noise) -> bool:
 
 def any_beyond(problem, state, threshold: float) -> bool:
     """Whether any row is beyond ``threshold`` at ``state`` (the screen before a robust pass)."""
-    return any(bool(np.any(p < threshold)) for _, p in standardized(problem, state))
+    return any(bool(np.any(p < row_threshold(threshold, len(p)))) for _, p in standardized(problem, state))
 
 
 def kept(datasets, outliers: list[Outlier]):

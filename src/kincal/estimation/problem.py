@@ -11,7 +11,7 @@ closed chain stays positive definite.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -19,8 +19,9 @@ import numpy as np
 from kincal.analysis.columns import scatter_columns
 from kincal.data import Dataset
 from kincal.errors import ModelError
+from kincal.estimation import blocks
 from kincal.estimation.constraints import FrameDistance, constraint_rows
-from kincal.estimation.memory import require_memory
+from kincal.estimation.memory import by_blocks, chunk_rows, require_memory
 from kincal.estimation.start import starting_state
 from kincal.estimation.stats import ResidualStats, residual_norms
 from kincal.experiments import Experiment, build as build_experiments, frame_kinds
@@ -38,6 +39,8 @@ class ResidualCache:
     def __init__(self) -> None:
         self.state: State | None = None
         self.residuals: list | None = None
+        self.parts: list | None = None  # the row blocks of a large problem (``Problem.parts``)
+        self.tail: tuple | None = None
 
     def get(self, state: State):
         return self.residuals if self.state is state else None
@@ -116,9 +119,37 @@ class Problem:
         """Residuals at ``state`` without parameter Jacobians (with ``jq`` when encoder noise is stated)."""
         res = self.cache.get(state)
         if res is None:
-            res = [exp.residual(state, want=set(), jq=self.joint_noise) for exp in self.experiments]
+            res = self._residuals(state, self.joint_noise)
             self.cache.put(state, res)
         return res
+
+    def _residuals(self, state: State, jq: bool) -> list:
+        """The experiments' residuals at ``state`` (block by block when ``blocked``), no parameter Jacobians."""
+        if not self.blocked:
+            return [exp.residual(state, want=set(), jq=jq) for exp in self.experiments]
+        return blocks.gather(self.parts(), len(self.experiments),
+                             lambda part: part.experiments[0].residual(state, want=set(), jq=jq))
+
+    def parts(self) -> list:
+        """(experiment index, row range, sub-problem) of every block of configurations (``estimation.blocks``);
+        the sub-problems hold no prior or constraint rows (``tail``)."""
+        if self.cache.parts is None:
+            rows = sum(e.size * len(e.components()) for e in self.experiments)
+            per = chunk_rows(len(self.free_idx)) if by_blocks(rows, len(self.free_idx)) else rows
+            self.cache.parts = [(i, rows, blocks.part_problem(self, i, rows, ResidualCache()))
+                                for i, rows in blocks.split(self.experiments, lambda e: max(per // len(e.components()), 1))]
+        return self.cache.parts
+
+    def tail(self) -> "Problem | None":
+        """The prior and constraint rows as a problem without experiments (None without any)."""
+        if self.cache.tail is None:
+            self.cache.tail = (blocks.tail_problem(self, ResidualCache()),)
+        return self.cache.tail[0]
+
+    @property
+    def blocked(self) -> bool:
+        """Whether the problem is evaluated by blocks (``memory.by_blocks``; decided once, with ``parts``)."""
+        return len(self.parts()) > len(self.experiments)
 
     @property
     def free_names(self) -> list[str]:
@@ -187,8 +218,7 @@ class Problem:
         delta = self.full_delta(delta_free)
         state = retract(state0, self.layout, delta)
         if not jac:
-            res = [exp.residual(state, want=set(), jq=False) for exp in self.experiments]
-            return self._stack(state, res, whiteners, None, {})[0], None
+            return self._stack(state, self._residuals(state, False), whiteners, None, {})[0], None
         Rl = {k: v for k, v in pose_retraction_jacobians(self.layout, delta).items() if k in self.want}
         res = [exp.residual(state, want=self.want, jq=False) for exp in self.experiments]
         return self._stack(state, res, whiteners, self.free_idx, Rl)

@@ -13,6 +13,7 @@ import numpy as np
 from kincal.analysis import Linearization
 from kincal.analysis.linalg import lstsq
 from kincal.errors import DegenerateExperimentError
+from kincal.estimation import blocks
 from kincal.estimation.problem import Problem
 from kincal.params import State, scale_direction
 
@@ -28,9 +29,12 @@ def linearize(problem: Problem, state: State, W, every: bool) -> Linearization:
         scale = scale_direction(state, layout)  # kept for the scale test (``symmetries.scale_null``)
         moves = (np.array(layout.units) == "m") | (scale != 0)
         fixed = np.flatnonzero(~layout.free & moves)
-    r, J, W, raw = problem.linearize(state, W, np.concatenate([problem.free_idx, fixed]))
+    cols = np.concatenate([problem.free_idx, fixed])
+    if problem.blocked:
+        return _linearize_blocks(problem, state, W, cols, every)
+    r, J, W, raw = problem.linearize(state, W, cols)
     if not np.all(np.isfinite(r)) or not np.all(np.isfinite(J)):
-        raise DegenerateExperimentError("residuals or Jacobian are not finite at the starting values")
+        raise DegenerateExperimentError(NOT_FINITE)
     if every:
         A = np.column_stack([J, problem.length_part(raw, W), r])
         J = J[:, :p]
@@ -38,6 +42,19 @@ def linearize(problem: Problem, state: State, W, every: bool) -> Linearization:
         A = np.column_stack([J, r])
     R = np.linalg.qr(A, mode="r")
     return Linearization(state, r, J, R, tuple(W), tuple(raw), problem.free_idx, fixed if every else None, scale)
+
+
+NOT_FINITE = "residuals or Jacobian are not finite at the starting values"
+
+
+def _linearize_blocks(problem: Problem, state: State, W, cols: np.ndarray, every: bool) -> Linearization:
+    """``linearize`` of a large problem block by block (``estimation.blocks``): the same factor, up to row signs."""
+    r, R, W, raw = blocks.linearize(problem, state, W, cols, every)
+    if not np.all(np.isfinite(r)) or not np.all(np.isfinite(R)):
+        raise DegenerateExperimentError(NOT_FINITE)
+    J = blocks.BlockJacobian(problem, state, W, problem.free_idx, sum(x.size for x in raw))
+    return Linearization(state, r, J, R, tuple(W), tuple(raw), problem.free_idx,
+                         cols[len(problem.free_idx):] if every else None)
 
 
 # A constant residual with a zero Jacobian row, added to the inner LM problem: MINPACK's relative ftol then
@@ -64,8 +81,7 @@ def inner_solve(problem: Problem, state: State, lin: Linearization, V: np.ndarra
         key = z.tobytes()
         if key not in cache or (need_jac and cache[key][1] is None):
             cache.clear()
-            r, J = problem.evaluate(state, V @ z, lin.W, jac=need_jac)
-            cache[key] = (r, None if J is None else J @ V)
+            cache[key] = _evaluate_in(problem, state, V, z, lin.W, need_jac)
         return cache[key]
 
     sol = least_squares(
@@ -76,6 +92,15 @@ def inner_solve(problem: Problem, state: State, lin: Linearization, V: np.ndarra
     )
     cost = float(sol.cost) - 0.5 * float(floor[0] ** 2) if method == "lm" else float(sol.cost)
     return sol.x, max(cost, 0.0), sol.nfev
+
+
+def _evaluate_in(problem: Problem, state: State, V: np.ndarray, z: np.ndarray, W, jac: bool):
+    """The whitened residual at ``retract(state, V z)`` and, with ``jac``, its Jacobian in ``z`` (``J V``): a
+    large problem by blocks, so only ``J V`` is ever held whole."""
+    if problem.blocked:
+        return blocks.evaluate(problem, state, V @ z, W, V if jac else None)
+    r, J = problem.evaluate(state, V @ z, W, jac=jac)
+    return r, None if J is None else J @ V
 
 
 def converged(step: float, r0_norm: float, cost: float, dof: int) -> bool:
