@@ -16,7 +16,7 @@ import numpy as np
 
 from kincal.data import Dataset
 from kincal.estimation import calibrate, crossval
-from kincal.kinematics import forward_kinematics
+from kincal.kinematics.tree import tip_pose
 from kincal.lie import se3, so3
 
 
@@ -36,8 +36,7 @@ def prediction_errors(result, ds: Dataset) -> tuple[np.ndarray, np.ndarray | Non
     """Position errors (m; one per sample and marker) and orientation errors (rad; pose only, else None) of
     ``ds`` predicted by a calibration ``result`` with its estimated tracker (and markers)."""
     arm = ds.arms[0]
-    T = se3.inverse(result.extras[ds.frames.get("tracker", "tracker")]) @ forward_kinematics(result.robot[arm],
-                                                                                             ds.q[arm])
+    T = se3.inverse(result.extras[ds.frames.get("tracker", "tracker")]) @ tip_pose(result.robot, arm, ds.q)
     if ds.kind == "markers":
         x = np.asarray(result.extras[ds.frames.get("markers", "markers")])
         return np.linalg.norm(se3.transform_points(T[:, None], x) - ds.measured["p_tracker_marker"], axis=-1).ravel(), None
@@ -61,16 +60,23 @@ class CrossValidation:
         return out
 
 
-def cross_validate(robot, ds: Dataset, free, k: int = 6, seed: int = 0, **options) -> CrossValidation:
-    """Calibrate on k-1 folds, predict the held-out fold, for each of k folds (``options`` go to calibrate)."""
+def cross_validate(robot, ds, free, k: int = 6, seed: int = 0, **options) -> CrossValidation:
+    """Calibrate on k-1 folds, predict the held-out fold, for each of k folds (``options`` go to calibrate).
+    ``ds``: one data set, or several whose rows were taken together (Justin's two hands: the same poses), which
+    are split by the same folds and calibrated jointly."""
+    sets = [ds] if isinstance(ds, Dataset) else list(ds)
+    n = sets[0].size
+    if any(d.size != n for d in sets):
+        raise ValueError(f"joint folds need data sets of one size, got {[d.size for d in sets]}")
     pos, rot, results = [], [], []
     t0 = time.perf_counter()
-    for test in folds(ds.size, k, seed):
-        train = np.setdiff1d(np.arange(ds.size), test)
-        res = calibrate(robot, [ds.subset(train)], free, **options)
-        p, r = prediction_errors(res, ds.subset(test))
-        pos.append(p)
-        rot.append(r)
+    for test in folds(n, k, seed):
+        train = np.setdiff1d(np.arange(n), test)
+        res = calibrate(robot, [d.subset(train) for d in sets], free, **options)
+        for d in sets:
+            p, r = prediction_errors(res, d.subset(test))
+            pos.append(p)
+            rot.append(r)
         results.append(res)
     ori = None if rot[0] is None else np.concatenate(rot)
     return CrossValidation(np.concatenate(pos), ori, tuple(results), time.perf_counter() - t0)
