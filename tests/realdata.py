@@ -20,7 +20,7 @@ from kincal.kinematics import ArmModel, Robot
 from kincal.kinematics.couplings import derive_readings
 from kincal.kinematics.dh import from_dh
 from kincal.io.urdf import from_urdf
-from kincal.lie import se3
+from kincal.lie import se3, so3
 
 DATASETS = Path(__file__).resolve().parents[2] / "shared" / "datasets"
 
@@ -225,27 +225,47 @@ MOTOMAN_FREE = ["right.L.offset", "right.U.offset", "right.R.offset", "right.B.o
 _MOTOMAN_COLUMNS = {"right": [6, 7, 8, 9, 10, 11, 12], "left": [6, 13, 14, 15, 16, 17, 18]}
 
 
+# Standard DH rows E, S, L, U, R, B, T of the toolbox's loadMotoman.m (SOURCE.md); E's twist is +15 deg (right arm)
+# or -15 deg (left arm).
+_MOTOMAN_DH = dict(a=[0, 0.150, 0.614, 0.200, 0, 0.030, 0], alpha=[0, -np.pi / 2, np.pi, -np.pi / 2, np.pi / 2, np.pi / 2, 0],
+                   d=[-0.263, 1.4159, 0, 0, -0.640, 0, 0.200], theta=[-np.pi / 2, 0, -np.pi / 2, 0, 0, -np.pi / 2, 0])
+
+
 def _motoman_arm(name: str, torso_alpha: float, flange: np.ndarray) -> ArmModel:
-    """One arm of the toolbox's loadMotoman.m (standard DH rows E, S, L, U, R, B, T; SOURCE.md)."""
-    return from_dh(a=[0, 0.150, 0.614, 0.200, 0, 0.030, 0], alpha=[torso_alpha, -np.pi / 2, np.pi, -np.pi / 2,
-                                                                     np.pi / 2, np.pi / 2, 0],
-                   d=[-0.263, 1.4159, 0, 0, -0.640, 0, 0.200], theta=[-np.pi / 2, 0, -np.pi / 2, 0, 0, -np.pi / 2, 0],
-                   flange=flange, name=name, joint_names=MOTOMAN_JOINTS)
+    """One arm of the toolbox's loadMotoman.m through its own copy of E."""
+    return from_dh(a=_MOTOMAN_DH["a"], alpha=[torso_alpha] + _MOTOMAN_DH["alpha"][1:], d=_MOTOMAN_DH["d"],
+                   theta=_MOTOMAN_DH["theta"], flange=flange, name=name, joint_names=MOTOMAN_JOINTS)
+
+
+def _motoman_flanges(tool: str) -> dict[str, np.ndarray]:
+    """The right and left flange transforms: end-effector centres (DH row EE: d = 0.354 m), or for ``leica`` the
+    right arm's laser-tracker reflector (row LR1: a 0.045, d 0.245, theta -0.38)."""
+    ee = se3.make(np.eye(3), np.array([0.0, 0.0, 0.354]))
+    if tool != "leica":
+        return {"right": ee, "left": ee}
+    c, s = np.cos(-0.38), np.sin(-0.38)
+    return {"right": se3.make(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]), np.array([0.045 * c, 0.045 * s, 0.245])),
+            "left": ee}
 
 
 def motoman_robot(tool: str = "contact") -> Robot:
-    """Both arms from the base frame, each with its own copy of the shared torso joint E (kincal has no shared
-    joints; the data repeat the E reading for both arms). ``tool``: ``contact`` (end-effector centre, DH row
-    EE: d = 0.354 m) or ``leica`` (the right arm's laser-tracker reflector, row LR1: a 0.045, d 0.245,
-    theta -0.38)."""
-    ee = se3.make(np.eye(3), np.array([0.0, 0.0, 0.354]))
-    if tool == "leica":
-        c, s = np.cos(-0.38), np.sin(-0.38)
-        right = se3.make(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]), np.array([0.045 * c, 0.045 * s, 0.245]))
-    else:
-        right = ee
-    return Robot("motoman", {"right": _motoman_arm("right", np.radians(15), right),
-                             "left": _motoman_arm("left", np.radians(-15), ee)})
+    """Both arms from the base frame, each with its own copy of the shared torso joint E (the data repeat the E
+    reading for both arms; ``motoman_tree`` has E once). ``tool``: ``contact`` (end-effector centre) or ``leica``
+    (the right arm's laser-tracker reflector), ``_motoman_flanges``."""
+    flanges = _motoman_flanges(tool)
+    return Robot("motoman", {"right": _motoman_arm("right", np.radians(15), flanges["right"]),
+                             "left": _motoman_arm("left", np.radians(-15), flanges["left"])})
+
+
+def motoman_tree(tool: str = "contact") -> Robot:
+    """The same robot as a tree: the torso joint E once (``torso``), both 6-joint arms mounted on it, each with its
+    +-15 deg twist of the E row as its base; FK equal to ``motoman_robot``'s (tests/test_real_data.py)."""
+    torso = from_dh(a=[0.0], alpha=[0.0], d=[-0.263], theta=[-np.pi / 2], name="torso", joint_names=("E",))
+    arms = {side: from_dh(a=_MOTOMAN_DH["a"][1:], alpha=_MOTOMAN_DH["alpha"][1:], d=_MOTOMAN_DH["d"][1:],
+                          theta=_MOTOMAN_DH["theta"][1:], flange=flange, name=side, joint_names=MOTOMAN_JOINTS[1:],
+                          base=se3.make(so3.exp(np.array([alpha, 0.0, 0.0])), np.zeros(3)))
+            for (side, flange), alpha in zip(_motoman_flanges(tool).items(), np.radians([15, -15]))}
+    return Robot("motoman", {"torso": torso, **arms}, mounts={"right": "torso", "left": "torso"})
 
 
 def _motoman_poses(path: Path, name: str) -> np.ndarray:
@@ -349,6 +369,22 @@ JUSTIN_LEVELS = {
 }
 # Motion capture as for TALOS/TIAGo (0.3 mm): every level leaves millimetres unexplained, which reads as a misfit.
 JUSTIN_NOISE = NOISE["mocap"]
+
+
+def motoman_tree_data(path: Path) -> tuple[Dataset, Dataset]:
+    """For ``motoman_tree``: the self-contact poses (``distance``, both arms) and the right arm's reflector positions
+    (``markers``: tracker frame and the reflector's position in the end-effector frame unknown), with the E reading
+    once, as the torso's."""
+    def readings(rows, sides):
+        return {"torso": rows[:, 6:7], **{s: rows[:, _MOTOMAN_COLUMNS[s][1:]] for s in sides}}
+
+    touch = np.vstack([_motoman_poses(path, n) for n in MOTOMAN_SELF_TOUCH])
+    leica = _motoman_poses(path, "leica_right_hand_6x6x6")
+    leica = leica[np.isfinite(leica[:, 19:22]).all(axis=1)]
+    return (Dataset("distance", "motoman", ("right", "left"), readings(touch, ("right", "left")),
+                    known={"distance": MOTOMAN_CONTACT_DISTANCE}, name="self-touch", meta={"source": MOTOMAN}),
+            Dataset("markers", "motoman", ("right",), readings(leica, ("right",)),
+                    {"p_tracker_marker": leica[:, None, 19:22]}, name="leica", meta={"source": MOTOMAN}))
 
 
 # ------------------------------------------------- honest prediction: k-fold held-out RMS against the predicted
