@@ -10,7 +10,6 @@ scipy) is slower but converges on them. Every SVD of ``kincal.analysis`` and ``k
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg
 
 
 def svd(a, full_matrices: bool = True, compute_uv: bool = True):
@@ -28,6 +27,8 @@ def svd(a, full_matrices: bool = True, compute_uv: bool = True):
 
 def _gesvd(a: np.ndarray, full_matrices: bool, compute_uv: bool):
     """The same outputs as ``numpy.linalg.svd`` by scipy's ``gesvd`` driver (rare: only after gesdd failed)."""
+    import scipy.linalg  # here, not at the top: importing it costs more than importing kincal.estimation
+
     if a.ndim == 2:
         return scipy.linalg.svd(a, full_matrices=full_matrices, compute_uv=compute_uv, lapack_driver="gesvd")
     parts = [_gesvd(m, full_matrices, compute_uv) for m in a.reshape(-1, *a.shape[-2:])]
@@ -45,4 +46,6 @@ def lstsq(a, b) -> np.ndarray:
     except np.linalg.LinAlgError:
         if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
             raise
+        import scipy.linalg  # here, not at the top: importing it costs more than importing kincal.estimation
+
         return scipy.linalg.lstsq(a, b, lapack_driver="gelsy")[0]
