@@ -16,6 +16,7 @@ import numpy as np
 
 from kincal.data import Dataset
 from kincal.estimation import calibrate, crossval
+from kincal.kinematics import forward_kinematics
 from kincal.kinematics.tree import tip_pose
 from kincal.lie import se3, so3
 
