@@ -1,0 +1,135 @@
+"""Gravity on tree-structured robots: the torso carries both arms' weights, each arm its own; exact Jacobians
+w.r.t. every segment's blocks, the other branch's included, and every arm's readings."""
+
+import numpy as np
+import pytest
+
+from kincal import experiments
+from kincal.data import Dataset
+from kincal.errors import DataFormatError, ModelError
+from kincal.kinematics import ArmModel, Robot
+from kincal.kinematics.branches import tree_loaded_kinematics
+from kincal.kinematics.couplings import derive_readings
+from kincal.lie import se3
+from kincal.params import State, build_layout, retract
+from kincal.testing import numerical_jacobian, random_arm, random_pose
+
+G = np.array([0.3, -0.5, -9.8])
+
+
+def _heavy(rng, arm: ArmModel, payload: bool, gravity=None) -> ArmModel:
+    return arm.replace(link_masses=rng.uniform(1, 10, arm.dof), link_coms=rng.uniform(-0.5, 0.5, (arm.dof, 3)),
+                       payload_mass=2.0 if payload else 0.0, payload_com=rng.uniform(-0.1, 0.1, 3), gravity=gravity)
+
+
+def gravity_tree(rng, compliance=0.003, coupled=False):
+    """A 3-joint torso (j3 = -j1 - j2 when ``coupled``) carrying arms ``a`` (6 joints) and ``b`` (7, one
+    prismatic), all with masses and compliances; gravity stated on the torso only (the tree's)."""
+    torso = random_arm(rng, 3, name="torso")
+    if coupled:
+        torso = torso.replace(couplings={"j3": {"j1": -1.0, "j2": -1.0}})
+    arms = {"torso": _heavy(rng, torso, False, G), "a": _heavy(rng, random_arm(rng, 6, name="a"), True),
+            "b": _heavy(rng, random_arm(rng, 7, prismatic=(3,), name="b"), True)}
+    arms = {k: m.replace(compliance=rng.uniform(0.2, 1.0, m.dof) * compliance) for k, m in arms.items()}
+    return Robot("tree", arms, mounts={"a": "torso", "b": "torso"})
+
+
+def _readings(rng, robot, n):
+    return {a: derive_readings(m.couplings, m.joint_names, rng.uniform(-2, 2, (n, m.dof)))
+            for a, m in robot.arms.items()}
+
+
+def _case(kind, rng, robot, n=5):
+    q = _readings(rng, robot, n)
+    T = tree_loaded_kinematics(robot, "b", q).tool
+    W = random_pose(rng)
+    if kind == "pose":
+        return Dataset("pose", "tree", ("b",), q, {"T_tracker_tool": se3.inverse(W) @ T}, {"T_world_tracker": W})
+    x = rng.uniform(-0.1, 0.1, (3, 3))
+    y = se3.transform_points(se3.inverse(W), se3.transform_points(T[:, None], x))
+    return Dataset("markers", "tree", ("b",), q, {"p_tracker_marker": y}, {"T_world_tracker": W, "p_tool_marker": x})
+
+
+def _assemble(res, layout, N):
+    J = np.zeros((N, res.r.shape[1], layout.size))
+    for b in layout.blocks:
+        if b.name in res.jac:
+            J[:, :, b.start: b.stop] = res.jac[b.name]
+    return J
+
+
+def check_gravity_tree(rng, robot, ds):
+    """Zero at the truth; away from it, every block of the torso, of both arms (the other arm's through the
+    torso's deflection) and the frames, and every arm's readings, equal central differences."""
+    state = State.from_robot(robot)
+    exps, extras, unknown = experiments.build([ds], state)
+    state = State(state.arms, extras, experiments.frame_kinds(exps), robot.mounts)
+    exp = exps[0]
+    np.testing.assert_allclose(exp.residual(state).r, 0.0, atol=1e-10)
+    arms = ["torso", "a", "b"]
+    layout = build_layout(state, [f"{a}.*" for a in arms] + list(extras), arms=arms)
+    state = retract(state, layout, rng.normal(scale=0.05, size=layout.size))
+    n = 3
+    q = _readings(rng, robot, n)
+    measured = {k: np.repeat(v[:1], n, axis=0) for k, v in ds.measured.items()}
+    make = lambda qq: type(exp)(Dataset(ds.kind, "tree", ds.arms, qq, measured, dict(ds.known)), exp.frames)  # noqa
+    res = make(q).residual(state)
+    num = numerical_jacobian(lambda d: make(q).residual(retract(state, layout, d)).r, np.zeros(layout.size))
+    J = _assemble(res, layout, n)
+    np.testing.assert_allclose(J, num, atol=1e-7, rtol=1e-6)
+    a_cols = [i for b in layout.blocks if b.name.startswith("a.") for i in range(b.start, b.stop)]
+    assert np.abs(num[..., a_cols]).max() > 1e-5  # the other arm's geometry matters (through the torso)
+    assert set(res.jq) == set(arms)
+    for arm in arms:
+        m = robot[arm]
+
+        def f(x, arm=arm, m=m):
+            return make({**q, arm: derive_readings(m.couplings, m.joint_names, x.reshape(q[arm].shape))}).residual(
+                state).r
+        num_q = numerical_jacobian(f, q[arm].ravel()).reshape(res.r.shape + q[arm].shape)
+        num_q = np.stack([num_q[i, :, i, :] for i in range(n)])
+        np.testing.assert_allclose(res.jq[arm], num_q, atol=1e-7, rtol=1e-6)
+
+
+@pytest.mark.parametrize("kind, coupled", [("pose", False), ("markers", False), ("pose", True), ("markers", True)])
+def test_jacobians_of_a_sagging_tree_match_differences(rng, kind, coupled):
+    robot = gravity_tree(rng, coupled=coupled)
+    check_gravity_tree(rng, robot, _case(kind, rng, robot))
+
+
+def _line_arm(name, x_com, mass, base=np.eye(4), payload=0.0, gravity=None):
+    """One revolute joint about y through the origin; its link's centre of mass at (x_com, 0, 0)."""
+    return ArmModel(name, np.array([[0, 0, 0, 0, 1.0, 0]]), np.eye(4), base=base, link_masses=[mass],
+                    link_coms=[[x_com, 0, 0]], payload_mass=payload, payload_com=np.zeros(3), gravity=gravity)
+
+
+def test_the_torso_carries_both_arms_each_arm_its_own():
+    """At q = 0 with gravity -z, a y-axis joint's torque is g * sum(m x) of everything it carries."""
+    g = 9.81
+    shift = lambda x: se3.make(np.eye(3), [x, 0, 0])  # noqa: E731
+    robot = Robot("hand", {"torso": _line_arm("torso", 0.1, 20.0, gravity=[0, 0, -g]),
+                           "left": _line_arm("left", 0.3, 4.0, shift(0.2), payload=1.0),
+                           "right": _line_arm("right", -0.4, 5.0, shift(-0.2), payload=2.0)},
+                  mounts={"left": "torso", "right": "torso"})
+    q = {a: np.zeros((1, 1)) for a in robot.arms}
+    torso = g * (20 * 0.1 + 4 * 0.5 + 1 * 0.2 + 5 * -0.6 + 2 * -0.2)
+    for arm, own in (("left", g * (4 * 0.3 + 1 * 0.0)), ("right", g * (5 * -0.4 + 2 * 0.0))):
+        tau = tree_loaded_kinematics(robot, arm, q).tau[0]
+        np.testing.assert_allclose(tau, [torso, own], atol=1e-12)
+
+
+def test_a_mounted_data_set_without_the_other_arm_readings_is_refused(rng):
+    robot = gravity_tree(rng)
+    ds = _case("pose", rng, robot)
+    ds = Dataset("pose", "tree", ("b",), {a: ds.q[a] for a in ("torso", "b")}, dict(ds.measured), dict(ds.known),
+                 "right-hand")
+    with pytest.raises(DataFormatError, match=r"data set 'right-hand': field q\[a\]: no readings of arm 'a', whose "
+                                              r"weight loads"):
+        experiments.build([ds], State.from_robot(robot))
+
+
+def test_arms_of_one_tree_state_one_gravity(rng):
+    robot = gravity_tree(rng)
+    assert np.array_equal(robot["a"].gravity, G)  # the tree's gravity, stated on the torso
+    with pytest.raises(ModelError, match="arm 'b': gravity .* disagrees with arm 'torso'"):
+        Robot("tree", {**robot.arms, "b": robot["b"].replace(gravity=-G)}, mounts=dict(robot.mounts))
