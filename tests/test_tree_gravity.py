@@ -13,6 +13,7 @@ from kincal.kinematics.couplings import derive_readings
 from kincal.lie import se3
 from kincal.params import State, build_layout, retract
 from kincal.testing import numerical_jacobian, random_arm, random_pose
+from test_tree import _assemble
 
 G = np.array([0.3, -0.5, -9.8])
 
@@ -48,14 +49,6 @@ def _case(kind, rng, robot, n=5):
     x = rng.uniform(-0.1, 0.1, (3, 3))
     y = se3.transform_points(se3.inverse(W), se3.transform_points(T[:, None], x))
     return Dataset("markers", "tree", ("b",), q, {"p_tracker_marker": y}, {"T_world_tracker": W, "p_tool_marker": x})
-
-
-def _assemble(res, layout, N):
-    J = np.zeros((N, res.r.shape[1], layout.size))
-    for b in layout.blocks:
-        if b.name in res.jac:
-            J[:, :, b.start: b.stop] = res.jac[b.name]
-    return J
 
 
 def check_gravity_tree(rng, robot, ds):
