@@ -7,6 +7,7 @@ import pytest
 from kincal import experiments
 from kincal.data import Dataset
 from kincal.errors import DataFormatError, ModelError
+from kincal.io.datasets import load_dataset, write_dataset
 from kincal.kinematics import ArmModel, Robot
 from kincal.kinematics.branches import tree_loaded_kinematics
 from kincal.kinematics.couplings import derive_readings
@@ -186,3 +187,18 @@ def test_two_arms_on_a_sagging_torso_calibrate_their_compliances(level):
     for after, before in zip(res.validation, rigid.validation):
         assert after.after.position_rms < 0.2 * before.after.position_rms
         assert after.after.position_rms < 2e-5
+
+
+def test_the_other_arms_readings_round_trip_through_files(rng, tmp_path):
+    """CSV columns ``a.j1 ..`` carry the other arm's readings; a file without them is refused when used."""
+    robot = gravity_tree(rng)
+    ds = _case("markers", rng, robot)
+    path = write_dataset(ds, tmp_path / "hand.yaml", robot)
+    back = load_dataset(path, robot)
+    assert set(back.q) == {"torso", "a", "b"}
+    np.testing.assert_allclose(back.q["a"], ds.q["a"], atol=1e-15)
+    without = Dataset(ds.kind, "tree", ds.arms, {a: ds.q[a] for a in ("torso", "b")}, dict(ds.measured),
+                      dict(ds.known), "hand")
+    back = load_dataset(write_dataset(without, tmp_path / "bare.yaml", robot), robot)
+    with pytest.raises(DataFormatError, match=r"data set 'hand': field q\[a\]: no readings of arm 'a'"):
+        experiments.build([back], State.from_robot(robot))
