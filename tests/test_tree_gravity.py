@@ -41,15 +41,15 @@ def _readings(rng, robot, n):
             for a, m in robot.arms.items()}
 
 
-def _case(kind, rng, robot, n=5):
+def _case(kind, rng, robot, n=5, arm="b"):
     q = _readings(rng, robot, n)
-    T = tree_loaded_kinematics(robot, "b", q).tool
+    T = tree_loaded_kinematics(robot, arm, q).tool
     W = random_pose(rng)
     if kind == "pose":
-        return Dataset("pose", "tree", ("b",), q, {"T_tracker_tool": se3.inverse(W) @ T}, {"T_world_tracker": W})
+        return Dataset("pose", "tree", (arm,), q, {"T_tracker_tool": se3.inverse(W) @ T}, {"T_world_tracker": W})
     x = rng.uniform(-0.1, 0.1, (3, 3))
     y = se3.transform_points(se3.inverse(W), se3.transform_points(T[:, None], x))
-    return Dataset("markers", "tree", ("b",), q, {"p_tracker_marker": y}, {"T_world_tracker": W, "p_tool_marker": x})
+    return Dataset("markers", "tree", (arm,), q, {"p_tracker_marker": y}, {"T_world_tracker": W, "p_tool_marker": x})
 
 
 def check_gravity_tree(rng, robot, ds):
@@ -89,6 +89,12 @@ def check_gravity_tree(rng, robot, ds):
 def test_jacobians_of_a_sagging_tree_match_differences(rng, kind, coupled):
     robot = gravity_tree(rng, coupled=coupled)
     check_gravity_tree(rng, robot, _case(kind, rng, robot))
+
+
+def test_jacobians_of_the_torso_carrying_both_arms_match_differences(rng):
+    """Markers on the torso itself: both arms hang on its tool (their weights move with its home and tool)."""
+    robot = gravity_tree(rng)
+    check_gravity_tree(rng, robot, _case("markers", rng, robot, arm="torso"))
 
 
 def _line_arm(name, x_com, mass, base=np.eye(4), payload=0.0, gravity=None):
