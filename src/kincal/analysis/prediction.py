@@ -143,11 +143,12 @@ def _tree_tool_jacobian(result, q, arm: str, with_jq: bool, wrench=None):
     line = lineage(result.state.mounts, arm)
     if not isinstance(q, dict) or any(s not in q for s in line):
         raise ShapeError(f"q: arm '{arm}' is mounted on {', '.join(line[:-1])}: expected readings of {', '.join(line)}")
-    q = {s: _joints(q[s], result.state.arms[s], s) for s in line}
+    q = {s: _joints(q[s], result.state.arms[s], s) if s in line else np.asarray(v, float) for s, v in q.items()
+         if s in result.state.arms}  # other arms' readings: their weight loads the carriers (gravity on a tree)
     kin = tree_kin(result.state, line, q, None if wrench is None else _loads(wrench, len(q[arm]), arm))
     blocks, jqs = {}, {}
     tree_jacobians(result.state, line, q, kin, np.broadcast_to(np.eye(6), (len(q[arm]), 6, 6)),
-                   {s: ARM_PARTS for s in line}, with_jq, blocks, jqs)
+                   {s: ARM_PARTS for s in q}, with_jq, blocks, jqs)
     J = scatter_columns(blocks, result.layout, np.flatnonzero(result.layout.free), (len(q[arm]), 6))
     return (kin.tool, J, np.concatenate([jqs[s] for s in line], axis=-1)) if with_jq else (kin.tool, J)
 

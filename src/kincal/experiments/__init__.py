@@ -21,6 +21,7 @@ import numpy as np
 from kincal.data import Dataset
 from kincal.errors import DataFormatError
 from kincal.experiments.base import KINDS, Experiment, Residual
+from kincal.kinematics.branches import loading_branches
 from kincal.kinematics.model import lineage
 from kincal.experiments.sharing import frame_kinds, frame_names, frame_values
 from kincal.params import State
@@ -47,10 +48,13 @@ def check_joints(ds: Dataset, state: State) -> None:
             raise DataFormatError(
                 f"data set '{ds.name}': arm '{arm}' is not in the model (arms: {', '.join(state.arms)})"
             )
-        for carrier in lineage(state.mounts, arm):
+        line = lineage(state.mounts, arm)
+        hung = loading_branches(state.mounts, {a: v.weights for a, v in state.arms.items()}, line) if state.mounts else []
+        for carrier in (*line, *hung):
             if carrier not in ds.q:
+                why = f"which carries arm '{arm}'" if carrier in line else f"whose weight loads the joints carrying arm '{arm}'"
                 raise DataFormatError(f"data set '{ds.name}': field q[{carrier}]: no readings of arm '{carrier}', "
-                                      f"which carries arm '{arm}'; expected its joint readings in the data set")
+                                      f"{why}; expected its joint readings in the data set")
             a = state.arms[carrier]
             n = ds.q[carrier].shape[1]
             if n != a.dof:

@@ -8,12 +8,15 @@ from __future__ import annotations
 import numpy as np
 
 from kincal.kinematics import Kinematics, chain, loaded_chain
-from kincal.kinematics.jacobians import TOOL_PARTS, insertion_jacobians, tool_jacobians
+from kincal.kinematics.branches import branch_torque_derivatives, tree_gravity
+from kincal.kinematics.elastic import LoadedKinematics
+from kincal.kinematics.jacobians import TOOL_PARTS, insertion_jacobians, joint_jacobian, tool_jacobians
 from kincal.kinematics.tree import composite, insertion_points
 from kincal.lie import se3, so3
 from kincal.params import ArmValues
 
 ARM_PARTS = TOOL_PARTS
+BRANCH_PARTS = ("offsets", "twists", "home", "base", "tool")  # another branch's parts its weight depends on
 
 
 def arm_jacobians(a: ArmValues, kin: Kinematics, G: np.ndarray, parts=ARM_PARTS, with_jq: bool = True, q=None):
@@ -31,17 +34,25 @@ def coupled(a: ArmValues, gq: np.ndarray) -> np.ndarray:
 
 def tree_kin(state, line, q, w=None) -> Kinematics:
     """Kinematics of the composite chain of the arms ``line`` (root first, ``kincal.kinematics.tree``) at readings
-    ``q`` (arm -> (N, n)), deflected by the tool loads ``w`` (N, 6) if given (every segment's joints yield)."""
+    ``q`` (arm -> (N, n)), deflected by the tool loads ``w`` (N, 6) if given and by the weights of the tree
+    (``kincal.kinematics.branches``: every segment's links, the tip's payload, the other branches' weights)."""
     segs = [state.arms[s] for s in line]
     comp = composite(segs)
     theta0 = np.concatenate([q[s] + a.offsets for s, a in zip(line, segs)], axis=-1)
-    if w is None:
+    load, branches = _tree_gravity(state, line, q)
+    if w is None and load is None:
         return chain(comp.screws, theta0, comp.base, comp.home, comp.tool)
     cs = [a.compliance_at(q[s]) for s, a in zip(line, segs)]  # (n_k,), or (N, n_k) with angle-dependent ones
     if any(x.ndim == 2 for x in cs):
         cs = [np.broadcast_to(x, (len(theta0), x.shape[-1])) for x in cs]
     c = np.concatenate(cs, axis=-1)
-    return loaded_chain(comp.screws, theta0, comp.base, comp.home, comp.tool, c, w)
+    return loaded_chain(comp.screws, theta0, comp.base, comp.home, comp.tool, c, w, load,
+                        [b.hung for b in branches])
+
+
+def _tree_gravity(state, line, q):
+    return tree_gravity(state.arms, {a: v.weights for a, v in state.arms.items()}, state.mounts, line, q,
+                        {a: v.offsets for a, v in state.arms.items()})
 
 
 def _tree_compliance(segs, qs):
@@ -69,13 +80,17 @@ def _add(out: dict, key: str, J: np.ndarray) -> None:
 def tree_jacobians(state, line, q, kin, G, parts, jq: bool, out: dict, jqs: dict) -> None:
     """Blocks of every arm of ``line`` (root first; ``parts[arm]``: the wanted parts) for the tip's left
     increment derivative G at readings ``q`` (arm -> (N, n)), added to ``out``; ``G @ J_q`` per arm added to
-    ``jqs`` (if ``jq``)."""
+    ``jqs`` (if ``jq``). Under gravity, the other arms whose weight loads the lineage (``parts`` may list
+    them) add their blocks and readings too."""
     segs = [state.arms[s] for s in line]
     comp = composite(segs)
     coeffs, basis = _tree_compliance(segs, [q[s] for s in line])
-    wanted = set().union(*parts.values())
+    branches = _tree_gravity(state, line, q)[1] if isinstance(kin, LoadedKinematics) else ()
+    wanted = set().union(*(parts.get(s, ()) for s in line))
     cparts = [p for p in ("offsets", "twists", "compliance") if p in wanted]
-    cparts += ["base"] * ("base" in parts[line[0]]) + [p for p in ("home", "tool") if p in parts[line[-1]]]
+    cparts += ["base"] * ("base" in parts[line[0]])
+    if not branches:  # else the tip's home and tool are insertions too, which may move weights hung at n
+        cparts += [p for p in ("home", "tool") if p in parts[line[-1]]]
     gens = comp.generators([a.generators for a in segs])
     blocks, gq = tool_jacobians(kin, G, comp.screws, gens, coeffs, cparts, jq, basis)
     widths = {"offsets": None, "twists": [sum(g.shape[1] for g in a.generators) for a in segs],
@@ -91,14 +106,47 @@ def tree_jacobians(state, line, q, kin, G, parts, jq: bool, out: dict, jqs: dict
         _add(out, f"{line[-1]}.tool", blocks["tool"])
     if "home" in blocks:
         _add(out, f"{line[-1]}.home", blocks["home"] @ se3.adjoint(comp.frames[-1]))
-    pts = [(k, p, m, X) for k, p, m, X in insertion_points(comp, segs) if p in parts[line[k]]]
-    if pts:
-        Js = insertion_jacobians(kin, G, comp.screws, [(m, X) for _, _, m, X in pts], coeffs, basis)
-        for (k, p, _, _), J in zip(pts, Js):
-            _add(out, f"{line[k]}.{p}", J)
+    _insertions(kin, G, comp, segs, line, parts, coeffs, basis, branches, out)
     if jq:
         for s, a, J in zip(line, segs, comp.split(gq)):
             _add(jqs, s, coupled(a, J))
+    if branches:
+        _branch_blocks(state, kin, G, comp, coeffs, basis, branches, parts, jq, out, jqs)
+
+
+def _insertions(kin, G, comp, segs, line, parts, coeffs, basis, branches, out) -> None:
+    """The blocks of the rigid transforms inside the composite chain (``tree.insertion_points``; with branches
+    the tip's home and tool too), each with the hung weights it carries (segment index <= the branch's)."""
+    pts = insertion_points(comp, segs)
+    if branches:
+        K, n = len(segs) - 1, int(comp.starts[-1])
+        pts += [(K, "home", n, comp.frames[-1]), (K, "tool", n, comp.frames[-1] @ segs[-1].home)]
+    pts = [(k, p, m, X) for k, p, m, X in pts if p in parts[line[k]]]
+    if not pts:
+        return
+    moved = [[b.hung for b in branches if b.m == m and k <= b.k] for k, _, m, _ in pts]
+    Js = insertion_jacobians(kin, G, comp.screws, [(m, X) for _, _, m, X in pts], coeffs, basis, moved)
+    for (k, p, _, _), J in zip(pts, Js):
+        _add(out, f"{line[k]}.{p}", J)
+
+
+def _branch_blocks(state, kin, G, comp, coeffs, basis, branches, parts, jq, out, jqs) -> None:
+    """The blocks and readings of the other arms whose weight loads the lineage (through the carriers'
+    deflection; ``kincal.kinematics.branches``)."""
+    c = coeffs if basis is None else basis[0] @ coeffs
+    cjq = joint_jacobian(kin, G, comp.screws) * np.asarray(c)[..., None, :]
+    for b in branches:
+        a = state.arms[b.arm]
+        want = [p for p in parts.get(b.arm, ()) if p in BRANCH_PARTS] + ["readings"] * jq
+        if not want:
+            continue
+        D = branch_torque_derivatives(kin.axes, kin.gravity, b, a.generators, a.base, want)
+        for p in want:
+            J = cjq[..., : b.m] @ D[p]
+            if p == "readings":
+                _add(jqs, b.arm, coupled(a, J))
+            else:
+                _add(out, f"{b.arm}.{p}", J)
 
 
 def pose_gap(TA: np.ndarray, TB: np.ndarray):

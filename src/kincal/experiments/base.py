@@ -15,6 +15,7 @@ import numpy as np
 from kincal.data import Dataset
 from kincal.experiments._kernel import ARM_PARTS, arm_jacobians, coupled, tree_jacobians, tree_kin
 from kincal.kinematics import Kinematics, chain, loaded_chain
+from kincal.kinematics.branches import loading_branches
 from kincal.kinematics.model import lineage
 from kincal.noise import Quantity
 from kincal.params import State
@@ -140,9 +141,10 @@ class Experiment:
     def _kin(self, state: State, arm: str) -> Kinematics:
         """The arm's kinematics at the data's readings (the composite chain through its ancestors when mounted,
         ``kincal.kinematics.tree``); deflected by ``wrench_tool`` when the data has loads and by the arm's own
-        weight when its model has masses and gravity (``kincal.kinematics.gravity``; not for mounted arms yet)."""
+        weight when its model has masses and gravity (``kincal.kinematics.gravity``; on a tree the weights of all
+        its arms, ``kincal.kinematics.branches``)."""
         line = lineage(state.mounts, arm)
-        if len(line) > 1:
+        if len(line) > 1 or _hung(state, line):
             return tree_kin(state, line, self.dataset.q, self.dataset.measured.get("wrench_tool"))
         a = state.arms[arm]
         theta0 = self.dataset.q[arm] + a.offsets
@@ -161,8 +163,9 @@ class Experiment:
         the residual's derivative w.r.t. the left increment of ``T_world_tool``. A mounted arm adds its
         ancestors' blocks and readings too (added to what another arm of the data set put there)."""
         line = lineage(state.mounts, arm)
-        if len(line) > 1:
-            parts = {s: self._parts(s, want) for s in line}
+        hung = _hung(state, line)
+        if len(line) > 1 or hung:
+            parts = {s: self._parts(s, want) for s in (*line, *hung)}
             if any(parts.values()) or jq:
                 tree_jacobians(state, line, self.dataset.q, kin, G, parts, jq, out, jqs)
             return
@@ -173,3 +176,10 @@ class Experiment:
         out.update({f"{arm}.{p}": J for p, J in blocks.items()})
         if jq:
             jqs[arm] = coupled(state.arms[arm], gq)
+
+
+def _hung(state: State, line) -> list[str]:
+    """The other arms whose weight loads the joints of ``line`` (``kincal.kinematics.branches``)."""
+    if not state.mounts:
+        return []
+    return loading_branches(state.mounts, {a: v.weights for a, v in state.arms.items()}, line)

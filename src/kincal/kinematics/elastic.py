@@ -63,9 +63,10 @@ class LoadedKinematics(Kinematics):
 
 
 def loaded_chain(screws, theta0, base, home, tool, compliance, wrench_tool,
-                 weights: GravityLoad | None = None) -> LoadedKinematics:
+                 weights: GravityLoad | None = None, hung=()) -> LoadedKinematics:
     """Unvalidated kernel on raw arrays: ``theta0`` (..., n) unloaded joint values, ``wrench_tool`` (..., 6) or
-    None (no tool load), ``compliance`` (n,) or per sample (..., n), ``weights`` the arm's mass model or None."""
+    None (no tool load), ``compliance`` (n,) or per sample (..., n), ``weights`` the arm's mass model or None;
+    ``hung``: weights beyond the chain (``gravity.mass_beyond``; other branches of a tree)."""
     kin0 = chain(screws, theta0, base, home, tool)
     if wrench_tool is None:
         F_s = np.zeros(kin0.theta.shape[:-1] + (6,))
@@ -76,7 +77,7 @@ def loaded_chain(screws, theta0, base, home, tool, compliance, wrench_tool,
     if weights is None:
         tau = np.einsum("...ki,...i->...k", axes, F_s)
     else:
-        M, S = mass_beyond(weights, kin0.prefixes, kin0.tool)
+        M, S = mass_beyond(weights, kin0.prefixes, kin0.tool, hung)
         W = weight_wrenches(M, S, weights.g) + F_s[..., None, :]
         tau = np.einsum("...ki,...ki->...k", axes, W[..., :-1, :])
         extra = (weights.g, M, S, W)

@@ -56,15 +56,21 @@ def gravity_load(model: ArmModel) -> GravityLoad | None:
     return GravityLoad(model.link_masses, model.link_coms, model.payload_mass, model.payload_com, model.gravity)
 
 
-def mass_beyond(load: GravityLoad, prefixes: np.ndarray, tool: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def mass_beyond(load: GravityLoad, prefixes: np.ndarray, tool: np.ndarray, hung=()) -> tuple[np.ndarray, np.ndarray]:
     """``M_l`` (n + 1,) and ``S_l`` (..., n + 1, 3) for l = 0..n, from the chain's ``prefixes`` (..., n + 1, 4, 4)
-    and ``T_world_tool`` (..., 4, 4); index n holds the payload alone."""
+    and ``T_world_tool`` (..., 4, 4); index n holds the payload alone. ``hung``: (m, mass, first moment (..., 3)
+    world) of weights carried by link m - 1 beyond the chain (other branches of a tree), m > 0."""
     P = prefixes[..., 1:, :, :]
     c = np.einsum("...kij,kj->...ki", P[..., :3, :3], load.coms) + P[..., :3, 3]  # (..., n, 3) link centres
     cp = tool[..., :3, :3] @ load.payload_com + tool[..., :3, 3]  # (..., 3) payload centre
     moments = np.concatenate([c * load.masses[:, None], (load.payload_mass * cp)[..., None, :]], axis=-2)
+    masses = np.append(load.masses, load.payload_mass)
+    for m, mass, moment in hung:
+        moments = np.broadcast_to(moments, np.broadcast_shapes(moments.shape, moment.shape[:-1] + (1, 3))).copy()
+        moments[..., m - 1, :] += moment
+        masses[m - 1] += mass
     S = np.flip(np.cumsum(np.flip(moments, -2), axis=-2), -2)
-    M = np.flip(np.cumsum(np.flip(np.append(load.masses, load.payload_mass))))
+    M = np.flip(np.cumsum(np.flip(masses)))
     return M, S
 
 
@@ -101,6 +107,17 @@ class _Inserter:
             H = np.einsum("Nkji,Nj->Nki", self.ad[:, :a], self.W[:, l])
             H += _q_rows(self.X[:, :a], self.M[l], self.S[:, l, None], self.g)
             out[:, :a] = H @ Z
+        return out
+
+    def moved_weight(self, m: int, mass: float, moment: np.ndarray, Z: np.ndarray) -> np.ndarray:
+        """dtau (N, n, d) from a weight (``mass``, first ``moment`` (N, 3)) beyond the chain moved by the twists
+        Z (N, 6, d) while the axes before ``m`` stay (``a > 0`` rule above, with this weight alone)."""
+        out = np.zeros(self.X.shape[:2] + Z.shape[-1:])
+        if m > 0:
+            W = np.concatenate([np.broadcast_to(mass * self.g, moment.shape), np.cross(moment, self.g)], axis=-1)
+            H = np.einsum("Nkji,Nj->Nki", self.ad[:, :m], W)
+            H += _q_rows(self.X[:, :m], np.asarray(mass, float), moment[:, None], self.g)
+            out[:, :m] = H @ Z
         return out
 
 

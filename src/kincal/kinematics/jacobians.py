@@ -36,7 +36,7 @@ import numpy as np
 
 from kincal.kinematics.elastic import LoadedKinematics
 from kincal.kinematics.fk import Kinematics
-from kincal.kinematics.gravity import gravity_torque_derivatives
+from kincal.kinematics.gravity import _Inserter, gravity_torque_derivatives
 from kincal.lie import se3
 
 TOOL_PARTS = ("offsets", "twists", "home", "base", "tool", "compliance")
@@ -124,11 +124,12 @@ def torque_derivatives(kin: LoadedKinematics, generators: Sequence[np.ndarray], 
 
 
 def insertion_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, at, compliance=None,
-                        basis=None) -> list[np.ndarray]:
+                        basis=None, moved=None) -> list[np.ndarray]:
     """``G @ d T_world_tool / d X_i`` (N, k, 6) per rigid transform ``X_i`` inserted in the chain: ``at`` lists
     (m, F) with the transform at ``P_m F`` (prefix after m joints, F a constant), perturbed on the left there
     (``F -> exp(d) F``, as ``home`` is at m = n). Under a load the torques of the joints before the insertion
-    change too (``insertion_torques``); ``compliance``/``basis`` as in ``tool_jacobians``."""
+    change too (``insertion_torques``); ``compliance``/``basis`` as in ``tool_jacobians``; ``moved`` (per
+    insertion, a sequence of hung weights ``(m, mass, moment)`` it moves, ``kincal.kinematics.branches``)."""
     N, k = G.shape[:2]
     P = np.stack([kin.prefixes[:, m] @ F for m, F in at], axis=1)
     out = list(_project_prefixes(G, P).reshape(len(at), N, k, 6))
@@ -137,18 +138,30 @@ def insertion_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, at, 
     c = compliance if basis is None else basis[0] @ compliance
     if not np.any(c):
         return out
+    cjq = joint_jacobian(kin, G, screws) * np.asarray(c)[..., None, :]
+    moved = moved or [()] * len(at)
+    return [J + cjq @ insertion_torques(kin, m, F, w) for J, (m, F), w in zip(out, at, moved)]
+
+
+def joint_jacobian(kin: Kinematics, G: np.ndarray, screws: np.ndarray) -> np.ndarray:
+    """``G dT/dtheta`` (N, k, n) at the chain's joint values (deflected ones for a loaded chain)."""
+    N, k = G.shape[:2]
     n = screws.shape[0]
-    jq = np.moveaxis((_project_prefixes(G, kin.prefixes[:, :n]) @ screws[:, :, None])[..., 0].reshape(n, N, k), 0, -1)
-    cjq = jq * np.asarray(c)[..., None, :]
-    return [J + cjq @ insertion_torques(kin, m, F) for J, (m, F) in zip(out, at)]
+    return np.moveaxis((_project_prefixes(G, kin.prefixes[:, :n]) @ screws[:, :, None])[..., 0].reshape(n, N, k),
+                       0, -1)
 
 
-def insertion_torques(kin: LoadedKinematics, m: int, F: np.ndarray) -> np.ndarray:
+def insertion_torques(kin: LoadedKinematics, m: int, F: np.ndarray, moved=()) -> np.ndarray:
     """``dtau/dd`` (N, n, 6) for a rigid transform at ``P_m F`` of the unloaded chain moved by ``exp(d)``: the
-    joints after it move with the tool (no change), those before it see the load turn (``h_i Ad(P_m F)``)."""
+    joints after it move with the tool (no change), those before it see the load turn (``h_i Ad(P_m F)``);
+    with weights (``kincal.kinematics.gravity``) the links from m on move too, and the hung weights ``moved``."""
+    Z = se3.adjoint(kin.unloaded.prefixes[:, m] @ F)
+    if kin.gravity is not None:
+        ins = _Inserter(kin)
+        return ins(m, m, Z) + sum((ins.moved_weight(mb, mass, S, Z) for mb, mass, S in moved), 0.0)
     H = np.einsum("Ni,Nkij->Nkj", kin.wrench_space, se3.ad(kin.axes))  # (N, n, 6): h_i
     before = (np.arange(H.shape[1]) < m)[None, :, None]
-    return (H * before) @ se3.adjoint(kin.unloaded.prefixes[:, m] @ F)
+    return (H * before) @ Z
 
 
 def _add_compliance(kin: LoadedKinematics, generators, k_c: np.ndarray, basis, jq: np.ndarray, out: dict,

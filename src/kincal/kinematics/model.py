@@ -295,6 +295,7 @@ class Robot:
         object.__setattr__(self, "arms", MappingProxyType(dict(self.arms)))
         object.__setattr__(self, "meta", MappingProxyType(dict(self.meta)))
         object.__setattr__(self, "mounts", MappingProxyType(checked_mounts(self.mounts, self.arms, self.name)))
+        object.__setattr__(self, "arms", MappingProxyType(tree_gravity_filled(self.arms, self.mounts)))
 
     def __getitem__(self, arm: str) -> ArmModel:
         try:
@@ -348,8 +349,29 @@ def checked_mounts(mounts, arms: Mapping, robot: str) -> dict[str, str]:
                 cycle = " -> ".join(seen[seen.index(nxt):] + [nxt])
                 raise ModelError(f"robot '{robot}': arm '{child}': mount: the mounts form a cycle ({cycle})")
             seen.append(nxt)
-    loaded = next((a for c, p in out.items() for a in (c, p) if arms[a].has_gravity_load), None)
-    if loaded is not None:  # the weights of one branch load the carriers' joints: not modelled yet
-        raise ModelError(f"robot '{robot}': arm '{loaded}': gravity loads (a mass model with gravity) are not "
-                         "supported on mounted arms or their carriers yet; give the tree without gravity")
+    _check_tree_gravity(out, arms, robot)
     return out
+
+
+def _check_tree_gravity(mounts: Mapping[str, str], arms: Mapping, robot: str) -> None:
+    """The arms of one tree that state a gravity vector state the same one (the robot's; one-line ModelError)."""
+    seen: dict[str, tuple[str, np.ndarray]] = {}
+    for a in arms:
+        if arms[a].gravity is None:
+            continue
+        root = lineage(mounts, a)[0]
+        if root in seen and not np.array_equal(seen[root][1], arms[a].gravity):
+            raise ModelError(f"robot '{robot}': arm '{a}': gravity {list(arms[a].gravity)} disagrees with arm "
+                             f"'{seen[root][0]}' ({list(seen[root][1])}) of the same tree; one gravity per robot")
+        seen.setdefault(root, (a, arms[a].gravity))
+
+
+def tree_gravity_filled(arms: Mapping, mounts: Mapping[str, str]) -> dict:
+    """The arms, each arm of a tree that states gravity (on any of its arms) given that gravity: the weights of
+    every arm of the tree then load the joints carrying them (``kincal.kinematics.branches``)."""
+    g = {}
+    for a, arm in arms.items():
+        if arm.gravity is not None:
+            g.setdefault(lineage(mounts, a)[0], arm.gravity)
+    return {a: arm if arm.gravity is not None or lineage(mounts, a)[0] not in g
+            else replace(arm, gravity=g[lineage(mounts, a)[0]]) for a, arm in arms.items()}

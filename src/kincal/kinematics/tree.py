@@ -86,7 +86,9 @@ def joined(readings: Mapping[str, np.ndarray], names: Sequence[str]) -> np.ndarr
 
 def tip_model(robot: Robot, arm: str) -> ArmModel:
     """``arm`` with its ancestors as one ArmModel (joints named ``<segment>.<joint>``, readings side by side in
-    ``Robot.lineage`` order): its forward kinematics is the tip's world pose; the arm itself when not mounted."""
+    ``Robot.lineage`` order): its forward kinematics is the tip's world pose; the arm itself when not mounted.
+    It carries every segment's link masses (centres of mass mapped by ``M_k``), the tip's payload and the
+    tree's gravity; not the other branches' weights (``kincal.kinematics.branches``)."""
     line = robot.lineage(arm)
     if len(line) == 1:
         return robot[arm]
@@ -100,7 +102,11 @@ def tip_model(robot: Robot, arm: str) -> ArmModel:
     return ArmModel(f"{arm} (on {', '.join(line[:-1])})", comp.screws, comp.home, base=comp.base, tool=comp.tool,
                     offsets=cat("offsets"), lower=cat("lower"), upper=cat("upper"), gear_ratios=cat("gear_ratios"),
                     joint_names=names, joint_types=sum((s.joint_types for s in segs), ()),
-                    compliance=cat("compliance"), compliance_nodes=nodes, couplings=couplings)
+                    compliance=cat("compliance"), compliance_nodes=nodes, couplings=couplings,
+                    link_masses=cat("link_masses"),
+                    link_coms=np.concatenate([s.link_coms @ M[:3, :3].T + M[:3, 3] for s, M in zip(segs, comp.frames)]),
+                    payload_mass=segs[-1].payload_mass, payload_com=segs[-1].payload_com,
+                    gravity=next((s.gravity for s in segs if s.gravity is not None), None))
 
 
 def tip_kinematics(robot: Robot, arm: str, readings: Mapping[str, np.ndarray]) -> Kinematics:

@@ -18,8 +18,8 @@ from kincal._validate import check_transform
 from kincal.data import Dataset
 from kincal.errors import DegenerateExperimentError, ModelError
 from kincal.kinematics import ArmModel, Robot, loaded_forward_kinematics
-from kincal.kinematics.tree import tip_pose
-from kincal.simulate.generators._tree import with_couplings
+from kincal.kinematics.tree import tip_model, tip_pose
+from kincal.simulate.generators._tree import hung_readings, tree_has_gravity, true_tool_poses, with_couplings
 from kincal.noise import Noise
 from kincal.schema import LENGTH, NONE
 from kincal.simulate.noise import joint_readings
@@ -131,10 +131,15 @@ def validation_set(robot: Robot, arms, n: int, rng: np.random.Generator, name: s
     out = {}
     for a in arms:
         q = with_couplings(robot, {s: random_configurations(robot[s], n, rng) for s in robot.lineage(a)})
+        q.update(hung_readings(robot, a, n, lambda m, k: random_configurations(m, k, rng)))  # gravity on a tree
+        line = robot.lineage(a)
+        if tree_has_gravity(robot, a):  # sags under the whole tree's weight
+            T = true_tool_poses(robot, a, tip_model(robot, a), np.concatenate([q[s] for s in line], -1), None,
+                                {o: q[o] for o in q if o not in line})
+        else:  # mounted: through its carriers; alone: sags under its weight
+            T = tip_pose(robot, a, q) if len(line) > 1 else loaded_forward_kinematics(robot[a], q[a])
         out[a] = Dataset(
-            "pose", robot.name, (a,), q,
-            measured={"T_tracker_tool": tip_pose(robot, a, q) if len(q) > 1  # mounted: through its carriers
-                      else loaded_forward_kinematics(robot[a], q[a])},  # sags under its weight
+            "pose", robot.name, (a,), q, measured={"T_tracker_tool": T},
             name=f"{name}-{a}", meta={"noise_free": True, "noise": dict(NOISE_FREE), "frame": "world (registered when evaluated)"},
         )
     return out

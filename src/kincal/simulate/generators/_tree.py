@@ -6,8 +6,10 @@ from __future__ import annotations
 import numpy as np
 
 from kincal.errors import ModelError
-from kincal.kinematics import Robot
+from kincal.kinematics import Robot, loaded_forward_kinematics
+from kincal.kinematics.branches import loading_branches, tree_loaded_kinematics
 from kincal.kinematics.couplings import coupling_map
+from kincal.kinematics.gravity import gravity_load
 from kincal.kinematics.tree import tip_model
 from kincal.simulate.ik import ClosedChainConstraint, _PoseResidual
 
@@ -107,3 +109,25 @@ def uncoupled_tip(robot: Robot, arm: str, kind: str):
         raise ModelError(f"{kind}: arm '{arm}' has joint couplings ({', '.join(model.couplings)}); the {kind} "
                          "generator does not hold them: simulate with dual, pose or markers data")
     return model
+
+
+def hung_readings(robot: Robot, arm: str, n: int, draw) -> dict[str, np.ndarray]:
+    """Readings (couplings applied) of the other arms whose weight loads ``arm``'s carriers (gravity on a tree,
+    ``kincal.kinematics.branches``), drawn by ``draw(model, n)``; {} when there are none (no draws)."""
+    loads = {a: gravity_load(m) for a, m in robot.arms.items()}
+    return with_couplings(robot, {o: draw(robot[o], n) for o in loading_branches(robot.mounts, loads,
+                                                                                   robot.lineage(arm))})
+
+
+def true_tool_poses(robot: Robot, arm: str, model, q: np.ndarray, loads, others: dict) -> np.ndarray:
+    """True tool poses of ``arm`` (``model``: its tip model) at the tip readings ``q`` (N, m), deflected by the
+    loads and, on a tree with gravity, by the weights of the whole tree (the other arms at ``others``)."""
+    if not tree_has_gravity(robot, arm):
+        return loaded_forward_kinematics(model, q, loads)
+    return tree_loaded_kinematics(robot, arm, {**tip_readings(robot, arm, q), **others}, loads).tool
+
+
+def tree_has_gravity(robot: Robot, arm: str) -> bool:
+    """Whether ``arm`` belongs to a tree of several arms with gravity (``kincal.kinematics.branches``)."""
+    members = [a for a in robot.arms if robot.lineage(a)[0] == robot.lineage(arm)[0]]
+    return len(members) > 1 and any(robot[a].gravity is not None for a in members)

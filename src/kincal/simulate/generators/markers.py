@@ -15,10 +15,10 @@ from kincal.simulate.generators._common import (ARM, NOISE_FREE, WRENCH, Option,
                                                 dataset_meta, generator, known_option, noisy_readings, pick_arm,
                                                 pose_or, random_configurations)
 from kincal.simulate.generators._payload import before_and_after, fixed_configurations, payload_wrenches
-from kincal.simulate.generators._tracker import (random_markers, random_tracker_pose, tool_loads, tool_poses,
+from kincal.simulate.generators._tracker import (random_markers, random_tracker_pose, tool_loads,
                                                  validation_loads)
 from kincal.kinematics.tree import tip_model
-from kincal.simulate.generators._tree import coupled_readings, tip_readings
+from kincal.simulate.generators._tree import coupled_readings, hung_readings, tip_readings, true_tool_poses
 from kincal.simulate.noise import tracker_points
 from kincal.simulate.truth import Truth
 
@@ -73,9 +73,12 @@ def generate_markers(
         raise DegenerateExperimentError("payload and wrench_N: give one way of loading the tool")
     loads = tool_loads(wrench, len(q), rng) if payload is None else payload_wrenches(model, q, *payload)
     configs = q
+    draw = lambda m, k: random_configurations(m, k, rng, margin)  # noqa: E731
+    others = hung_readings(robot, arm, len(q), draw)  # the other arms loading the carriers (gravity on a tree)
     if payload is not None:
         q, loads = before_and_after(q, loads)
-    T = se3.inverse(T_wt) @ tool_poses(model, q, loads)
+        others = {o: np.repeat(v, 2, axis=0) for o, v in others.items()}
+    T = se3.inverse(T_wt) @ true_tool_poses(robot, arm, model, q, loads, others)
     p = se3.transform_points(T[:, None], p_tm[None])
     known = {}
     if known_tracker:
@@ -88,17 +91,20 @@ def generate_markers(
     readings = noisy_readings({arm: configs}, noise, rng)  # a configuration's two measurements share its readings
     if payload is not None:
         readings = {arm: np.repeat(readings[arm], 2, axis=0)}
-    readings = tip_readings(robot, arm, readings[arm])
+    readings = {**tip_readings(robot, arm, readings[arm]), **noisy_readings(others, noise, rng)}
     ds = Dataset("markers", robot.name, (arm,), readings, measured, known, "markers",
                  dataset_meta("markers", noise))
-    truth = Truth(robot, {"T_world_tracker": T_wt, "p_tool_marker": p_tm}, tip_readings(robot, arm, q), noise, {"generator": "markers"})
+    truth = Truth(robot, {"T_world_tracker": T_wt, "p_tool_marker": p_tm}, {**tip_readings(robot, arm, q), **others},
+                  noise, {"generator": "markers"})
     # Validate what this experiment observes: marker positions at fresh configurations, noise-free, with the
     # tracker frame and marker offsets left unknown (refitted), not the world-frame tool pose (which a partial
     # pose measurement does not determine: the tracker gauge, and with one marker the tool orientation).
     qv = coupled_readings(model, random_configurations(model, n_validation, rng, margin))
     lv = validation_loads(wrench, loads, n_validation, rng) if payload is None else payload_wrenches(model, qv, *payload)
-    pv = se3.transform_points((se3.inverse(T_wt) @ tool_poses(model, qv, lv))[:, None], p_tm[None])
+    ov = hung_readings(robot, arm, len(qv), draw)
+    pv = se3.transform_points((se3.inverse(T_wt) @ true_tool_poses(robot, arm, model, qv, lv, ov))[:, None],
+                              p_tm[None])
     mv = {"p_tracker_marker": pv} if lv is None else {"p_tracker_marker": pv, "wrench_tool": lv}
-    validation = {arm: Dataset("markers", robot.name, (arm,), tip_readings(robot, arm, qv), mv, {}, f"validation-{arm}",
+    validation = {arm: Dataset("markers", robot.name, (arm,), {**tip_readings(robot, arm, qv), **ov}, mv, {}, f"validation-{arm}",
                                {"noise_free": True, "noise": dict(NOISE_FREE)})}
     return ds, truth, validation

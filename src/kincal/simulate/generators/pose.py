@@ -12,9 +12,9 @@ from kincal.schema import LENGTH
 from kincal.simulate.generators._common import (ARM, WRENCH, check_n, count_option, dataset_meta, generator,
                                                 known_option, noisy_readings, Option, pick_arm, pose_or,
                                                 random_configurations, validation_set)
-from kincal.simulate.generators._tracker import random_tracker_pose, tool_loads, tool_poses
+from kincal.simulate.generators._tracker import random_tracker_pose, tool_loads
 from kincal.kinematics.tree import tip_model
-from kincal.simulate.generators._tree import coupled_readings, tip_readings
+from kincal.simulate.generators._tree import coupled_readings, hung_readings, tip_readings, true_tool_poses
 from kincal.simulate.noise import tracker_poses
 from kincal.simulate.truth import Truth
 
@@ -48,11 +48,14 @@ def generate_pose(
     T_wt = pose_or(T_world_tracker, "T_world_tracker", lambda: random_tracker_pose(robot, arm, rng))
     q = coupled_readings(model, random_configurations(model, n, rng, margin))
     loads = tool_loads(wrench, n, rng)
-    T = se3.inverse(T_wt) @ tool_poses(model, q, loads)
+    others = hung_readings(robot, arm, n, lambda m, k: random_configurations(m, k, rng, margin))  # gravity on a tree
+    T = se3.inverse(T_wt) @ true_tool_poses(robot, arm, model, q, loads, others)
     measured = {"T_tracker_tool": tracker_poses(T, noise, rng)}
     if loads is not None:
         measured["wrench_tool"] = loads
-    ds = Dataset("pose", robot.name, (arm,), tip_readings(robot, arm, noisy_readings({arm: q}, noise, rng)[arm]), measured,
+    readings = {**tip_readings(robot, arm, noisy_readings({arm: q}, noise, rng)[arm]), **noisy_readings(others, noise, rng)}
+    ds = Dataset("pose", robot.name, (arm,), readings, measured,
                  {"T_world_tracker": T_wt} if known_tracker else {}, "pose", dataset_meta("pose", noise))
-    truth = Truth(robot, {"T_world_tracker": T_wt}, tip_readings(robot, arm, q), noise, {"generator": "pose"})
+    truth = Truth(robot, {"T_world_tracker": T_wt}, {**tip_readings(robot, arm, q), **others}, noise,
+                  {"generator": "pose"})
     return ds, truth, validation_set(robot, (arm,), n_validation, rng)
