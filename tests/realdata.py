@@ -330,30 +330,72 @@ def _justin_dh(rows, name: str, names, **fields) -> ArmModel:
                    joint_names=tuple(names), **fields)
 
 
-def justin_robot(path: Path) -> Robot:
+def justin_robot(path: Path, masses: bool = False) -> Robot:
     """Agile Justin's torso (pan, two tilts and the coupled passive tilt) carrying both arms: a tree, so the torso's
     parameters exist once (``Robot.mounts``), with the coupling declared (``ArmModel.couplings``). Each arm's base
-    is its pose in the torso's last DH frame, its tool the TCP frame. Masses are not included here (the head is
-    always at zero and is left out)."""
+    is its pose in the torso's last DH frame, its tool the TCP frame. ``masses``: the JSON's mass model (links,
+    hands as payloads, the head on the torso's last link; gravity -z in the torso base frame), so the robot's own
+    weight loads every joint compliance (``kincal.kinematics.gravity``)."""
     m = _justin_model(path)
     tcp = _nearest_pose(m["F_TCP_right_and_left"])
+    torso_fields, arm_fields = {}, {"right": {}, "left": {}}
+    if masses:
+        torso_fields, arm_fields = _justin_masses(m)
     torso = _justin_dh(m["DH_TORSO"], "torso", ("t1", "t2", "t3", "t4"), base=_nearest_pose(m["F_TORSO_BASE"]),
-                       couplings=JUSTIN_TORSO_COUPLING)
+                       couplings=JUSTIN_TORSO_COUPLING, **torso_fields)
     arms = {side: _justin_dh(m[f"DH_{side.upper()}"], side, [f"j{i}" for i in range(1, 8)], flange=tcp,
-                             base=_nearest_pose(m[f"F_{side.upper()}_BASE"])) for side in ("right", "left")}
+                             base=_nearest_pose(m[f"F_{side.upper()}_BASE"]), **arm_fields[side])
+            for side in ("right", "left")}
     return Robot("justin", {"torso": torso, **arms}, {"source": JUSTIN}, mounts={"right": "torso", "left": "torso"})
 
 
-def justin_markers(path: Path) -> tuple[Dataset, Dataset]:
+def _dh_frames(rows) -> np.ndarray:
+    """The DH frames {1}..{n} at q = 0 in the segment's first frame (Craig: RotX(alpha) TransX(a) RotZ(theta)
+    TransZ(d) per row ``[d, theta, a, alpha]``), (n, 4, 4)."""
+    T, out = np.eye(4), []
+    for d, theta, a, alpha in np.asarray(rows, dtype=float):
+        c, s, ca, sa = np.cos(theta), np.sin(theta), np.cos(alpha), np.sin(alpha)
+        T = T @ np.array([[c, -s, 0, a], [ca * s, ca * c, -sa, -d * sa], [sa * s, sa * c, ca, d * ca], [0, 0, 0, 1]])
+        out.append(T)
+    return np.array(out)
+
+
+def _justin_masses(m: dict) -> tuple[dict, dict]:
+    """ArmModel mass fields from the JSON: each DH frame's mass at its centre of gravity (frame coordinates) moved
+    to the segment's base frame at q = 0; the head (its joints always 0) joins the torso's last link."""
+    mk, cog = m["masses_kg"], m["mass_cog_in_frame_m"]
+    g = np.array([0.0, 0.0, -9.81])
+    torso_frames = _dh_frames(m["DH_TORSO"])
+    tm = np.array(mk["torso_frames_1_to_4"], float)
+    tc = np.einsum("nij,nj->ni", torso_frames[:, :3, :3], np.array(cog["torso"])) + torso_frames[:, :3, 3]
+    head = torso_frames[-1] @ np.asarray(m["F_HEAD_BASE"], float) @ _dh_frames(m["DH_HEAD"])[-1]
+    head_c = head[:3, :3] @ np.array(cog["head"]) + head[:3, 3]
+    tc[-1] = (tm[-1] * tc[-1] + mk["head"] * head_c) / (tm[-1] + mk["head"])
+    tm[-1] += mk["head"]
+    torso = {"link_masses": tm, "link_coms": tc, "gravity": g}
+    arms = {}
+    for side in ("right", "left"):
+        frames = _dh_frames(m[f"DH_{side.upper()}"])
+        c = np.einsum("nij,nj->ni", frames[:, :3, :3], np.array(cog[f"{side}_arm"])) + frames[:, :3, 3]
+        arms[side] = {"link_masses": np.array(mk["arm_frames_each_arm_7_links"], float), "link_coms": c,
+                      "payload_mass": float(mk["hand_each"]), "payload_com": np.array(cog["hand_each"], float)}
+    return torso, arms
+
+
+def justin_markers(path: Path, both_arms: bool = False) -> tuple[Dataset, Dataset]:
     """The hand markers of the 500 poses (Vicon frame, m; commanded joints, rad): one markers data set per hand,
     sharing the camera frame (``camera``), each marker position in its TCP frame unknown. The torso readings are
-    q0..q2; the coupled t4 is derived."""
+    q0..q2; the coupled t4 is derived. ``both_arms``: each data set also carries the other arm's readings (what a
+    robot with a mass model needs: both arms load the torso)."""
     x = _csv(path / "measurements_flat.csv", skiprows=1)
     names = ("t1", "t2", "t3", "t4")
     torso = derive_readings(JUSTIN_TORSO_COUPLING, names, np.column_stack([x[:, 0:3], np.zeros(len(x))]))
     out = []
     for side, joints, cols in (("right", slice(3, 10), slice(19, 22)), ("left", slice(10, 17), slice(22, 25))):
-        out.append(Dataset("markers", "justin", (side,), {side: x[:, joints], "torso": torso},
+        q = {side: x[:, joints], "torso": torso}
+        if both_arms:  # the other arm's weight loads the torso: its readings are needed (gravity on trees)
+            q = {"right": x[:, 3:10], "left": x[:, 10:17], "torso": torso}
+        out.append(Dataset("markers", "justin", (side,), q,
                            {"p_tracker_marker": x[:, None, cols]}, name=f"{side} hand",
                            frames={"tracker": "camera", "markers": f"{side}_marker"}, meta={"source": JUSTIN}))
     return out[0], out[1]
