@@ -315,12 +315,10 @@ def _justin_model(path: Path) -> dict:
 
 
 def _nearest_pose(T) -> np.ndarray:
-    """The published fixed frames are rounded (0.866 for cos 30 deg): the nearest rigid transform (polar factor),
-    as a model file's ``orthonormalize: true`` would give."""
+    """The published fixed frames are rounded (0.866 for cos 30 deg): the nearest rigid transform, as a model file's
+    ``orthonormalize: true`` would give (``so3.project``)."""
     T = np.array(T, dtype=float)
-    U, _, Vt = np.linalg.svd(T[:3, :3])
-    T[:3, :3] = U @ Vt
-    return T
+    return se3.make(so3.project(T[:3, :3]), T[:3, 3])
 
 
 def _justin_dh(rows, name: str, names, **fields) -> ArmModel:
