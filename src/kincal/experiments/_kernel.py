@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from kincal.kinematics import Kinematics, chain, loaded_chain
-from kincal.kinematics.branches import branch_torque_derivatives, tree_gravity
+from kincal.kinematics import Kinematics
+from kincal.kinematics.branches import branch_torque_derivatives, loaded_tree, tree_gravity
 from kincal.kinematics.elastic import LoadedKinematics
 from kincal.kinematics.jacobians import TOOL_PARTS, insertion_jacobians, joint_jacobian, tool_jacobians
 from kincal.kinematics.tree import composite, insertion_points
@@ -36,18 +36,8 @@ def tree_kin(state, line, q, w=None) -> Kinematics:
     """Kinematics of the composite chain of the arms ``line`` (root first, ``kincal.kinematics.tree``) at readings
     ``q`` (arm -> (N, n)), deflected by the tool loads ``w`` (N, 6) if given and by the weights of the tree
     (``kincal.kinematics.branches``: every segment's links, the tip's payload, the other branches' weights)."""
-    segs = [state.arms[s] for s in line]
-    comp = composite(segs)
-    theta0 = np.concatenate([q[s] + a.offsets for s, a in zip(line, segs)], axis=-1)
-    load, branches = _tree_gravity(state, line, q)
-    if w is None and load is None:
-        return chain(comp.screws, theta0, comp.base, comp.home, comp.tool)
-    cs = [a.compliance_at(q[s]) for s, a in zip(line, segs)]  # (n_k,), or (N, n_k) with angle-dependent ones
-    if any(x.ndim == 2 for x in cs):
-        cs = [np.broadcast_to(x, (len(theta0), x.shape[-1])) for x in cs]
-    c = np.concatenate(cs, axis=-1)
-    return loaded_chain(comp.screws, theta0, comp.base, comp.home, comp.tool, c, w, load,
-                        [b.hung for b in branches])
+    return loaded_tree(state.arms, {a: v.weights for a, v in state.arms.items()},
+                       {s: state.arms[s].compliance_at(q[s]) for s in line}, state.mounts, line, q, w)
 
 
 def _tree_gravity(state, line, q):

@@ -147,20 +147,31 @@ def branch_torque_derivatives(axes: np.ndarray, g: np.ndarray, b: Branch, genera
     return out
 
 
-def tree_loaded_kinematics(robot: Robot, arm: str, readings: Mapping[str, np.ndarray], wrench_tool=None
-                           ) -> Kinematics:
-    """Kinematics of ``arm`` through its carriers at ``readings`` (arm -> (N, n): its lineage's and, when the
-    tree has gravity, the other loading arms'), deflected by the tool loads and by the weights of the tree:
-    what a tip of a sagging tree measures."""
-    line = robot.lineage(arm)
-    loads = {a: gravity_load(m) for a, m in robot.arms.items()}
-    offsets = {a: m.offsets for a, m in robot.arms.items()}
-    q = {a: np.asarray(v, float) for a, v in readings.items()}
-    load, branches = tree_gravity(robot.arms, loads, robot.mounts, line, q, offsets)
-    comp = composite([robot[s] for s in line])
-    theta0 = np.concatenate([q[s] + robot[s].offsets for s in line], axis=-1)
+def loaded_tree(arms: Mapping, loads: Mapping[str, GravityLoad | None], compliances: Mapping[str, np.ndarray],
+                mounts: Mapping[str, str], line: Sequence[str], q: Mapping[str, np.ndarray], wrench_tool=None
+                ) -> Kinematics:
+    """Kinematics of the composite chain of ``line`` (root first) at readings ``q`` (arm -> (N, n): the lineage's
+    and, when the tree has gravity, the other loading arms'), deflected by the tool loads and by the weights of
+    the tree. ``arms``: segments with screws, offsets, base, home and tool (``ArmModel`` or ``ArmValues``);
+    ``compliances``: per arm of ``line`` its joint compliances at its readings, (n,) or (N, n)."""
+    load, branches = tree_gravity(arms, loads, mounts, line, q, {a: m.offsets for a, m in arms.items()})
+    comp = composite([arms[s] for s in line])
+    theta0 = np.concatenate([q[s] + arms[s].offsets for s in line], axis=-1)
     if load is None and wrench_tool is None:
         return chain(comp.screws, theta0, comp.base, comp.home, comp.tool)
-    c = np.concatenate([np.broadcast_to(joint_compliance(robot[s], q[s]), q[s].shape) for s in line], axis=-1)
+    cs = [np.asarray(compliances[s], dtype=float) for s in line]
+    if any(x.ndim == 2 for x in cs):  # a joint's compliance depends on its angle: every segment per sample
+        cs = [np.broadcast_to(x, theta0.shape[:-1] + x.shape[-1:]) for x in cs]
+    c = np.concatenate(cs, axis=-1)
     return loaded_chain(comp.screws, theta0, comp.base, comp.home, comp.tool, c, wrench_tool, load,
                         [b.hung for b in branches])
+
+
+def tree_loaded_kinematics(robot: Robot, arm: str, readings: Mapping[str, np.ndarray], wrench_tool=None
+                           ) -> Kinematics:
+    """Kinematics of ``arm`` through its carriers at ``readings`` (``loaded_tree``) for a robot model: what a tip
+    of a sagging tree measures."""
+    line = robot.lineage(arm)
+    q = {a: np.asarray(v, float) for a, v in readings.items()}
+    return loaded_tree(robot.arms, {a: gravity_load(m) for a, m in robot.arms.items()},
+                       {s: joint_compliance(robot[s], q[s]) for s in line}, robot.mounts, line, q, wrench_tool)
