@@ -347,6 +347,51 @@ def justin_robot(path: Path, masses: bool = False) -> Robot:
     return Robot("justin", {"torso": torso, **arms}, {"source": JUSTIN}, mounts={"right": "torso", "left": "torso"})
 
 
+JUSTIN_BENDS = ("bx", "by")  # the bending joints after each joint: about its DH frame's x and y axes
+
+
+def justin_bending(robot: Robot, path: Path) -> Robot:
+    """Lateral compliance emulated by virtual joints: after each joint j of the torso and the arms, two revolute
+    joints ``<j>_bx``, ``<j>_by`` about the x and y axes of DH frame j (normal to j's axis, through the frame's
+    origin, turning with j), their readings held at 0 (couplings with a constant). Free only their compliances
+    (``JUSTIN_BENDING_FIXED`` holds their offsets and twists): each then bends, first order, by its compliance
+    times the moment of the weight beyond it about its axis, as the paper's kappa_alpha, kappa_beta. Link j's
+    mass moves with its bends. Not kincal's lateral compliance kind (not built; docs/real-data.md)."""
+    m = _justin_model(path)
+    return Robot(robot.name, {a: _with_bends(robot[a], _dh_frames(m[f"DH_{a.upper()}"])) for a in robot.arms},
+                 dict(robot.meta), robot.mounts)
+
+
+def _with_bends(arm: ArmModel, frames: np.ndarray) -> ArmModel:
+    screws, names, masses, coms, couplings = [], [], [], [], dict(arm.couplings)
+    for j, name in enumerate(arm.joint_names):
+        R, o = frames[j, :3, :3], frames[j, :3, 3]
+        screws += [arm.screws[j]] + [np.append(-np.cross(R[:, k], o), R[:, k]) for k in (0, 1)]
+        names += [name] + [f"{name}_{b}" for b in JUSTIN_BENDS]
+        masses += [0.0, 0.0, arm.link_masses[j]]
+        coms += [np.zeros(3), np.zeros(3), arm.link_coms[j]]
+        couplings |= {f"{name}_{b}": {"constant": 0.0} for b in JUSTIN_BENDS}
+    n = len(names)
+    return ArmModel(arm.name, np.array(screws), arm.home, base=arm.base, tool=arm.tool, joint_names=tuple(names),
+                    couplings=couplings, link_masses=np.array(masses), link_coms=np.array(coms),
+                    payload_mass=arm.payload_mass, payload_com=arm.payload_com, gravity=arm.gravity,
+                    offsets=np.zeros(n), meta=dict(arm.meta))
+
+
+def with_bend_readings(robot: Robot, ds: Dataset) -> Dataset:
+    """``ds`` with the bending joints' readings (0) derived, for ``justin_bending``'s robot."""
+    q = {}
+    for a, v in ds.q.items():
+        model = robot[a]
+        full = np.zeros((len(v), model.dof))
+        full[:, [i for i, n in enumerate(model.joint_names) if not n.endswith(JUSTIN_BENDS)]] = v
+        q[a] = derive_readings(model.couplings, model.joint_names, full)
+    return Dataset(ds.kind, ds.robot, ds.arms, q, ds.measured, ds.known, ds.name, ds.meta, ds.frames)
+
+
+JUSTIN_BENDING_FIXED = ["*_bx.offset", "*_by.offset", "*_bx.xi.*", "*_by.xi.*"]
+
+
 def _dh_frames(rows) -> np.ndarray:
     """The DH frames {1}..{n} at q = 0 in the segment's first frame (Craig: RotX(alpha) TransX(a) RotZ(theta)
     TransZ(d) per row ``[d, theta, a, alpha]``), (n, 4, 4)."""
