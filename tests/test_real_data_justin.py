@@ -1,7 +1,7 @@
 """DLR Agile Justin (../shared/datasets/dlr-agile-justin-elastic, read from there only; no licence): a tree robot
 (torso once, both arms on it, the coupled torso joint declared) calibrated from two hand markers. Levels and
-published figures in ``realdata.JUSTIN_LEVELS``; the table is docs/real-data.md "DLR Agile Justin" (issue 14).
-Skipped when the data are absent."""
+published figures in ``realdata.JUSTIN_LEVELS`` and ``realdata.JUSTIN_ELASTIC``; the table is docs/real-data.md
+"DLR Agile Justin" (issue 14). Skipped when the data are absent."""
 
 import numpy as np
 import pytest
@@ -103,3 +103,28 @@ def test_gravity_torques_equal_a_hand_computation():
     hand = np.array([_hand_torques(m, row) for row in x])
     assert np.abs(hand).max() > 100  # the tilts carry the upper body
     np.testing.assert_allclose(kin.tau, hand, atol=5e-3)
+
+
+def test_joint_compliances_loaded_by_the_weight_lower_the_held_out_error():
+    """The compliant level (``realdata.justin_elastic_case``: the geometry, then every joint compliance loaded by
+    the mass model's weight), 5-fold held out as above. Pins what kincal reaches by this staged route: 7.40 mm
+    held-out mean (fit 7.09), against 10.40 at the geometric level; the issue's target (5.0 mm) and the paper's
+    joint fit (5.64) are not reached (docs/real-data.md). Was: the first trial's 29.61 mm scored a compliant fit
+    with the rigid pose."""
+    robot, sets, options = rd.justin_elastic_case(PATH, "joint compliances")
+    held = ho.cross_validate(robot, sets, None, k=5, **options).position * 1e3
+    assert held.mean() <= 7.45 and held.max() <= 25.0
+    res = calibrate(robot, sets, None, **options)
+    fit = np.concatenate([ho.prediction_errors(res, d)[0] for d in sets]) * 1e3
+    assert fit.mean() <= 7.15 and fit.mean() <= held.mean()
+    assert res.status == "misfit" and not res.success
+    # the model predicts through the weight what the solver fitted: its errors are the solver's residuals
+    assert np.sqrt(np.mean(fit**2) / 3) / 0.3 == pytest.approx(np.sqrt(res.sigma2), rel=0.02)
+    est = {e.name: e for e in res.estimates}
+    assert est["torso.t2.compliance"].value > 5 * est["torso.t2.compliance"].std  # the tilts carry the upper body
+    negative = [n for n, e in est.items() if n.endswith(".compliance") and e.value < -1e-9]
+    assert negative and all(any(n in m for m in res.messages) for n in negative)  # reported, never zeroed
+    for name in negative:
+        arm, joint, _ = name.split(".")
+        model = res.robot[arm]
+        assert model.compliance[model.joint_names.index(joint)] == pytest.approx(est[name].value, rel=1e-9)
