@@ -17,7 +17,7 @@ import numpy as np
 from kincal.data import Dataset
 from kincal.estimation import calibrate, crossval
 from kincal.kinematics import forward_kinematics
-from kincal.kinematics.tree import tip_pose
+from kincal.kinematics.branches import tree_loaded_kinematics
 from kincal.lie import se3, so3
 
 
@@ -35,9 +35,11 @@ def honest_prediction(robot, ds: Dataset, free, k: int = 6, seed: int = 0, **opt
 
 def prediction_errors(result, ds: Dataset) -> tuple[np.ndarray, np.ndarray | None]:
     """Position errors (m; one per sample and marker) and orientation errors (rad; pose only, else None) of
-    ``ds`` predicted by a calibration ``result`` with its estimated tracker (and markers)."""
+    ``ds`` predicted by a calibration ``result`` with its estimated tracker (and markers). The tip is deflected by
+    the robot's own weight when the model has one (``tree_loaded_kinematics``): a rigid prediction of a
+    compliant calibration would score a model other than the one fitted."""
     arm = ds.arms[0]
-    T = se3.inverse(result.extras[ds.frames.get("tracker", "tracker")]) @ tip_pose(result.robot, arm, ds.q)
+    T = se3.inverse(result.extras[ds.frames.get("tracker", "tracker")]) @ tree_loaded_kinematics(result.robot, arm, ds.q).tool
     if ds.kind == "markers":
         x = np.asarray(result.extras[ds.frames.get("markers", "markers")])
         return np.linalg.norm(se3.transform_points(T[:, None], x) - ds.measured["p_tracker_marker"], axis=-1).ravel(), None

@@ -1,7 +1,7 @@
 """DLR Agile Justin (../shared/datasets/dlr-agile-justin-elastic, read from there only; no licence): a tree robot
 (torso once, both arms on it, the coupled torso joint declared) calibrated from two hand markers. Levels and
-published figures in ``realdata.JUSTIN_LEVELS``; the table is docs/real-data.md "DLR Agile Justin" (issue 14).
-Skipped when the data are absent."""
+published figures in ``realdata.JUSTIN_LEVELS`` and ``realdata.JUSTIN_ELASTIC``; the table is docs/real-data.md
+"DLR Agile Justin" (issue 14). Skipped when the data are absent."""
 
 import numpy as np
 import pytest
@@ -9,6 +9,7 @@ import pytest
 import holdout as ho
 import realdata as rd
 from kincal.estimation import calibrate
+from kincal.kinematics.branches import tree_loaded_kinematics
 
 try:
     PATH = rd.folder(rd.JUSTIN)
@@ -47,3 +48,83 @@ def test_the_torso_is_one_set_of_parameters_and_its_gauges_are_named(justin):
     unidentifiable = [m for m in res.messages if "cannot be identified" in m]
     assert any(m.startswith("torso.t2.offset cannot be identified") and "torso.home" in m for m in unidentifiable)
     assert any(m.startswith("torso.t1.offset cannot be identified") and "camera" in m for m in unidentifiable)
+
+
+def _dh(row, q):
+    """Craig's link transform of a row ``[d, theta, a, alpha]`` at joint value q (SOURCE.md's JSON)."""
+    d, theta, a, alpha = row
+    c, s, ca, sa = np.cos(theta + q), np.sin(theta + q), np.cos(alpha), np.sin(alpha)
+    return np.array([[c, -s, 0, a], [ca * s, ca * c, -sa, -d * sa], [sa * s, sa * c, ca, d * ca], [0, 0, 0, 1]])
+
+
+def _frames(m, x):
+    """rokin's frames 0..25 (world poses) of one configuration x (19,): torso 1-4, right base 5, right DH 6-12,
+    right TCP 13, left 14-22, head base 23, head DH 24-25."""
+    A = lambda k: np.asarray(m[k], float)  # noqa: E731
+    f = [A("F_TORSO_BASE")]
+    for row, q in zip(m["DH_TORSO"], [x[0], x[1], x[2], -x[1] - x[2]]):
+        f.append(f[-1] @ _dh(row, q))
+    for side, qs in (("RIGHT", x[3:10]), ("LEFT", x[10:17])):
+        f.append(f[4] @ A(f"F_{side}_BASE"))
+        for row, q in zip(m[f"DH_{side}"], qs):
+            f.append(f[-1] @ _dh(row, q))
+        f.append(f[-1] @ A("F_TCP_right_and_left"))
+    f.append(f[4] @ A("F_HEAD_BASE"))
+    for row in m["DH_HEAD"]:
+        f.append(f[-1] @ _dh(row, 0.0))
+    return f
+
+
+def _hand_torques(m, x):
+    """The right hand's chain (t1..t4, right j1..j7): per joint the sum of m g x r about its z axis over the masses
+    beyond it, each centre of gravity in its own DH frame (rokin's ``frames2pos``), independently of kincal."""
+    f = _frames(m, x)
+    mk, cog = m["masses_kg"], m["mass_cog_in_frame_m"]
+    masses = [*mk["torso_frames_1_to_4"], *mk["arm_frames_each_arm_7_links"], mk["hand_each"],
+              *mk["arm_frames_each_arm_7_links"], mk["hand_each"], mk["head"]]
+    cogs = [*cog["torso"], *cog["right_arm"], cog["hand_each"], *cog["left_arm"], cog["hand_each"], cog["head"]]
+    at = {i: (mass, f[i][:3, :3] @ c + f[i][:3, 3]) for i, mass, c in zip(m["mass_frame_index_order"], masses, cogs)}
+    g = np.array([0.0, 0.0, -9.81])
+    beyond = {j: range(j, 26) for j in (1, 2, 3, 4)} | {j: range(j, 14) for j in range(6, 13)}  # torso carries all
+    return np.array([sum(np.cross(at[i][1] - f[j][:3, 3], at[i][0] * g) for i in beyond[j] if i in at) @ f[j][:3, 2]
+                     for j in beyond])
+
+
+def test_gravity_torques_equal_a_hand_computation():
+    """The mass model's frames (centres of gravity in DH frame i after joint i's rotation, hands in the TCP frame,
+    the head on the torso's last frame, gravity -z of the torso base): kincal's torques on the right hand's chain
+    (both arms and the head on the torso) equal the sum of m g x r per joint axis on rokin's frames, up to the
+    published frames' rounding (0.866 for cos 30 deg, which the loader projects)."""
+    m = rd._justin_model(PATH)
+    x = rd._csv(PATH / "measurements_flat.csv", skiprows=1)[::25, :19]
+    ds, _ = rd.justin_markers(PATH, both_arms=True)
+    kin = tree_loaded_kinematics(rd.justin_robot(PATH, masses=True), "right",
+                                 {a: v[::25] for a, v in ds.q.items()})
+    hand = np.array([_hand_torques(m, row) for row in x])
+    assert np.abs(hand).max() > 100  # the tilts carry the upper body
+    np.testing.assert_allclose(kin.tau, hand, atol=5e-3)
+
+
+def test_joint_compliances_loaded_by_the_weight_lower_the_held_out_error():
+    """The compliant level (``realdata.justin_elastic_case``: the geometry, then every joint compliance loaded by
+    the mass model's weight), 5-fold held out as above. Pins what kincal reaches by this staged route: 7.40 mm
+    held-out mean (fit 7.09), against 10.40 at the geometric level; the issue's target (5.0 mm) and the paper's
+    joint fit (5.64) are not reached (docs/real-data.md). Was: the first trial's 29.61 mm scored a compliant fit
+    with the rigid pose."""
+    robot, sets, options = rd.justin_elastic_case(PATH, "joint compliances")
+    held = ho.cross_validate(robot, sets, None, k=5, **options).position * 1e3
+    assert held.mean() <= 7.45 and held.max() <= 25.5
+    res = calibrate(robot, sets, None, **options)
+    fit = np.concatenate([ho.prediction_errors(res, d)[0] for d in sets]) * 1e3
+    assert fit.mean() <= 7.15 and fit.mean() <= held.mean()
+    assert res.status == "misfit" and not res.success
+    # the model predicts through the weight what the solver fitted: its errors are the solver's residuals
+    assert np.sqrt(np.mean(fit**2) / 3) / 0.3 == pytest.approx(np.sqrt(res.sigma2), rel=0.02)
+    est = {e.name: e for e in res.estimates}
+    assert est["torso.t2.compliance"].value > 5 * est["torso.t2.compliance"].std  # the tilts carry the upper body
+    negative = [n for n, e in est.items() if n.endswith(".compliance") and e.value < -1e-9]
+    assert negative and all(any(n in m for m in res.messages) for n in negative)  # reported, never zeroed
+    for name in negative:
+        arm, joint, _ = name.split(".")
+        model = res.robot[arm]
+        assert model.compliance[model.joint_names.index(joint)] == pytest.approx(est[name].value, rel=1e-9)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from kincal.kinematics import Kinematics
-from kincal.kinematics.branches import branch_torque_derivatives, loaded_tree, tree_gravity
+from kincal.kinematics.branches import branch_torque_derivatives, loaded_tree
 from kincal.kinematics.elastic import LoadedKinematics
 from kincal.kinematics.jacobians import TOOL_PARTS, insertion_jacobians, joint_jacobian, tool_jacobians
 from kincal.kinematics.tree import composite, insertion_points
@@ -38,11 +38,6 @@ def tree_kin(state, line, q, w=None) -> Kinematics:
     (``kincal.kinematics.branches``: every segment's links, the tip's payload, the other branches' weights)."""
     return loaded_tree(state.arms, {a: v.weights for a, v in state.arms.items()},
                        {s: state.arms[s].compliance_at(q[s]) for s in line}, state.mounts, line, q, w)
-
-
-def _tree_gravity(state, line, q):
-    return tree_gravity(state.arms, {a: v.weights for a, v in state.arms.items()}, state.mounts, line, q,
-                        {a: v.offsets for a, v in state.arms.items()})
 
 
 def _tree_compliance(segs, qs):
@@ -75,7 +70,7 @@ def tree_jacobians(state, line, q, kin, G, parts, jq: bool, out: dict, jqs: dict
     segs = [state.arms[s] for s in line]
     comp = composite(segs)
     coeffs, basis = _tree_compliance(segs, [q[s] for s in line])
-    branches = _tree_gravity(state, line, q)[1] if isinstance(kin, LoadedKinematics) else ()
+    branches = kin.branches if isinstance(kin, LoadedKinematics) else ()  # weighed once, by tree_kin
     wanted = set().union(*(parts.get(s, ()) for s in line))
     cparts = [p for p in ("offsets", "twists", "compliance") if p in wanted]
     cparts += ["base"] * ("base" in parts[line[0]])

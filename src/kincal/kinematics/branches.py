@@ -20,7 +20,7 @@ Derivatives of those torques:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -152,8 +152,8 @@ def loaded_tree(arms: Mapping, loads: Mapping[str, GravityLoad | None], complian
                 ) -> Kinematics:
     """Kinematics of the composite chain of ``line`` (root first) at readings ``q`` (arm -> (N, n): the lineage's
     and, when the tree has gravity, the other loading arms'), deflected by the tool loads and by the weights of
-    the tree. ``arms``: segments with screws, offsets, base, home and tool (``ArmModel`` or ``ArmValues``);
-    ``compliances``: per arm of ``line`` its joint compliances at its readings, (n,) or (N, n)."""
+    the tree (the branches hung on it ride along: ``LoadedKinematics.branches``). ``arms``: segments with screws,
+    offsets, base, home and tool (``ArmModel`` or ``ArmValues``); ``compliances``: per arm of ``line`` its joint compliances at its readings, (n,) or (N, n)."""
     load, branches = tree_gravity(arms, loads, mounts, line, q, {a: m.offsets for a, m in arms.items()})
     comp = composite([arms[s] for s in line])
     theta0 = np.concatenate([q[s] + arms[s].offsets for s in line], axis=-1)
@@ -163,8 +163,9 @@ def loaded_tree(arms: Mapping, loads: Mapping[str, GravityLoad | None], complian
     if any(x.ndim == 2 for x in cs):  # a joint's compliance depends on its angle: every segment per sample
         cs = [np.broadcast_to(x, theta0.shape[:-1] + x.shape[-1:]) for x in cs]
     c = np.concatenate(cs, axis=-1)
-    return loaded_chain(comp.screws, theta0, comp.base, comp.home, comp.tool, c, wrench_tool, load,
-                        [b.hung for b in branches])
+    kin = loaded_chain(comp.screws, theta0, comp.base, comp.home, comp.tool, c, wrench_tool, load,
+                       [b.hung for b in branches])
+    return replace(kin, branches=branches)
 
 
 def tree_loaded_kinematics(robot: Robot, arm: str, readings: Mapping[str, np.ndarray], wrench_tool=None

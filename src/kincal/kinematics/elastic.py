@@ -49,7 +49,9 @@ class LoadedKinematics(Kinematics):
     ``unloaded``: the chain at ``theta0``; ``wrench_space`` (..., 6): ``F_s``; ``axes`` (..., n, 6): ``xi_s_i`` at
     ``theta0``; ``tau`` (..., n): load torques (N m; N for prismatic joints). With weights
     (``kincal.kinematics.gravity``): ``gravity`` (3,), the mass beyond each joint ``masses_beyond`` (n + 1,), its
-    first moment ``moments_beyond`` (..., n + 1, 3) and ``wrench_beyond`` (..., n + 1, 6), weights plus ``F_s``.
+    first moment ``moments_beyond`` (..., n + 1, 3) and ``wrench_beyond`` (..., n + 1, 6), weights plus ``F_s``;
+    on a tree, ``branches``: the other arms hung on the chain (``kincal.kinematics.branches.Branch``), kept so
+    the Jacobians reuse them instead of weighing the branches again.
     """
 
     unloaded: Kinematics | None = None
@@ -60,6 +62,7 @@ class LoadedKinematics(Kinematics):
     masses_beyond: np.ndarray | None = None
     moments_beyond: np.ndarray | None = None
     wrench_beyond: np.ndarray | None = None
+    branches: tuple = ()
 
 
 def loaded_chain(screws, theta0, base, home, tool, compliance, wrench_tool,
