@@ -105,8 +105,9 @@ def named(ana: Identifiability, lin: Linearization, layout: Layout, experiments:
     if ana.degenerate is not None:
         return ana
     order = list(range(len(ana.names))) if priority is None else list(priority)
-    directions = tuple(_directions(ana.naming_basis, order, ana.names, describer(lin, layout, experiments),
-                                   context(layout, experiments)))
+    basis = ana.naming_basis
+    describe = describer(lin, layout, experiments) if basis.shape[1] else None  # it evaluates FK: only if needed
+    directions = tuple(_directions(basis, order, ana.names, describe, context(layout, experiments)))
     k = int(ana.scale_unidentifiable)  # the scale message comes first
     messages = ana.messages[:k] + tuple(d.words for d in directions) + ana.messages[k:]
     ana = replace(ana, directions=directions, messages=messages,

@@ -16,9 +16,9 @@ from dataclasses import replace
 import numpy as np
 
 from kincal.errors import ModelError
-from kincal.kinematics import PRISMATIC, REVOLUTE, TWIST_COORDS, conform_twists
+from kincal.kinematics import PRISMATIC, REVOLUTE, TWIST_COORDS, conform_twists, tangent_frames
 from kincal.lie import se3, so3
-from kincal.params.values import Plane, bases, generators, retract_twists
+from kincal.params.values import Plane, retract_twists
 
 POSE_COORDS = TWIST_COORDS  # a pose increment is a twist
 POSE_UNITS = ("m", "m", "m", "rad", "rad", "rad")
@@ -135,18 +135,18 @@ class _Twists(ParamKind):
 
     def recentre(self, a):
         screws = conform_twists(a.screws, a.joint_types)  # removes round-off only: the retraction is exact
-        return replace(a, screws=screws, bases=bases(screws, a.joint_types),
-                       generators=generators(screws, a.joint_types))
+        B, G = tangent_frames(screws, a.joint_types)
+        return replace(a, screws=screws, bases=B, generators=G)
 
     def displacement(self, a, a0):
-        B0p = np.linalg.pinv(a0.basis)
+        B0p = a0.basis_pinv
         return B0p @ (a.screws - a0.screws).ravel(), B0p @ a.basis
 
     def scale(self, a):
         v = np.zeros_like(a.screws)
         rev = np.array(a.joint_types) == REVOLUTE
         v[rev, :3] = a.screws[rev, :3]
-        return np.linalg.pinv(a.basis) @ v.ravel()
+        return a.basis_pinv @ v.ravel()
 
 
 class _ArmPose(ParamKind):

@@ -14,7 +14,7 @@ def retract(state: State, layout: Layout, delta: np.ndarray) -> State:
     arms, extras = dict(state.arms), dict(state.extras)
     for b in layout.blocks:
         d = delta[b.slice]
-        if not np.any(d):
+        if not d.any():
             continue
         if b.arm is not None:
             arms[b.arm] = b.kind.retract(arms[b.arm], d)
@@ -41,7 +41,7 @@ def pose_retraction_jacobians(layout: Layout, delta: np.ndarray) -> dict[str, np
     out = {}
     for b in layout.blocks:
         d = delta[b.slice]
-        J = b.kind.retraction_jacobian(d) if np.any(d) else None
+        J = b.kind.retraction_jacobian(d) if d.any() else None
         if J is not None:
             out[b.name] = J
     return out
