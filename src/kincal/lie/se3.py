@@ -150,6 +150,12 @@ def exact_joint_screws(screws: np.ndarray, tol: float = 1e-12) -> bool:
 _EXACT: dict[tuple, bool] = {}  # exact_joint_screws of the last few screw arrays
 
 
+def clear_caches() -> None:
+    """Forget the joint-screw terms and exactness verdicts remembered per screw array (tests, cold timings)."""
+    _TERMS.clear()
+    _EXACT.clear()
+
+
 def _exact(screws: np.ndarray, tol: float) -> bool:
     v, w = np.asarray(screws[:, :3]), np.asarray(screws[:, 3:])
     ww, vv, wv = np.sum(w * w, axis=1), np.sum(v * v, axis=1), np.sum(w * v, axis=1)

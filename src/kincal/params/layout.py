@@ -16,6 +16,7 @@ import numpy as np
 
 from kincal.errors import ModelError
 from kincal.params.kinds import ARM_KINDS, COMPLIANCE, HOME, OFFSETS, POSE_COORDS, TWISTS, ParamKind
+from kincal.params import values
 from kincal.params.values import State
 
 LEVELS = ("offsets", "kinematic", "elastic")
@@ -158,6 +159,12 @@ def build_layout(
 # or a batch lays out the same structure again and again), oldest first
 _SELECTIONS: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 _SELECTION_ENTRIES = 256
+
+
+def clear_caches() -> None:
+    """Forget what ``build_layout`` and ``ArmValues.from_model`` remembered (tests, cold-start timings)."""
+    _SELECTIONS.clear()
+    values._FROM_MODEL.clear()
 
 
 def _selection_key(names, blocks, free, fixed, priors, extras) -> tuple | None:
