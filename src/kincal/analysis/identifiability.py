@@ -294,12 +294,16 @@ def _scale_message(N: np.ndarray, scale: np.ndarray, names, held_scale: bool):
 def _directions(Nd: np.ndarray, order, names, describe, context: str) -> list[Direction]:
     """The null directions in reduced row-echelon form, each named by its pivot in ``order``."""
     directions, order = [], np.asarray(order, dtype=int)
-    for row in _rref(Nd.T, order):
-        a = np.abs(row)
-        piv = int(order[np.argmax(a[order] > 0.5)])
-        js = np.argsort(-a)
-        js = js[(js != piv) & (a[js] > 1e-3 * a.max())]
-        partners = tuple((names[j], float(row[j])) for j in js.tolist())
+    rows = _rref(Nd.T, order)
+    if not rows:
+        return directions
+    A = np.abs(np.array(rows))  # every row at once: pivots, partners by size, the ones worth naming
+    pivots = order[np.argmax(A[:, order] > 0.5, axis=1)].tolist()
+    JS = np.argsort(-A, axis=1)
+    keep = (JS != np.array(pivots)[:, None]) & (np.take_along_axis(A, JS, 1) > 1e-3 * A.max(axis=1, keepdims=True))
+    for row, piv, js, kept in zip(rows, pivots, JS, keep):
+        js = js[kept].tolist()
+        partners = tuple(zip([names[j] for j in js], row[js].tolist()))
         words = f"{names[piv]} cannot be identified{(' from ' + context) if context else ''}"
         if partners:
             words += f": it trades off against {_partner_list(partners)}"

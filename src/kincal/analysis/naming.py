@@ -66,6 +66,8 @@ def describer(lin: Linearization, layout: Layout, experiments: Sequence) -> Call
         if b.kind is POSE and None not in idx:
             poses.append((b.name, idx, se3.adjoint(frames.get(b.name, np.eye(4)))))
 
+    axes = (list(axes), np.array(list(axes.values())).reshape(-1, 6))  # names and screws, matched at once
+
     def describe(row: np.ndarray) -> str:
         words = [_frame_motion(name, Ad @ row[idx], axes) for name, idx, Ad in poses
                  if np.linalg.norm(row[idx]) >= 1e-9]
@@ -101,13 +103,14 @@ def _joint_axes_and_frames(state, experiments) -> tuple[dict, dict]:
     return axes, frames
 
 
-def _frame_motion(name: str, tw: np.ndarray, axes: dict) -> str:
-    """A frame's motion (world twist) in words, matched to a joint axis when it is a rotation about one."""
+def _frame_motion(name: str, tw: np.ndarray, axes: tuple) -> str:
+    """A frame's motion (world twist) in words, matched to a joint axis when it is a rotation about one;
+    ``axes``: the joint axes' names and their screws (k, 6)."""
     v, w = se3.split(tw)
     if np.linalg.norm(w) < 1e-9 * max(np.linalg.norm(v), 1e-300):
         return f"a translation of the {name}"
     t = tw / np.linalg.norm(w)
-    names, A = list(axes), np.array(list(axes.values())).reshape(-1, 6)
+    names, A = axes
     near = np.minimum(np.linalg.norm(t - A, axis=1), np.linalg.norm(t + A, axis=1)) < 1e-4
     match = np.flatnonzero(near)
     return (f"a rotation of the {name} about the axis of {names[match[0]]}" if len(match)

@@ -79,12 +79,14 @@ class ArmValues:
     @cached_property
     def basis_pinv(self) -> np.ndarray:
         """The pseudo-inverse (t, 6n) of ``basis``, block by block (it is block-diagonal), the joints of one
-        shape in one batch."""
+        shape in one batch: ``(B^T B)^-1 B^T`` (each block has independent, near-unit columns)."""
         out = np.zeros(self.basis.shape[::-1])
         cols = np.cumsum([0] + [b.shape[1] for b in self.bases])
         for k in sorted({b.shape[1] for b in self.bases}):
             js = [j for j, b in enumerate(self.bases) if b.shape[1] == k]
-            for j, P in zip(js, np.linalg.pinv(np.stack([self.bases[j] for j in js]))):
+            B = np.stack([self.bases[j] for j in js])
+            Bt = np.swapaxes(B, -1, -2)
+            for j, P in zip(js, np.linalg.solve(Bt @ B, Bt)):
                 out[cols[j]: cols[j + 1], 6 * j: 6 * j + 6] = P
         return out
 
