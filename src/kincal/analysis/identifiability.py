@@ -368,13 +368,16 @@ def _rref(M: np.ndarray, order: Sequence[int]) -> list[np.ndarray]:
     """Rows spanning the same space as M's rows, reduced with pivots taken in ``order``."""
     M = np.array(M, dtype=float)
     k = M.shape[0]
-    rows_done = 0
-    for j in order:
-        if rows_done == k:
+    order = np.asarray(order, dtype=int)
+    rows_done, pos = 0, 0
+    while rows_done < k and pos < len(order):
+        # the next column in order with a usable pivot (the columns passed over stay unusable: M is unchanged)
+        usable = np.flatnonzero(np.abs(M[rows_done:][:, order[pos:]]).max(axis=0) >= 1e-8)
+        if not len(usable):
             break
+        j = int(order[pos + usable[0]])
+        pos += int(usable[0]) + 1
         i = rows_done + int(np.argmax(np.abs(M[rows_done:, j])))
-        if abs(M[i, j]) < 1e-8:
-            continue
         if i != rows_done:
             M[[rows_done, i]] = M[[i, rows_done]]
         M[rows_done] /= M[rows_done, j]

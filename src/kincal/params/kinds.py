@@ -48,6 +48,10 @@ class ParamKind:
         """Local displacement from ``nominal`` and its derivative w.r.t. ``value``'s own local coordinates."""
         raise NotImplementedError
 
+    def offset(self, value, nominal) -> np.ndarray:
+        """The local displacement from ``nominal`` alone (``displacement`` without its derivative)."""
+        return self.displacement(value, nominal)[0]
+
     def scale(self, value) -> np.ndarray:
         """Local direction scaling every length of the value (zeros: nothing to scale)."""
         raise NotImplementedError
@@ -89,8 +93,12 @@ class ParamKind:
 
 
 def _pose_disp(T, T0):
-    x = se3.log(T @ se3.inverse(T0))
+    x = _pose_offset(T, T0)
     return x, se3.left_jacobian_inv(x)
+
+
+def _pose_offset(T, T0):
+    return se3.log(T @ se3.inverse(T0))
 
 
 def _translation_scale(T) -> np.ndarray:
@@ -139,8 +147,10 @@ class _Twists(ParamKind):
         return replace(a, screws=screws, bases=B, generators=G)
 
     def displacement(self, a, a0):
-        B0p = a0.basis_pinv
-        return B0p @ (a.screws - a0.screws).ravel(), B0p @ a.basis
+        return self.offset(a, a0), a0.basis_pinv @ a.basis
+
+    def offset(self, a, a0):
+        return a0.basis_pinv @ (a.screws - a0.screws).ravel()
 
     def scale(self, a):
         v = np.zeros_like(a.screws)
@@ -165,6 +175,9 @@ class _ArmPose(ParamKind):
 
     def displacement(self, a, a0):
         return _pose_disp(getattr(a, self.field), getattr(a0, self.field))
+
+    def offset(self, a, a0):
+        return _pose_offset(getattr(a, self.field), getattr(a0, self.field))
 
     def scale(self, a):
         return _translation_scale(getattr(a, self.field))
@@ -214,6 +227,9 @@ class _Pose(ParamKind):
 
     def displacement(self, T, T0):
         return _pose_disp(T, T0)
+
+    def offset(self, T, T0):
+        return _pose_offset(T, T0)
 
     def scale(self, T):
         return _translation_scale(T)
