@@ -48,7 +48,7 @@ def make(R: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Assemble transforms from rotations (..., 3, 3) and translations (..., 3)."""
     R = np.asarray(R, dtype=float)
     p = np.asarray(p, dtype=float)
-    batch = np.broadcast_shapes(R.shape[:-2], p.shape[:-1])
+    batch = R.shape[:-2] if R.shape[:-2] == p.shape[:-1] else np.broadcast_shapes(R.shape[:-2], p.shape[:-1])
     out = np.zeros(batch + (4, 4))
     out[..., :3, :3] = R
     out[..., :3, 3] = p
