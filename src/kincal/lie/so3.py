@@ -86,8 +86,8 @@ def log(R: np.ndarray) -> np.ndarray:
     sin_t = np.linalg.norm(s, axis=-1)
     t = np.arctan2(sin_t, c)
     w_small = s / sin_over_t(t)[..., None]
-    if R.ndim == 2 and c >= 0.0:  # one rotation below pi/2: the skew part alone (what np.where picks below)
-        return w_small
+    if (c >= 0.0) if R.ndim == 2 else bool(np.all(c >= 0.0)):  # every rotation below pi/2: the skew part
+        return w_small  # alone (what np.where picks below)
 
     # Near pi: R + R^T = 2 c I + 2 (1 - c) a a^T; read a from the largest diagonal entry.
     # Evaluated everywhere, but with the identity standing in where c >= 0 (its result is unused there).
