@@ -98,6 +98,10 @@ class ArmValues:
         if hit is not None and hit[0]() is model:
             return hit[1]
         values = ArmValues._of(model)
+        for a in (values.screws, values.offsets, values.base, values.home, values.tool, values.compliance,
+                  *values.bases, *values.generators):
+            if isinstance(a, np.ndarray):
+                a.flags.writeable = False  # shared by every problem built from this model: never changed in place
         if len(_FROM_MODEL) >= _FROM_MODEL_ENTRIES:
             _FROM_MODEL.pop(next(iter(_FROM_MODEL)))
         _FROM_MODEL[id(model)] = (weakref.ref(model), values)
