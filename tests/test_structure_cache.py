@@ -38,7 +38,8 @@ def _same(a, b) -> None:
         (b.status, b.messages, b.sigma2, b.iterations, b.evaluations)
     assert a.before == b.before and a.after == b.after and a.twists == b.twists and a.correlated == b.correlated
     for x, y in ((a.identifiability, b.identifiability), (a.identifiability_before, b.identifiability_before)):
-        assert (x.rank, x.names, x.messages, x.weak, x.degenerate) == (y.rank, y.names, y.messages, y.weak, y.degenerate)
+        assert (x.rank, x.names, x.messages, x.weak, x.degenerate) == \
+            (y.rank, y.names, y.messages, y.weak, y.degenerate)
         assert np.array_equal(x.singular_values, y.singular_values) and np.array_equal(x.null_space, y.null_space)
         assert [(d.pivot, d.partners, d.words) for d in x.directions] == \
             [(d.pivot, d.partners, d.words) for d in y.directions]

@@ -52,6 +52,6 @@ from kincal.params.values import ArmValues, Plane, State
 __all__ = [
     "ARM_KINDS", "ArmValues", "BASE", "Block", "COMPLIANCE", "COMPLIANCE_UNITS", "FRAME_KINDS", "HOME", "LEVELS",
     "Layout", "OFFSETS", "PLANE", "POINT", "POINTS", "POSE", "POSE_COORDS", "ParamKind", "Plane", "Prior", "State",
-    "TOOL", "TWISTS", "build_layout", "clear_caches", "displacement", "level_patterns", "pose_retraction_jacobians", "recentre",
-    "retract", "scale_direction", "twist_coordinates",
+    "TOOL", "TWISTS", "build_layout", "clear_caches", "displacement", "level_patterns", "pose_retraction_jacobians",
+    "recentre", "retract", "scale_direction", "twist_coordinates",
 ]

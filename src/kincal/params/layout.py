@@ -15,8 +15,8 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from kincal.errors import ModelError
-from kincal.params.kinds import ARM_KINDS, COMPLIANCE, HOME, OFFSETS, POSE_COORDS, TWISTS, ParamKind
 from kincal.params import values
+from kincal.params.kinds import ARM_KINDS, COMPLIANCE, HOME, OFFSETS, POSE_COORDS, TWISTS, ParamKind
 from kincal.params.values import State
 
 LEVELS = ("offsets", "kinematic", "elastic")
