@@ -20,6 +20,10 @@ The phase table times kincal at N = 50 (and the sizes in ``--phases``) with a ti
 listed in ``PHASES``: time inside a listed function counts for the innermost one, the rest of ``calibrate`` is
 "other". LAPACK's QR, SVD and lstsq are rows of their own wherever they are called.
 
+"kincal CPU, caches emptied" is the same call with kincal's structure caches emptied before each call (the cost
+of the first calibration of a structure); the other kincal columns are calls of a structure seen before (a
+Monte Carlo repeat, a batch), as after the warm-up call.
+
 The fixed overhead per call is kincal's CPU time above the minimal solver's at the smallest N (the issue's goal:
 under 3 ms at N = 50); the intercepts of a straight-line fit of each solver's time over N are printed beside it.
 
@@ -129,10 +133,22 @@ def minimal_fit(ds):
     return reference_solver.solve(reference_solver.ur10(), ds.q[ARM], ds.measured["p_tracker_marker"][:, 0])
 
 
-def cpu_median(fn, repeat: int):
-    """(median CPU s, median wall s, last output) of ``repeat`` calls after one warm-up call."""
+def forget_structures() -> None:
+    """Empty kincal's structure caches (what a calibration remembers between calls of the same structure:
+    arm values per model, layout selections, joint-screw terms, the identifiability structure); a tree
+    without them (an older kincal on PYTHONPATH) has nothing to empty."""
+    for module in ("kincal.params", "kincal.lie.se3"):
+        getattr(importlib.import_module(module), "clear_caches", lambda: None)()
+    importlib.import_module("kincal.analysis.symmetries").clear_structure_cache()
+
+
+def cpu_median(fn, repeat: int, before=None):
+    """(median CPU s, median wall s, last output) of ``repeat`` calls after one warm-up call; ``before``: run
+    before each call, untimed."""
     out, cpu, wall = fn(), [], []
     for _ in range(repeat):
+        if before:
+            before()
         t0, c0 = time.perf_counter(), time.process_time()
         out = fn()
         cpu.append(time.process_time() - c0)
@@ -145,8 +161,9 @@ def measure(nominal, sets, q_val, y_val, repeat: int) -> dict:
     rows = {}
     for n, ds in sets.items():
         kc, kw, res = cpu_median(lambda: kincal_fit(nominal, ds), repeat)
+        cold = cpu_median(lambda: kincal_fit(nominal, ds), repeat, before=forget_structures)[0]
         mc, mw, fit = cpu_median(lambda: minimal_fit(ds), repeat)
-        rows[n] = {"kincal": (kc, kw), "minimal": (mc, mw),
+        rows[n] = {"kincal": (kc, kw), "kincal_cold": cold, "minimal": (mc, mw),
                    "kincal_rms": rms_mm(kincal_val(res, q_val), y_val),
                    "minimal_rms": rms_mm(reference_solver.predict(fit.model, q_val), y_val),
                    "kincal_it": f"{res.iterations} outer, rank {res.identifiability.rank}",
@@ -281,14 +298,14 @@ def ms(s: float) -> str:
 
 def speed_table(rows, fig) -> str:
     head = ["N", "kincal CPU", "FIGAROH structural", "FIGAROH excitation", "FIGAROH / kincal", "minimal CPU",
-            "kincal / minimal", "kincal wall", "minimal wall"]
+            "kincal / minimal", "kincal wall", "minimal wall", "kincal CPU, caches emptied"]
     out = []
     for n, r in rows.items():
         k, m = r["kincal"][0], r["minimal"][0]
         f = [fig.get((n, meth)) for meth in ("structural", "excitation")]
         ratio = " / ".join(f"{x[0] / k:.0f}x" for x in f if x) or "-"
         out.append([str(n), ms(k), *(ms(x[0]) if x else "-" for x in f), ratio, ms(m), f"{k / m:.1f}x",
-                    ms(r["kincal"][1]), ms(r["minimal"][1])])
+                    ms(r["kincal"][1]), ms(r["minimal"][1]), ms(r["kincal_cold"])])
     return markdown(head, out)
 
 

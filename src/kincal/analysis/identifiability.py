@@ -105,8 +105,9 @@ def named(ana: Identifiability, lin: Linearization, layout: Layout, experiments:
     if ana.degenerate is not None:
         return ana
     order = list(range(len(ana.names))) if priority is None else list(priority)
-    directions = tuple(_directions(ana.naming_basis, order, ana.names, describer(lin, layout, experiments),
-                                   context(layout, experiments)))
+    basis = ana.naming_basis
+    describe = describer(lin, layout, experiments) if basis.shape[1] else None  # it evaluates FK: only if needed
+    directions = tuple(_directions(basis, order, ana.names, describe, context(layout, experiments)))
     k = int(ana.scale_unidentifiable)  # the scale message comes first
     messages = ana.messages[:k] + tuple(d.words for d in directions) + ana.messages[k:]
     ana = replace(ana, directions=directions, messages=messages,
@@ -293,12 +294,16 @@ def _scale_message(N: np.ndarray, scale: np.ndarray, names, held_scale: bool):
 def _directions(Nd: np.ndarray, order, names, describe, context: str) -> list[Direction]:
     """The null directions in reduced row-echelon form, each named by its pivot in ``order``."""
     directions, order = [], np.asarray(order, dtype=int)
-    for row in _rref(Nd.T, order):
-        a = np.abs(row)
-        piv = int(order[np.argmax(a[order] > 0.5)])
-        js = np.argsort(-a)
-        js = js[(js != piv) & (a[js] > 1e-3 * a.max())]
-        partners = tuple((names[j], float(row[j])) for j in js.tolist())
+    rows = _rref(Nd.T, order)
+    if not rows:
+        return directions
+    A = np.abs(np.array(rows))  # every row at once: pivots, partners by size, the ones worth naming
+    pivots = order[np.argmax(A[:, order] > 0.5, axis=1)].tolist()
+    JS = np.argsort(-A, axis=1)
+    keep = (JS != np.array(pivots)[:, None]) & (np.take_along_axis(A, JS, 1) > 1e-3 * A.max(axis=1, keepdims=True))
+    for row, piv, js, kept in zip(rows, pivots, JS, keep):
+        js = js[kept].tolist()
+        partners = tuple(zip([names[j] for j in js], row[js].tolist()))
         words = f"{names[piv]} cannot be identified{(' from ' + context) if context else ''}"
         if partners:
             words += f": it trades off against {_partner_list(partners)}"
@@ -363,13 +368,16 @@ def _rref(M: np.ndarray, order: Sequence[int]) -> list[np.ndarray]:
     """Rows spanning the same space as M's rows, reduced with pivots taken in ``order``."""
     M = np.array(M, dtype=float)
     k = M.shape[0]
-    rows_done = 0
-    for j in order:
-        if rows_done == k:
+    order = np.asarray(order, dtype=int)
+    rows_done, pos = 0, 0
+    while rows_done < k and pos < len(order):
+        # the next column in order with a usable pivot (the columns passed over stay unusable: M is unchanged)
+        usable = np.flatnonzero(np.abs(M[rows_done:][:, order[pos:]]).max(axis=0) >= 1e-8)
+        if not len(usable):
             break
+        j = int(order[pos + usable[0]])
+        pos += int(usable[0]) + 1
         i = rows_done + int(np.argmax(np.abs(M[rows_done:, j])))
-        if abs(M[i, j]) < 1e-8:
-            continue
         if i != rows_done:
             M[[rows_done, i]] = M[[i, rows_done]]
         M[rows_done] /= M[rows_done, j]

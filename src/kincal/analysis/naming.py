@@ -25,6 +25,12 @@ def block_of(layout: Layout, i: int) -> Block:
     raise IndexError(i)
 
 
+def blocks_of(layout: Layout, idx) -> list[Block]:
+    """The blocks holding the layout coordinates ``idx`` (the blocks are contiguous and in order)."""
+    stops = np.array([b.stop for b in layout.blocks])
+    return [layout.blocks[k] for k in np.searchsorted(stops, np.asarray(idx, dtype=int), side="right").tolist()]
+
+
 def degenerate(Rf: np.ndarray, rank: int, rtol: float, layout: Layout, free: np.ndarray,
                spectrum: np.ndarray | None = None) -> bool:
     """No combination of free arm coordinates is identifiable: the arm columns add no rank to the columns of
@@ -33,7 +39,7 @@ def degenerate(Rf: np.ndarray, rank: int, rtol: float, layout: Layout, free: np.
     ``spectrum``: the singular values of ``Rf`` with unit columns, when already known."""
     if rank == 0:
         return True
-    arm = np.array([block_of(layout, i).arm is not None for i in free])
+    arm = np.array([b.arm is not None for b in blocks_of(layout, free)], bool)
     if not arm.any() or arm.all():
         return False
     Js = unit_columns(Rf)[0]
@@ -59,12 +65,14 @@ def describer(lin: Linearization, layout: Layout, experiments: Sequence) -> Call
     loads = any("wrench_tool" in e.dataset.measured or any(lin.state.arms[a].weights is not None for a in e.arms)
                 for e in experiments)  # tool loads, or the arm's own weight (kincal.kinematics.gravity)
     col = {int(i): k for k, i in enumerate(lin.free)}
-    part = np.array([b.part if b.arm is not None else "" for b in (block_of(layout, i) for i in lin.free)])
+    part = np.array([b.part if b.arm is not None else "" for b in blocks_of(layout, lin.free)])
     poses = []  # (name, columns, adjoint of its increment frame) of each pose frame with every coordinate free
     for b in layout.blocks:
         idx = [col.get(i) for i in range(b.start, b.stop)]
         if b.kind is POSE and None not in idx:
             poses.append((b.name, idx, se3.adjoint(frames.get(b.name, np.eye(4)))))
+
+    axes = (list(axes), np.array(list(axes.values())).reshape(-1, 6))  # names and screws, matched at once
 
     def describe(row: np.ndarray) -> str:
         words = [_frame_motion(name, Ad @ row[idx], axes) for name, idx, Ad in poses
@@ -101,13 +109,14 @@ def _joint_axes_and_frames(state, experiments) -> tuple[dict, dict]:
     return axes, frames
 
 
-def _frame_motion(name: str, tw: np.ndarray, axes: dict) -> str:
-    """A frame's motion (world twist) in words, matched to a joint axis when it is a rotation about one."""
+def _frame_motion(name: str, tw: np.ndarray, axes: tuple) -> str:
+    """A frame's motion (world twist) in words, matched to a joint axis when it is a rotation about one;
+    ``axes``: the joint axes' names and their screws (k, 6)."""
     v, w = se3.split(tw)
     if np.linalg.norm(w) < 1e-9 * max(np.linalg.norm(v), 1e-300):
         return f"a translation of the {name}"
     t = tw / np.linalg.norm(w)
-    names, A = list(axes), np.array(list(axes.values())).reshape(-1, 6)
+    names, A = axes
     near = np.minimum(np.linalg.norm(t - A, axis=1), np.linalg.norm(t + A, axis=1)) < 1e-4
     match = np.flatnonzero(near)
     return (f"a rotation of the {name} about the axis of {names[match[0]]}" if len(match)

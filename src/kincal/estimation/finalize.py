@@ -239,7 +239,7 @@ def _twists(problem: Problem, state, cov: np.ndarray) -> tuple[TwistEstimate, ..
 
 def _estimates(problem: Problem, state, std, ok) -> list[Estimate]:
     layout = problem.layout
-    disp, _ = displacement(state, problem.nominal, layout, problem.free_idx)
+    disp, _ = displacement(state, problem.nominal, layout, problem.free_idx, jacobian=False)
     nominal = np.zeros(layout.size)  # absolute kinds (offsets, compliance) report values, the others changes
     value = disp.copy()
     for b in layout.blocks:

@@ -8,7 +8,7 @@ import fnmatch
 import numpy as np
 
 from kincal.analysis import Identifiability, select_columns
-from kincal.analysis.naming import block_of
+from kincal.analysis.naming import blocks_of
 from kincal.errors import ModelError
 
 def priority(problem, gauge) -> list[int]:
@@ -16,7 +16,7 @@ def priority(problem, gauge) -> list[int]:
     then experiment frames."""
     layout = problem.layout
     names = [layout.names[i] for i in problem.free_idx]
-    blk = [block_of(layout, i) for i in problem.free_idx]
+    blk = blocks_of(layout, problem.free_idx)
     default = sorted(range(len(names)), key=lambda k: (blk[k].kind.rank, k))
     if isinstance(gauge, str):
         return default

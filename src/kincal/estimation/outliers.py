@@ -14,7 +14,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import chdtrc, chdtri  # not scipy.stats: importing it takes longer than kincal
 
 from kincal.errors import ModelError
 from kincal.experiments import KINDS
@@ -64,6 +63,8 @@ def row_chi2(problem, state) -> list[np.ndarray]:
 def scaled_chi2(c: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """(scaled chi^2, tail probability) of rows with chi^2 ``c`` (N,) over ``k`` components each: the robust
     scale of the module doc (the median row over the chi^2 median at ``k`` dof, at least 1)."""
+    # here, not at the top: scipy.special (through scipy's array-API layer) costs more than importing kincal
+    from scipy.special import chdtrc, chdtri
     scale = max(float(np.median(c)) / chdtri(k, 0.5), 1.0) if len(c) else 1.0  # chi^2 median at k dof
     return c / scale, chdtrc(k, c / scale)  # upper tail probability
 

@@ -41,6 +41,7 @@ class ResidualCache:
         self.residuals: list | None = None
         self.parts: list | None = None  # the row blocks of a large problem (``Problem.parts``)
         self.tail: tuple | None = None
+        self.wants: dict[bytes, frozenset] = {}  # the blocks a set of Jacobian columns needs (``linearize``)
 
     def get(self, state: State):
         return self.residuals if self.state is state else None
@@ -188,7 +189,10 @@ class Problem:
         Returns ``(r, J, whiteners, residuals)``, the last the experiments' residuals before whitening.
         """
         cols = self.free_idx if cols is None else np.asarray(cols)
-        want = {b.name for b in self.layout.blocks if np.any((cols >= b.start) & (cols < b.stop))}
+        want = self.cache.wants.get(cols.tobytes())
+        if want is None:
+            want = self.cache.wants[cols.tobytes()] = frozenset(
+                b.name for b in self.layout.blocks if np.any((cols >= b.start) & (cols < b.stop)))
         fresh = whiteners is None
         res = [exp.residual(state, want=want, jq=fresh and self.joint_noise) for exp in self.experiments]
         W = self._whiteners_of(res) if fresh else whiteners

@@ -210,7 +210,7 @@ def in_gauge(result: Result) -> tuple[GaugeView | None, tuple[Derived, ...]]:
         cov = covariance(lin.Rf, ana.range_space, s2) if sw is None else sw.covariance(ana.range_space, s2)
     disp, D = displacement(state, problem.nominal, layout)
     view = min_change(disp[free], D[np.ix_(free, free)], null, cov, w)
-    change = displacement(result.state, problem.nominal, layout)[0][free]
+    change = displacement(result.state, problem.nominal, layout, jacobian=False)[0][free]
     view = replace(view, change=change, gauge_move=change - view.determined, state=None if found is None else state,
                    names=tuple(e.name for e in result.estimates))
     return view, derived(state, problem.nominal, layout, free, view.local_covariance, null)

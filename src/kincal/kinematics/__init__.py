@@ -19,7 +19,7 @@ from kincal.kinematics.elastic import (
 )
 from kincal.kinematics.jacobians import TOOL_PARTS, tool_jacobians
 from kincal.kinematics.model import PRISMATIC, REVOLUTE, ArmModel, Robot
-from kincal.kinematics.twists import TWIST_COORDS, conform_twists, tangent_basis, tangent_generators
+from kincal.kinematics.twists import TWIST_COORDS, conform_twists, tangent_basis, tangent_frames, tangent_generators
 
 __all__ = [
     "ArmModel",
@@ -44,5 +44,6 @@ __all__ = [
     "TWIST_COORDS",
     "tool_jacobians",
     "tangent_basis",
+    "tangent_frames",
     "tangent_generators",
 ]

@@ -22,17 +22,20 @@ def conform_twists(screws: np.ndarray, joint_types, mode: str = "line") -> np.nd
     if mode not in ("line", "thesis"):
         raise ValueError(f"mode must be 'line' or 'thesis', got {mode!r}")
     xi = np.array(screws, dtype=float)
+    bad = [k for k in joint_types if k not in (REVOLUTE, PRISMATIC)]
+    if bad:
+        raise ValueError(f"unknown joint type {bad[0]!r}")
     v, w = se3.split(xi)
-    out = np.empty_like(xi)
-    for i, kind in enumerate(joint_types):
-        if kind == REVOLUTE:
-            norm = np.linalg.norm(w[i])
-            v_perp = v[i] - (w[i] @ v[i]) / (w[i] @ w[i]) * w[i]
-            out[i] = se3.join(v_perp / norm if mode == "line" else v_perp, w[i] / norm)
-        elif kind == PRISMATIC:
-            out[i] = se3.join(v[i] / np.linalg.norm(v[i]), np.zeros(3))
-        else:
-            raise ValueError(f"unknown joint type {kind!r}")
+    rev = np.array([k == REVOLUTE for k in joint_types], bool)
+    out = np.zeros_like(xi)
+    if rev.any():  # every revolute joint at once
+        vr, wr = v[rev], w[rev]
+        norm = np.sqrt(np.einsum("ij,ij->i", wr, wr))[:, None]
+        v_perp = vr - (np.einsum("ij,ij->i", wr, vr) / np.einsum("ij,ij->i", wr, wr))[:, None] * wr
+        out[rev] = se3.join(v_perp / norm if mode == "line" else v_perp, wr / norm)
+    if not rev.all():
+        vp = v[~rev]
+        out[~rev, :3] = vp / np.sqrt(np.einsum("ij,ij->i", vp, vp))[:, None]
     return out
 
 
@@ -82,3 +85,29 @@ def tangent_generators(screw: np.ndarray, kind: str) -> np.ndarray:
         u1, u2 = _perpendicular_pair(v)
         return np.stack([se3.join(np.zeros(3), so3.cross(v, u)) for u in (u1, u2)], axis=-1)
     raise ValueError(f"unknown joint type {kind!r}")
+
+
+def tangent_frames(screws: np.ndarray, joint_types) -> tuple[tuple, tuple]:
+    """``tangent_basis`` and ``tangent_generators`` of every joint of an arm, the revolute ones in one batch:
+    (bases, generators), each a tuple of (6, k) per joint. The same operations as the one-joint functions (up to
+    the last bit of the normalization of the perpendicular pairs), without a Python loop per joint."""
+    xi = np.asarray(screws, dtype=float)
+    bases, gens = [None] * len(xi), [None] * len(xi)
+    rev = [i for i, t in enumerate(joint_types) if t == REVOLUTE]
+    for i, t in enumerate(joint_types):
+        if t != REVOLUTE:
+            bases[i], gens[i] = tangent_basis(xi[i], t), tangent_generators(xi[i], t)
+    if rev:
+        v, w = se3.split(xi[rev])
+        p = so3.cross(w, v)  # points on the axes nearest the origin
+        a = np.eye(3)[np.argmin(np.abs(w), axis=-1)]
+        u1 = so3.cross(w, a)
+        u1 /= np.linalg.norm(u1, axis=-1, keepdims=True)
+        us = (u1, so3.cross(w, u1))
+        zero = np.zeros_like(w)
+        wus = [so3.cross(w, u) for u in us]
+        B = np.stack([se3.join(-wu, zero) for wu in wus] + [se3.join(-so3.cross(u, p), u) for u in us], axis=-1)
+        G = np.stack([se3.join(u, zero) for u in us] + [se3.join(-so3.cross(wu, p), wu) for wu in wus], axis=-1)
+        for k, i in enumerate(rev):
+            bases[i], gens[i] = B[k], G[k]
+    return tuple(bases), tuple(gens)

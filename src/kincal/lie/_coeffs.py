@@ -39,7 +39,18 @@ _A4 = _series(lambda k: (-1) ** k * (k + 1) / factorial(2 * k + 5))
 
 def _horner(coeffs: np.ndarray, t2: np.ndarray) -> np.ndarray:
     out = np.full_like(t2, coeffs[-1])
-    for c in coeffs[-2::-1]:
+    for c in coeffs[-2::-1].tolist():  # in place, on Python floats: the same IEEE operations, fewer arrays
+        out *= t2
+        out += c
+    return out
+
+
+# Up to this many angles, ``_branch`` evaluates the series on Python floats, one angle after the other.
+_FEW = 16
+
+
+def _horner_list(cs: list, out: float, t2: float) -> float:
+    for c in cs:
         out = out * t2 + c
     return out
 
@@ -56,6 +67,12 @@ def _branch(theta: np.ndarray, coeffs: np.ndarray, closed_form) -> np.ndarray:
     small = theta < _TAYLOR_BELOW
     if theta.ndim == 0:  # one angle: Horner on Python floats (the same IEEE operations, without array overhead)
         return _horner_float(coeffs, float(theta * theta)) if small else closed_form(theta)
+    if small.all():  # every angle below the branch point (joint screws' small steps): no masking
+        if theta.size <= _FEW:  # a few angles (one per joint): Python floats, the same IEEE operations
+            cs = coeffs[-2::-1].tolist()
+            return np.array([_horner_list(cs, float(coeffs[-1]), t2) for t2 in (theta * theta).ravel().tolist()]
+                            ).reshape(theta.shape)
+        return _horner(coeffs, theta * theta)
     out = np.empty_like(theta)
     out[small] = _horner(coeffs, theta[small] ** 2)
     large = ~small

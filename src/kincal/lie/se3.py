@@ -48,7 +48,7 @@ def make(R: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Assemble transforms from rotations (..., 3, 3) and translations (..., 3)."""
     R = np.asarray(R, dtype=float)
     p = np.asarray(p, dtype=float)
-    batch = np.broadcast_shapes(R.shape[:-2], p.shape[:-1])
+    batch = R.shape[:-2] if R.shape[:-2] == p.shape[:-1] else np.broadcast_shapes(R.shape[:-2], p.shape[:-1])
     out = np.zeros(batch + (4, 4))
     out[..., :3, :3] = R
     out[..., :3, 3] = p
@@ -80,8 +80,29 @@ def exp_joint_screws(screws: np.ndarray, theta: np.ndarray) -> np.ndarray:
     translation t v. So the top 3 x 4 block is ``[I | 0] + sin t E1 + (1 - cos t) E2 + t E3`` with constant
     E1, E2, E3 per joint: three scaled sums, no series branches, no per-element assembly.
     """
-    screws = np.asarray(screws, dtype=float)
     theta = np.asarray(theta, dtype=float)
+    E1, E2, E3 = _screw_terms(np.asarray(screws, dtype=float))
+    top = np.sin(theta)[..., None] * E1
+    top += (1.0 - np.cos(theta))[..., None] * E2
+    top += theta[..., None] * E3
+    out = np.zeros(theta.shape + (4, 4))
+    out[..., :3, :] = top.reshape(theta.shape + (3, 4))
+    for i in range(4):
+        out[..., i, i] += 1.0
+    return out
+
+
+# ``_screw_terms`` of the last few screw arrays, by their bytes: one state's screws serve many evaluations.
+_TERMS: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+_TERMS_ENTRIES = 16
+
+
+def _screw_terms(screws: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """E1, E2, E3 (n, 12) of ``exp_joint_screws`` for exact joint screws (n, 6) (read-only arrays)."""
+    key = screws.tobytes()
+    hit = _TERMS.get(key)
+    if hit is not None:
+        return hit
     v, w = screws[:, :3], screws[:, 3:]
     revolute = np.sum(w * w, axis=1) > 0.5
     K = so3.hat(np.where(revolute[:, None], w, 0.0))
@@ -91,14 +112,13 @@ def exp_joint_screws(screws: np.ndarray, theta: np.ndarray) -> np.ndarray:
     E2 = np.concatenate([K2, -(K2 @ p)], axis=-1).reshape(-1, 12)
     E3 = np.zeros((len(screws), 3, 4))
     E3[:, :, 3] = np.where(revolute[:, None], 0.0, v)
-    top = np.sin(theta)[..., None] * E1
-    top += (1.0 - np.cos(theta))[..., None] * E2
-    top += theta[..., None] * E3.reshape(-1, 12)
-    out = np.zeros(theta.shape + (4, 4))
-    out[..., :3, :] = top.reshape(theta.shape + (3, 4))
-    for i in range(4):
-        out[..., i, i] += 1.0
-    return out
+    terms = (E1, E2, E3.reshape(-1, 12))
+    for a in terms:
+        a.flags.writeable = False
+    if len(_TERMS) >= _TERMS_ENTRIES:
+        _TERMS.pop(next(iter(_TERMS)))
+    _TERMS[key] = terms
+    return terms
 
 
 def joint_screw_jacobian_coeffs(screws: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -117,6 +137,26 @@ def joint_screw_jacobian_coeffs(screws: np.ndarray, theta: np.ndarray) -> tuple[
 
 def exact_joint_screws(screws: np.ndarray, tol: float = 1e-12) -> bool:
     """True when every screw is a unit zero-pitch revolute screw or a unit prismatic one."""
+    screws = np.asarray(screws)
+    key = (screws.dtype.str, screws.shape, screws.tobytes(), tol)
+    hit = _EXACT.get(key)
+    if hit is None:
+        if len(_EXACT) >= _TERMS_ENTRIES:
+            _EXACT.pop(next(iter(_EXACT)))
+        hit = _EXACT[key] = _exact(screws, tol)
+    return hit
+
+
+_EXACT: dict[tuple, bool] = {}  # exact_joint_screws of the last few screw arrays
+
+
+def clear_caches() -> None:
+    """Forget the joint-screw terms and exactness verdicts remembered per screw array (tests, cold timings)."""
+    _TERMS.clear()
+    _EXACT.clear()
+
+
+def _exact(screws: np.ndarray, tol: float) -> bool:
     v, w = np.asarray(screws[:, :3]), np.asarray(screws[:, 3:])
     ww, vv, wv = np.sum(w * w, axis=1), np.sum(v * v, axis=1), np.sum(w * v, axis=1)
     revolute = ww > 0.5

@@ -46,7 +46,7 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         a0, a1, a2 = a.tolist()
         b0, b1, b2 = b.tolist()
         return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out = np.empty(a.shape if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape))
     out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
     out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
     out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
@@ -86,8 +86,8 @@ def log(R: np.ndarray) -> np.ndarray:
     sin_t = np.linalg.norm(s, axis=-1)
     t = np.arctan2(sin_t, c)
     w_small = s / sin_over_t(t)[..., None]
-    if R.ndim == 2 and c >= 0.0:  # one rotation below pi/2: the skew part alone (what np.where picks below)
-        return w_small
+    if (c >= 0.0) if R.ndim == 2 else bool(np.all(c >= 0.0)):  # every rotation below pi/2: the skew part
+        return w_small  # alone (what np.where picks below)
 
     # Near pi: R + R^T = 2 c I + 2 (1 - c) a a^T; read a from the largest diagonal entry.
     # Evaluated everywhere, but with the identity standing in where c >= 0 (its result is unused there).

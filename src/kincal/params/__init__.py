@@ -38,7 +38,7 @@ from kincal.params.kinds import (
     TWISTS,
     ParamKind,
 )
-from kincal.params.layout import LEVELS, Block, Layout, Prior, build_layout, level_patterns
+from kincal.params.layout import LEVELS, Block, Layout, Prior, build_layout, clear_caches, level_patterns
 from kincal.params.ops import (
     displacement,
     pose_retraction_jacobians,
@@ -52,6 +52,6 @@ from kincal.params.values import ArmValues, Plane, State
 __all__ = [
     "ARM_KINDS", "ArmValues", "BASE", "Block", "COMPLIANCE", "COMPLIANCE_UNITS", "FRAME_KINDS", "HOME", "LEVELS",
     "Layout", "OFFSETS", "PLANE", "POINT", "POINTS", "POSE", "POSE_COORDS", "ParamKind", "Plane", "Prior", "State",
-    "TOOL", "TWISTS", "build_layout", "displacement", "level_patterns", "pose_retraction_jacobians", "recentre",
-    "retract", "scale_direction", "twist_coordinates",
+    "TOOL", "TWISTS", "build_layout", "clear_caches", "displacement", "level_patterns", "pose_retraction_jacobians",
+    "recentre", "retract", "scale_direction", "twist_coordinates",
 ]

@@ -16,9 +16,9 @@ from dataclasses import replace
 import numpy as np
 
 from kincal.errors import ModelError
-from kincal.kinematics import PRISMATIC, REVOLUTE, TWIST_COORDS, conform_twists
+from kincal.kinematics import PRISMATIC, REVOLUTE, TWIST_COORDS, conform_twists, tangent_frames
 from kincal.lie import se3, so3
-from kincal.params.values import Plane, bases, generators, retract_twists
+from kincal.params.values import Plane, retract_twists
 
 POSE_COORDS = TWIST_COORDS  # a pose increment is a twist
 POSE_UNITS = ("m", "m", "m", "rad", "rad", "rad")
@@ -47,6 +47,10 @@ class ParamKind:
     def displacement(self, value, nominal) -> tuple[np.ndarray, np.ndarray]:
         """Local displacement from ``nominal`` and its derivative w.r.t. ``value``'s own local coordinates."""
         raise NotImplementedError
+
+    def offset(self, value, nominal) -> np.ndarray:
+        """The local displacement from ``nominal`` alone (``displacement`` without its derivative)."""
+        return self.displacement(value, nominal)[0]
 
     def scale(self, value) -> np.ndarray:
         """Local direction scaling every length of the value (zeros: nothing to scale)."""
@@ -89,8 +93,12 @@ class ParamKind:
 
 
 def _pose_disp(T, T0):
-    x = se3.log(T @ se3.inverse(T0))
+    x = _pose_offset(T, T0)
     return x, se3.left_jacobian_inv(x)
+
+
+def _pose_offset(T, T0):
+    return se3.log(T @ se3.inverse(T0))
 
 
 def _translation_scale(T) -> np.ndarray:
@@ -135,18 +143,20 @@ class _Twists(ParamKind):
 
     def recentre(self, a):
         screws = conform_twists(a.screws, a.joint_types)  # removes round-off only: the retraction is exact
-        return replace(a, screws=screws, bases=bases(screws, a.joint_types),
-                       generators=generators(screws, a.joint_types))
+        B, G = tangent_frames(screws, a.joint_types)
+        return replace(a, screws=screws, bases=B, generators=G)
 
     def displacement(self, a, a0):
-        B0p = np.linalg.pinv(a0.basis)
-        return B0p @ (a.screws - a0.screws).ravel(), B0p @ a.basis
+        return self.offset(a, a0), a0.basis_pinv @ a.basis
+
+    def offset(self, a, a0):
+        return a0.basis_pinv @ (a.screws - a0.screws).ravel()
 
     def scale(self, a):
         v = np.zeros_like(a.screws)
         rev = np.array(a.joint_types) == REVOLUTE
         v[rev, :3] = a.screws[rev, :3]
-        return np.linalg.pinv(a.basis) @ v.ravel()
+        return a.basis_pinv @ v.ravel()
 
 
 class _ArmPose(ParamKind):
@@ -165,6 +175,9 @@ class _ArmPose(ParamKind):
 
     def displacement(self, a, a0):
         return _pose_disp(getattr(a, self.field), getattr(a0, self.field))
+
+    def offset(self, a, a0):
+        return _pose_offset(getattr(a, self.field), getattr(a0, self.field))
 
     def scale(self, a):
         return _translation_scale(getattr(a, self.field))
@@ -214,6 +227,9 @@ class _Pose(ParamKind):
 
     def displacement(self, T, T0):
         return _pose_disp(T, T0)
+
+    def offset(self, T, T0):
+        return _pose_offset(T, T0)
 
     def scale(self, T):
         return _translation_scale(T)

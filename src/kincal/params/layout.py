@@ -15,6 +15,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from kincal.errors import ModelError
+from kincal.params import values
 from kincal.params.kinds import ARM_KINDS, COMPLIANCE, HOME, OFFSETS, POSE_COORDS, TWISTS, ParamKind
 from kincal.params.values import State
 
@@ -141,11 +142,49 @@ def build_layout(
     """
     arms = list(state.arms) if arms is None else list(arms)
     names, units, blocks, twist_joint = _blocks(state, arms)
+    extras = list(state.extras) if free_extras is None else list(free_extras)
+    key = _selection_key(names, blocks, free, fixed, priors, extras)
+    hit = _SELECTIONS.get(key) if key is not None else None
+    if hit is None:
+        hit = _selection(names, blocks, twist_joint, _patterns(free, arms), extras, fixed, priors)
+        if key is not None:
+            if len(_SELECTIONS) >= _SELECTION_ENTRIES:
+                _SELECTIONS.pop(next(iter(_SELECTIONS)))
+            _SELECTIONS[key] = hit
+    mask, mean, sigma = (a.copy() for a in hit)
+    return Layout(tuple(names), tuple(units), tuple(blocks), mask, mean, sigma, twist_joint)
+
+
+# build_layout's memory: the free mask and priors per selection over the same coordinates (a Monte Carlo study
+# or a batch lays out the same structure again and again), oldest first
+_SELECTIONS: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+_SELECTION_ENTRIES = 256
+
+
+def clear_caches() -> None:
+    """Forget what ``build_layout`` and ``ArmValues.from_model`` remembered (tests, cold-start timings)."""
+    _SELECTIONS.clear()
+    values._FROM_MODEL.clear()
+
+
+def _selection_key(names, blocks, free, fixed, priors, extras) -> tuple | None:
+    """What the selection depends on, hashable; None when some argument is not (no memory then)."""
+    key = (tuple(names), tuple((b.name, b.start, b.stop) for b in blocks),
+           free if isinstance(free, str) else tuple(free), tuple(fixed), tuple((priors or {}).items()), tuple(extras))
+    try:
+        hash(key)
+    except TypeError:
+        return None
+    return key
+
+
+def _selection(names, blocks, twist_joint, patterns, extras, fixed, priors):
+    """(free mask, prior means, prior sigmas) of the coordinates ``names`` (``build_layout``'s rules)."""
     match = _Matcher(names, blocks, twist_joint)
     mask = np.zeros(len(names), bool)
-    for pat in _patterns(free, arms):
+    for pat in patterns:
         mask |= match(pat, "free parameter", f" (e.g. {', '.join(names[:3])}, ...)")
-    for name in list(state.extras) if free_extras is None else list(free_extras):
+    for name in extras:
         mask[next(b for b in blocks if b.name == name).slice] = True
     for pat in fixed:
         mask &= ~match(pat, "fixed parameter")
@@ -156,7 +195,7 @@ def build_layout(
             raise ModelError(f"prior {pat!r}: sigma must be positive and finite, got {prior.sigma}")
         mean[hit], sigma[hit] = prior.mean, prior.sigma
         mask |= hit
-    return Layout(tuple(names), tuple(units), tuple(blocks), mask, mean, sigma, twist_joint)
+    return mask, mean, sigma
 
 
 def _patterns(free, arms) -> list[str]:

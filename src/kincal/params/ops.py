@@ -14,7 +14,7 @@ def retract(state: State, layout: Layout, delta: np.ndarray) -> State:
     arms, extras = dict(state.arms), dict(state.extras)
     for b in layout.blocks:
         d = delta[b.slice]
-        if not np.any(d):
+        if not d.any():
             continue
         if b.arm is not None:
             arms[b.arm] = b.kind.retract(arms[b.arm], d)
@@ -41,23 +41,28 @@ def pose_retraction_jacobians(layout: Layout, delta: np.ndarray) -> dict[str, np
     out = {}
     for b in layout.blocks:
         d = delta[b.slice]
-        J = b.kind.retraction_jacobian(d) if np.any(d) else None
+        J = b.kind.retraction_jacobian(d) if d.any() else None
         if J is not None:
             out[b.name] = J
     return out
 
 
-def displacement(state: State, nominal: State, layout: Layout,
-                 only: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def displacement(state: State, nominal: State, layout: Layout, only: np.ndarray | None = None,
+                 jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """Local displacement of ``state`` from ``nominal`` (p,) and its derivative w.r.t. ``state``'s own local
-    coordinates (diagonal blocks, returned as a dense (p, p) matrix). Used for priors and reports.
-    ``only``: the layout indices wanted; blocks holding none of them are left zero (e.g. fixed frames)."""
+    coordinates (diagonal blocks, returned as a dense (p, p) matrix; None with ``jacobian=False``). Used for
+    priors and reports. ``only``: the layout indices wanted; blocks holding none of them are left zero (e.g.
+    fixed frames)."""
     disp = np.zeros(layout.size)
-    D = np.zeros((layout.size, layout.size))
+    D = np.zeros((layout.size, layout.size)) if jacobian else None
     wanted = np.ones(layout.size, bool) if only is None else np.isin(np.arange(layout.size), only)
     for b in layout.blocks:
-        if wanted[b.slice].any():
+        if not wanted[b.slice].any():
+            continue
+        if jacobian:
             disp[b.slice], D[b.slice, b.slice] = b.kind.displacement(b.value(state), b.value(nominal))
+        else:
+            disp[b.slice] = b.kind.offset(b.value(state), b.value(nominal))
     return disp, D
 
 

@@ -7,13 +7,15 @@ joint-screw manifold during an inner solve; ``recentre`` (``kincal.params.ops``)
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Mapping
 
 import numpy as np
 
 from kincal.errors import ModelError
-from kincal.kinematics import ArmModel, Robot, conform_twists, tangent_basis, tangent_generators
+from kincal.kinematics import ArmModel, Robot, conform_twists, tangent_frames
 from kincal.kinematics.couplings import coupling_map
 from kincal.kinematics.elastic import compliance_basis, compliance_coefficients, node_angles
 from kincal.kinematics.gravity import GravityLoad, gravity_load
@@ -63,7 +65,7 @@ class ArmValues:
         return [(j, None if x is None else float(a)) for j, x in enumerate(nodes)
                 for a in ([None] if x is None else x)]
 
-    @property
+    @cached_property
     def basis(self) -> np.ndarray:
         """Block-diagonal (6n, t) map from all tangent coordinates to the stacked twist coordinates."""
         t = sum(b.shape[1] for b in self.bases)
@@ -74,24 +76,52 @@ class ArmValues:
             c += b.shape[1]
         return out
 
+    @cached_property
+    def basis_pinv(self) -> np.ndarray:
+        """The pseudo-inverse (t, 6n) of ``basis``, block by block (it is block-diagonal), the joints of one
+        shape in one batch: ``(B^T B)^-1 B^T`` (each block has independent, near-unit columns)."""
+        out = np.zeros(self.basis.shape[::-1])
+        cols = np.cumsum([0] + [b.shape[1] for b in self.bases])
+        for k in sorted({b.shape[1] for b in self.bases}):
+            js = [j for j, b in enumerate(self.bases) if b.shape[1] == k]
+            B = np.stack([self.bases[j] for j in js])
+            Bt = np.swapaxes(B, -1, -2)
+            for j, P in zip(js, np.linalg.solve(Bt @ B, Bt)):
+                out[cols[j]: cols[j + 1], 6 * j: 6 * j + 6] = P
+        return out
+
     @staticmethod
     def from_model(model: ArmModel) -> "ArmValues":
+        """The values of ``model`` (remembered per model object: models and values are immutable, and a Monte
+        Carlo study or a batch builds its problems from the same nominal robot again and again)."""
+        hit = _FROM_MODEL.get(id(model))
+        if hit is not None and hit[0]() is model:
+            return hit[1]
+        values = ArmValues._of(model)
+        for a in (values.screws, values.offsets, values.base, values.home, values.tool, values.compliance,
+                  *values.bases, *values.generators):
+            if isinstance(a, np.ndarray):
+                a.flags.writeable = False  # shared by every problem built from this model: never changed in place
+        if len(_FROM_MODEL) >= _FROM_MODEL_ENTRIES:
+            _FROM_MODEL.pop(next(iter(_FROM_MODEL)))
+        _FROM_MODEL[id(model)] = (weakref.ref(model), values)
+        return values
+
+    @staticmethod
+    def _of(model: ArmModel) -> "ArmValues":
+        B, G = tangent_frames(model.screws, model.joint_types)
         return ArmValues(
             np.array(model.screws), np.array(model.offsets), np.array(model.base), np.array(model.home),
-            np.array(model.tool), bases(model.screws, model.joint_types), model.joint_names, model.joint_types,
-            generators(model.screws, model.joint_types), compliance_coefficients(model),
+            np.array(model.tool), B, model.joint_names, model.joint_types, G, compliance_coefficients(model),
             node_angles(model) if model.compliance_nodes else (),
             coupling_map(model.couplings, model.joint_names)[0] if model.couplings else None,
             gravity_load(model),
         )
 
 
-def bases(screws, types) -> tuple:
-    return tuple(tangent_basis(s, t) for s, t in zip(screws, types))
-
-
-def generators(screws, types) -> tuple:
-    return tuple(tangent_generators(s, t) for s, t in zip(screws, types))
+# ArmValues.from_model's memory: id(model) -> (weak reference to the model, its values), oldest first
+_FROM_MODEL: dict[int, tuple[weakref.ref, ArmValues]] = {}
+_FROM_MODEL_ENTRIES = 64
 
 
 def retract_twists(a: ArmValues, d: np.ndarray) -> ArmValues:

@@ -250,7 +250,8 @@ def _outcome(study: Study, result, true: Robot, fixed: Fixed) -> Outcome:
 def true_displacement(result, true: Robot) -> np.ndarray:
     """The true robot's displacement from nominal in the result's coordinates (frames: nominal, none)."""
     nominal, true_arms = result.problem.nominal, State.from_robot(true).arms
-    return displacement(nominal.replace(arms={a: true_arms[a] for a in nominal.arms}), nominal, result.layout)[0]
+    return displacement(nominal.replace(arms={a: true_arms[a] for a in nominal.arms}), nominal, result.layout,
+                        jacobian=False)[0]
 
 
 def quantity_matrix(study: Study, layout) -> tuple[tuple[str, ...], np.ndarray]:
