@@ -1,0 +1,165 @@
+"""Deploying a calibration of a tree-structured robot (issue #14): compensation, URDF and controller export,
+design, the camera simulator and the HTML report through the composite chain (a mounted arm with its carriers),
+end to end on ``dual7_torso`` against the true robot."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from kincal import robots
+from kincal.cli import main
+from kincal.errors import DataFormatError, ModelError
+from kincal.estimation import Noise, calibrate
+from kincal.io.programs import read_program
+from kincal.kinematics import Robot
+from kincal.kinematics.tree import tip_pose
+from kincal.simulate import generate_pose, perturb_robot, random_configurations
+from kincal.workflow.compensate import BRANCH_RAD, compensate_joints, compensate_poses
+
+NOISE = Noise(position=2e-5, orientation=2e-5)
+TRACKER = np.array([[1.0, 0, 0, 2.0], [0, 1, 0, 0], [0, 0, 1, 0.5], [0, 0, 0, 1]])
+ARMS = ("left", "right")
+
+
+def calibrated_tree(seed: int, nominal: Robot | None = None):
+    """(nominal, true, result): dual7_torso perturbed ("fine"), both hands' poses measured by one tracker of known
+    pose (the torso moving), calibrated at level kinematic."""
+    nominal = nominal or robots.load("dual7_torso")
+    true = perturb_robot(nominal, "fine", rng=seed)
+    data = [replace(generate_pose(true, a, n=100, rng=seed + i, noise=NOISE, known_tracker=True,
+                                  T_world_tracker=TRACKER)[0], name=f"pose-{a}") for i, a in enumerate(ARMS)]
+    return nominal, true, calibrate(nominal, data, "kinematic", noise=NOISE)
+
+
+@pytest.fixture(scope="module")
+def tree5():
+    return calibrated_tree(5)
+
+
+def _program(robot: Robot, n: int, seed: int) -> dict:
+    rng = np.random.default_rng(seed)
+    return {a: random_configurations(robot[a], n, rng, 0.1) for a in ("torso", *ARMS)}
+
+
+@pytest.mark.parametrize("seed", [5, 6])
+def test_compensated_tree_program_reaches_the_intended_poses_under_the_true_robot(seed, tree5):
+    nominal, true, res = tree5 if seed == 5 else calibrated_tree(seed)
+    program = _program(nominal, 200, seed)
+    comp = compensate_joints(nominal, res.robot, program)
+    assert set(comp.held) == {"torso"} and set(comp.q) == set(ARMS)
+    assert np.array_equal(comp.held["torso"], program["torso"])  # the shared torso is held, not solved
+    for a in ARMS:
+        ok = comp.status[a] == "ok"
+        assert ok.mean() > 0.9
+        intended = tip_pose(nominal, a, program)[:, :3, 3]
+        before = np.linalg.norm(tip_pose(true, a, program)[:, :3, 3] - intended, axis=1)[ok]
+        after = np.linalg.norm(tip_pose(true, a, {**program, a: comp.q[a]})[:, :3, 3] - intended, axis=1)[ok]
+        predicted = res.predict({"torso": program["torso"][ok], a: program[a][ok]}, a,
+                                register=False).position_rms_predicted
+        actual = np.sqrt(np.mean(after**2))
+        assert 0.5 < actual / predicted < 2.0, (a, actual, predicted)
+        assert np.sqrt(np.mean(before**2)) > 100 * actual
+        assert comp.change[a][ok].max() < BRANCH_RAD
+        # on the calibrated model the compensated row reaches the intended pose through the calibrated torso
+        T = tip_pose(res.robot, a, {**program, a: comp.q[a]})[ok]
+        assert np.abs(T[:, :3, 3] - intended[ok]).max() < 1e-6
+
+
+def test_cartesian_tree_targets_use_the_calibrated_torso(tree5):
+    nominal, true, res = tree5
+    program = _program(nominal, 30, 3)
+    targets = {a: tip_pose(nominal, a, program) for a in ARMS}
+    comp = compensate_poses(res.robot, targets, program, nominal=nominal)
+    for a in ARMS:
+        ok = comp.status[a] == "ok"
+        assert ok.sum() >= 27
+        T = tip_pose(res.robot, a, {"torso": program["torso"], a: comp.q[a]})
+        assert np.abs(T[ok] - targets[a][ok]).max() < 1e-6
+    program["torso"][4, 1] = nominal["torso"].upper[1] + 0.1  # a held torso reading past its limit
+    comp = compensate_joints(nominal, res.robot, program)
+    assert ("left", 4, "outside limits") in comp.failed() and ("right", 4, "outside limits") in comp.failed()
+
+
+def _coupled(robot: Robot) -> Robot:
+    """dual7_torso with the left arm's j7 coupled to its j5 (q7 = 0.5 q5 + 0.1): six free joints."""
+    left = robot["left"].replace(couplings={"j7": {"j5": 0.5, "constant": 0.1}})
+    return robot.replace_arm("left", left)
+
+
+def test_a_coupled_joint_is_derived_never_solved():
+    nominal = _coupled(robots.load("dual7_torso"))
+    true = perturb_robot(nominal, "fine", rng=2)
+    program = _program(nominal, 40, 4)
+    program["left"][:, 6] = 0.5 * program["left"][:, 4] + 0.1
+    comp = compensate_joints(nominal, true, program)
+    q = comp.q["left"]
+    assert np.allclose(q[:, 6], 0.5 * q[:, 4] + 0.1, atol=1e-12)  # the coupling holds exactly
+    ok = comp.status["left"] == "ok"
+    assert ok.mean() > 0.8
+    T = tip_pose(true, "left", {"torso": program["torso"], "left": q})
+    assert np.abs(T[ok] - tip_pose(nominal, "left", program)[ok]).max() < 1e-6
+
+
+def test_missing_carrier_readings_and_unknown_arms_are_refused():
+    nominal = robots.load("dual7_torso")
+    program = _program(nominal, 3, 1)
+    with pytest.raises(ModelError, match="mounted on 'torso'"):
+        compensate_joints(nominal, nominal, {"left": program["left"]})
+    with pytest.raises(ModelError, match="no arm 'head'"):
+        compensate_joints(nominal, nominal, {"head": program["left"]})
+
+
+def _write(path, header, rows):
+    path.write_text(",".join(header) + "\n" + "\n".join(",".join(repr(float(x)) for x in r) for r in rows) + "\n")
+    return path
+
+
+def test_cli_compensates_a_tree_program_and_bad_files_are_one_line(tmp_path, capsys, tree5):
+    nominal, true, res = tree5
+    from kincal.io.models import save_robot
+    model = tmp_path / "calibrated.yaml"
+    save_robot(res.robot, model)
+    program = _program(nominal, 10, 8)
+    names = [f"{a}.{j}" for a in ("torso", "left") for j in nominal[a].joint_names]
+    good = _write(tmp_path / "program.csv", names, np.degrees(np.hstack([program["torso"], program["left"]])))
+    out = tmp_path / "out.csv"
+    code = main(["compensate", str(model), str(good), "--nominal", "dual7_torso", "-o", str(out), "--angle", "deg"])
+    text = capsys.readouterr().out
+    assert code in (0, 1) and "held" in text
+    back, ok = _read_output(out, nominal)
+    assert np.allclose(back["torso"], program["torso"], atol=1e-12)
+    T = tip_pose(res.robot, "left", back)
+    intended = tip_pose(nominal, "left", program)
+    assert ok.sum() >= 8 and np.abs(T - intended)[ok].max() < 1e-6
+    cases = (([n for n in names if not n.startswith("torso")], "column 'torso.t1': missing; arm 'left' is mounted"),
+             ([*names, "head.j1"], "column 'head.j1': no arm 'head'"))
+    for header, words in cases:
+        bad = _write(tmp_path / "bad.csv", header, np.zeros((2, len(header))))
+        assert main(["compensate", str(model), str(bad), "--nominal", "dual7_torso", "-o",
+                     str(tmp_path / "o2.csv")]) == 2
+        err = capsys.readouterr().err
+        assert words in err and "bad.csv: line 1" in err and err.count("\n") == 1, err
+
+
+def _read_output(path, robot: Robot) -> tuple[dict, np.ndarray]:
+    """The compensated program's readings (rad) of torso and left, and which rows of left are ok."""
+    lines = [line.split(",") for line in path.read_text().splitlines()]
+    col = {c: i for i, c in enumerate(lines[0])}
+    q = {a: np.radians([[float(r[col[f"{a}.{j}"]]) for j in robot[a].joint_names] for r in lines[1:]])
+         for a in ("torso", "left")}
+    return q, np.array([r[col["left.status"]] == "ok" for r in lines[1:]])
+
+
+def test_program_columns_of_a_coupled_carrier_may_be_left_out(tmp_path):
+    base = robots.load("dual7_torso")
+    robot = base.replace_arm("torso", base["torso"].replace(couplings={"t2": {"t1": -0.5}}))  # the tilt follows
+    header = ["torso.t1", *(f"left.j{k}" for k in range(1, 8))]
+    prog = read_program(_write(tmp_path / "p.csv", header, np.full((2, 8), 0.1)), robot)
+    assert np.allclose(prog.q["torso"], [[0.1, -0.05]] * 2)  # t2 derived
+    with pytest.raises(DataFormatError, match="line 2, column 'torso.t2': 0.1 disagrees with the coupling"):
+        read_program(_write(tmp_path / "q.csv", ["torso.t2", *header], np.full((2, 9), 0.1)), robot)
+    comp = compensate_joints(robot, robot, {"torso": np.array([[0.1, 0.3]]), "left": np.full((1, 7), 0.1)})
+    assert np.allclose(comp.held["torso"], [[0.1, -0.05]])  # a held carrier's coupled joint is derived too
