@@ -8,13 +8,16 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+import yaml
 
 from kincal import robots
 from kincal.cli import main
 from kincal.errors import DataFormatError, ModelError
 from kincal.estimation import Noise, calibrate
 from kincal.io.programs import read_program
-from kincal.kinematics import Robot
+from kincal.io.urdf import from_urdf, tree_from_urdf, tree_to_urdf
+from kincal.kinematics import Robot, forward_kinematics
+from kincal.kinematics.couplings import derive_readings
 from kincal.kinematics.tree import tip_pose
 from kincal.simulate import generate_pose, perturb_robot, random_configurations
 from kincal.workflow.compensate import BRANCH_RAD, compensate_joints, compensate_poses
@@ -163,3 +166,63 @@ def test_program_columns_of_a_coupled_carrier_may_be_left_out(tmp_path):
         read_program(_write(tmp_path / "q.csv", ["torso.t2", *header], np.full((2, 9), 0.1)), robot)
     comp = compensate_joints(robot, robot, {"torso": np.array([[0.1, 0.3]]), "left": np.full((1, 7), 0.1)})
     assert np.allclose(comp.held["torso"], [[0.1, -0.05]])  # a held carrier's coupled joint is derived too
+
+
+def _random_readings(robot: Robot, n: int, seed: int) -> dict:
+    rng = np.random.default_rng(seed)
+    q = {a: random_configurations(robot[a], n, rng) for a in robot.arms}
+    return {a: derive_readings(robot[a].couplings, robot[a].joint_names, v) for a, v in q.items()}
+
+
+def test_calibrated_tree_exports_one_branched_urdf_that_reimports_to_the_same_kinematics(tree5):
+    pytest.importorskip("yourdfpy")
+    _, _, res = tree5
+    coupled = res.robot.replace_arm("torso", res.robot["torso"].replace(couplings={"t2": {"t1": -0.5, "constant": 0.1}}))
+    for robot in (res.robot, coupled):
+        text, notes = tree_to_urdf(robot)
+        assert notes == [] and text.count('<link name="world"/>') == 1
+        assert text.count('name="torso_t1"') == 1  # the shared torso once
+        back = tree_from_urdf(text, "world")
+        assert set(back.arms) == {"torso", "left", "right"}
+        assert dict(back.mounts) == {"left": "torso", "right": "torso"}
+        q = _random_readings(robot, 200, 1)
+        for a in robot.arms:
+            assert np.abs(tip_pose(back, a, q) - tip_pose(robot, a, q)).max() < 1e-9
+    assert '<mimic joint="torso_t1" multiplier="-0.5" offset="0.1"/>' in tree_to_urdf(coupled)[0]
+    assert dict(tree_from_urdf(tree_to_urdf(coupled)[0], "world")["torso"].couplings["torso_t2"]) == \
+        {"torso_t1": -0.5, "constant": 0.1}
+
+
+def test_a_coupling_on_several_joints_is_written_free_with_a_note():
+    robot = robots.load("dual7_torso")
+    robot = robot.replace_arm("left", robot["left"].replace(couplings={"j7": {"j5": 0.5, "j6": -1.0}}))
+    text, notes = tree_to_urdf(robot)
+    assert "<mimic" not in text and len(notes) == 1 and "j7 follows several joints (j5, j6)" in notes[0]
+
+
+def test_cli_exports_the_tree_and_controller_offsets_once(tmp_path, capsys, tree5):
+    pytest.importorskip("yourdfpy")
+    _, _, res = tree5
+    from kincal.io.models import save_robot
+    model = tmp_path / "calibrated.yaml"
+    save_robot(res.robot, model)
+    assert main(["export", str(model), "--to", "urdf", "-o", str(tmp_path / "tree.urdf")]) == 0
+    assert "left on torso" in capsys.readouterr().out
+    back = tree_from_urdf(tmp_path / "tree.urdf", "world")
+    q = _random_readings(res.robot, 50, 2)
+    for a in ARMS:
+        assert np.abs(tip_pose(back, a, q) - tip_pose(res.robot, a, q)).max() < 1e-9
+    assert main(["export", str(model), "--to", "controller", "-o", str(tmp_path / "c.yaml")]) == 0
+    doc = yaml.safe_load((tmp_path / "c.yaml").read_text())
+    assert [e["arm"] for e in doc["arms"]] == list(res.robot.arms)  # every arm once: the torso's offsets once
+    torso = next(e for e in doc["arms"] if e["arm"] == "torso")
+    assert [c["offset_joint"] for c in torso["channels"]] == pytest.approx(res.robot["torso"].offsets.tolist())
+    assert next(e for e in doc["arms"] if e["arm"] == "left")["mounted_on"] == "torso"
+    # one mounted arm: its chain with the torso, in the world
+    assert main(["export", str(model), "--arm", "left", "--to", "urdf", "-o", str(tmp_path / "left.urdf")]) == 0
+    chain = from_urdf(tmp_path / "left.urdf", "world", "tool")
+    qq = np.concatenate([q["torso"], q["left"]], axis=1)
+    assert np.abs(forward_kinematics(chain, qq) - tip_pose(res.robot, "left", q)).max() < 1e-9
+    assert main(["export", str(model), "--to", "dh", "-o", str(tmp_path / "d.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert "exported whole as urdf or controller" in err and err.count("\n") == 1
