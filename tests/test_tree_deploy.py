@@ -19,7 +19,9 @@ from kincal.io.urdf import from_urdf, tree_from_urdf, tree_to_urdf
 from kincal.kinematics import Robot, forward_kinematics
 from kincal.kinematics.couplings import derive_readings
 from kincal.kinematics.tree import tip_pose
-from kincal.simulate import generate_pose, perturb_robot, random_configurations
+from kincal.experiments.camera import project
+from kincal.lie import se3
+from kincal.simulate import GENERATORS, Perturbation, generate_pose, perturb_robot, random_configurations
 from kincal.workflow.compensate import BRANCH_RAD, compensate_joints, compensate_poses
 
 NOISE = Noise(position=2e-5, orientation=2e-5)
@@ -226,3 +228,28 @@ def test_cli_exports_the_tree_and_controller_offsets_once(tmp_path, capsys, tree
     assert main(["export", str(model), "--to", "dh", "-o", str(tmp_path / "d.yaml")]) == 2
     err = capsys.readouterr().err
     assert "exported whole as urdf or controller" in err and err.count("\n") == 1
+
+
+CAMERA = np.array([[0.0, 0, -1, 2.0], [0, 1, 0, 0], [1, 0, 0, 0.6], [0, 0, 0, 1]])  # 2 m ahead, looking back
+
+
+@pytest.mark.parametrize("seed", [4, 5])
+def test_camera_simulated_through_the_torso_calibrates_every_offset(seed):
+    nominal = robots.load("dual7_torso")
+    true = perturb_robot(nominal, Perturbation(offset_rad=0.02), rng=seed)
+    data = []
+    for i, a in enumerate(ARMS):
+        ds, truth, val = GENERATORS["camera"](true, a, n=80, rng=10 + i + seed, noise=Noise(other={"pixel": 0.1}),
+                                              T_world_camera=CAMERA, known_camera=True, known_point=True)
+        assert set(ds.q) == {"torso", a}  # the torso moves with the arm, its readings in the data set
+        assert not np.allclose(ds.q["torso"], ds.q["torso"][0])
+        clean = project(se3.transform_points(se3.inverse(CAMERA) @ tip_pose(true, a, truth.q), truth.values["p_tool_point"]),
+                        ds.known["intrinsics"])[0]
+        assert np.sqrt(np.mean((ds.measured["pixel"] - clean) ** 2)) < 0.2  # the pixel noise only
+        data.append(replace(ds, name=f"camera-{a}"))
+    res = calibrate(nominal, data, "offsets", noise=Noise(other={"pixel": 0.1}))
+    assert res.status == "converged" and res.sigma2 < 1.5
+    for arm in nominal.arms:
+        for j, name in enumerate(nominal[arm].joint_names):
+            e = res.estimate(f"{arm}.{name}.offset")
+            assert abs(e.value - true[arm].offsets[j]) < 4 * e.std, (arm, name, e.value, true[arm].offsets[j], e.std)
