@@ -21,8 +21,10 @@ from kincal.kinematics.couplings import derive_readings
 from kincal.kinematics.tree import tip_pose
 from kincal.experiments.camera import project
 from kincal.lie import se3
-from kincal.simulate import GENERATORS, Perturbation, generate_pose, perturb_robot, random_configurations
+from kincal.simulate import (GENERATORS, Perturbation, generate_markers, generate_pose, perturb_robot,
+                             random_configurations)
 from kincal.workflow.compensate import BRANCH_RAD, compensate_joints, compensate_poses
+from kincal.workflow.design import design
 
 NOISE = Noise(position=2e-5, orientation=2e-5)
 TRACKER = np.array([[1.0, 0, 0, 2.0], [0, 1, 0, 0], [0, 0, 1, 0.5], [0, 0, 0, 1]])
@@ -253,3 +255,28 @@ def test_camera_simulated_through_the_torso_calibrates_every_offset(seed):
         for j, name in enumerate(nominal[arm].joint_names):
             e = res.estimate(f"{arm}.{name}.offset")
             assert abs(e.value - true[arm].offsets[j]) < 4 * e.std, (arm, name, e.value, true[arm].offsets[j], e.std)
+
+
+def test_design_on_a_tree_chooses_over_the_torso_and_the_design_calibrates():
+    nominal = robots.load("dual7_torso")
+    d = design(nominal, "markers", {"arm": "left", "markers": 3}, 30, free="offsets", pool=300, seed=1)
+    assert set(d.dataset.q) == {"torso", "left"}
+    # the pan turns the arm as a tracker rotation would, the last joint turns the unknown markers
+    assert set(d.unidentifiable) == {"torso.t1.offset", "left.j7.offset"}
+    assert np.ptp(d.dataset.q["torso"], axis=0).min() > 0.3  # the torso's joints are designed too
+    assert d.selection.value >= d.random and d.tool_rms <= d.random_tool_rms
+    true = perturb_robot(nominal, Perturbation(offset_rad=0.02), rng=3)
+    q = np.hstack([d.dataset.q["torso"], d.dataset.q["left"]])  # the composite's readings, carriers first
+    ds, _, val = generate_markers(true, "left", configurations=q, rng=4, noise=NOISE, markers=3)
+    res = calibrate(nominal, [ds], "offsets", noise=NOISE)
+    assert res.status == "converged"
+    for arm in ("torso", "left"):
+        for j, name in enumerate(nominal[arm].joint_names):
+            e = res.estimate(f"{arm}.{name}.offset")
+            if f"{arm}.{name}.offset" not in d.unidentifiable:
+                assert abs(e.value - true[arm].offsets[j]) < 4 * e.std, (arm, name)
+    # a dual clamp sees the arms relative to each other: the torso's offsets are named, the targets hold them
+    d = design(nominal, "dual", {"arms": ["left", "right"], "known_clamp": True}, 30, pool=200, seed=2)
+    assert set(d.unidentifiable) == {"torso.t1.offset", "torso.t2.offset"}
+    assert set(d.dataset.q) == {"torso", "left", "right"}
+    assert np.all(nominal["torso"].within_limits(d.dataset.q["torso"]))
