@@ -22,7 +22,7 @@ from kincal.kinematics.tree import tip_pose
 from kincal.experiments.camera import project
 from kincal.lie import se3
 from kincal.simulate import (GENERATORS, Perturbation, generate_markers, generate_pose, perturb_robot,
-                             random_configurations)
+                             random_configurations, workspace_sample)
 from kincal.workflow.compensate import BRANCH_RAD, compensate_joints, compensate_poses
 from kincal.workflow.design import design
 
@@ -280,3 +280,34 @@ def test_design_on_a_tree_chooses_over_the_torso_and_the_design_calibrates():
     assert set(d.unidentifiable) == {"torso.t1.offset", "torso.t2.offset"}
     assert set(d.dataset.q) == {"torso", "left", "right"}
     assert np.all(nominal["torso"].within_limits(d.dataset.q["torso"]))
+
+
+def test_html_report_of_a_tree_shows_the_tree_shared_parameters_once_and_each_tip(tree5):
+    pytest.importorskip("matplotlib")
+    from kincal.report.html import accuracy_map, report_html
+    from kincal.report.plots import _pyplot
+
+    plt = _pyplot()
+
+    nominal, true, _ = tree5
+    data, val = [], []
+    for i, a in enumerate(ARMS):
+        ds, _, v = generate_pose(true, a, n=100, rng=20 + i, noise=NOISE, known_tracker=True, T_world_tracker=TRACKER)
+        data.append(replace(ds, name=f"pose-{a}"))
+        val.append(v[a])
+    res = calibrate(nominal, data, "kinematic", noise=NOISE, validation=val)
+    sample = {a: workspace_sample(nominal, a, 60, np.random.default_rng(0)) for a in res.state.arms}
+    assert set(sample["left"]) == {"torso", "left"}  # a mounted arm's sample goes through its carriers
+    text = report_html(res, title="dual7_torso", workspace=sample)
+    assert "Tree: which arm carries which" in text
+    assert "<td>left</td><td>torso</td><td>-</td>" in text and "<td>torso</td><td>(the base)</td><td>right, left</td>" in text
+    for e in res.estimates:
+        if e.name.startswith("torso."):
+            assert text.count(f"<td>{e.name}</td>") == 1  # a shared parameter once
+    for a in ARMS:  # per-tip validation, through the torso, at the noise level
+        assert f"<td>validation-{a}</td><td>{a} (on torso)</td>" in text
+        fig = accuracy_map(plt, res, a, sample[a])
+        assert fig._suptitle.get_text().startswith(f"arm '{a} (on torso)': predicted accuracy at 60 configurations")
+        plt.close(fig)
+    for v in res.validation:
+        assert v.after.position_rms < 3 * NOISE.position < v.before.position_rms
