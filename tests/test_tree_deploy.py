@@ -311,3 +311,30 @@ def test_html_report_of_a_tree_shows_the_tree_shared_parameters_once_and_each_ti
         plt.close(fig)
     for v in res.validation:
         assert v.after.position_rms < 3 * NOISE.position < v.before.position_rms
+
+
+def test_cli_design_from_tree_configurations_and_from_the_torso_scenario(tmp_path, capsys):
+    """A configurations file of a mounted arm holds its carriers' columns; the design's targets set the torso
+    once; the torso_dual_clamp scenario names the torso offsets the clamp cannot see."""
+    nominal = robots.load("dual7_torso")
+    rng = np.random.default_rng(5)
+    pool = np.hstack([random_configurations(nominal[a], 150, rng, 0.1) for a in ("torso", "left")])
+    header = ",".join(f"{a}.{j}" for a in ("torso", "left") for j in nominal[a].joint_names)
+    np.savetxt(tmp_path / "cell.csv", pool, delimiter=",", header=header, comments="")
+    (tmp_path / "job.yaml").write_text("model: dual7_torso\nfree: offsets\ndata:\n  - configurations: cell.csv\n"
+                                       "    experiment: {kind: markers, arm: left, markers: 3}\n"
+                                       "    noise: {position_mm: 0.02}\n")
+    assert main(["design", str(tmp_path / "job.yaml"), "-n", "25", "-o", str(tmp_path / "a")]) == 0
+    out = capsys.readouterr().out
+    assert "tree: right on torso, left on torso" in out
+    chosen = np.loadtxt(tmp_path / "a" / "targets.csv", delimiter=",", skiprows=1)
+    assert (tmp_path / "a" / "targets.csv").read_text().splitlines()[0] == header
+    assert all(any(np.allclose(row, p) for p in pool) for row in chosen)  # each a row of the file, torso included
+    assert main(["design", "torso_dual_clamp", "-n", "30", "--pool", "200", "-o", str(tmp_path / "b")]) == 0
+    out = capsys.readouterr().out
+    assert "not identifiable from this experiment: torso.t1.offset, torso.t2.offset" in out
+    doc = yaml.safe_load((tmp_path / "b" / "design.yaml").read_text())
+    assert doc["not_identifiable"] == ["torso.t1.offset", "torso.t2.offset"]
+    assert doc["mounts"] == {"right": "torso", "left": "torso"}
+    head = (tmp_path / "b" / "targets.csv").read_text().splitlines()[0].split(",")
+    assert head[:2] == ["torso.t1", "torso.t2"] and len(head) == 16
