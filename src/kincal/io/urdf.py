@@ -6,7 +6,8 @@ transform). Joint i with URDF origin ``O_i`` and unit axis ``a_i`` (in its own f
 ``p = t(F_i)`` (revolute, continuous) or ``(w, 0)`` (prismatic); ``home = T_base_link_tip_link`` at q = 0.
 Revolute/prismatic limits are kept (missing lower/upper attributes mean unlimited); continuous joints
 are unlimited. URDF axes are normalized (URDF
-treats ``axis`` as a direction). Mimic, floating and planar joints are refused.
+treats ``axis`` as a direction). Floating and planar joints are refused, and so are mimic joints in a chain import
+(``tree_from_urdf`` reads them as couplings).
 Inertials (``inertials=True``): each link's ``<inertial>`` mass and origin, lumped per moving joint of the chain
 (a link belongs to the last chain joint on its path from base_link: links on fixed joints, side branches and
 links beyond tip_link included, other joints at zero), centres of mass in base_link's frame at q = 0; the
