@@ -12,7 +12,7 @@ import yaml
 
 from kincal import robots
 from kincal.cli import main
-from kincal.errors import DataFormatError, ModelError
+from kincal.errors import DataFormatError, ModelError, ShapeError
 from kincal.estimation import Noise, calibrate
 from kincal.io.programs import read_program
 from kincal.io.urdf import from_urdf, tree_from_urdf, tree_to_urdf
@@ -117,6 +117,8 @@ def test_missing_carrier_readings_and_unknown_arms_are_refused():
         compensate_joints(nominal, nominal, {"left": program["left"]})
     with pytest.raises(ModelError, match="no arm 'head'"):
         compensate_joints(nominal, nominal, {"head": program["left"]})
+    with pytest.raises(ShapeError, match="one row per target; rows: torso 2, left 3"):
+        compensate_joints(nominal, nominal, {"torso": program["torso"][:2], "left": program["left"]})
 
 
 def _write(path, header, rows):

@@ -109,6 +109,10 @@ def _held(robot: Robot, program: Mapping[str, np.ndarray], solved=None) -> tuple
         if missing:
             raise ModelError(f"program: arm '{arm}' is mounted on '{missing[0]}', whose readings its targets need "
                              f"(held fixed while '{arm}' is solved); give them as {missing[0]}.<joint> values")
+        rows = {c: len(program[c]) for c in robot.lineage(arm)}
+        if len(set(rows.values())) > 1:
+            raise ShapeError(f"program of arm '{arm}': its carriers' readings need one row per target; rows: "
+                             + ", ".join(f"{c} {n}" for c, n in rows.items()))
     q = {a: derive_readings(robot[a].couplings, robot[a].joint_names, _joints(robot[a], v, a))
          for a, v in program.items()}
     return {a: v for a, v in q.items() if a not in solved}, q
@@ -122,8 +126,8 @@ def _solve_tip(calibrated: Robot, arm: str, T: np.ndarray, q: Mapping[str, np.nd
         carrier = tip_pose(calibrated, line[-2], {s: q[s] for s in line[:-1]})
         T = se3.inverse(carrier) @ T
     out = _solve(calibrated[arm], T, q[arm], limits[arm])
-    held_ok = np.logical_and.reduce([limits[s].within_limits(q[s]) for s in line[:-1]]) if len(line) > 1 else True
-    out[3][~np.asarray(held_ok) & (out[3] != "outside limits")] = "outside limits"
+    held_ok = np.logical_and.reduce([limits[s].within_limits(q[s]) for s in line[:-1]], initial=True)
+    out[3][~held_ok] = "outside limits"
     return out
 
 
