@@ -14,13 +14,14 @@ from kincal import robots
 from kincal.cli import main
 from kincal.errors import DataFormatError, ModelError, ShapeError
 from kincal.estimation import Noise, calibrate
-from kincal.io.programs import read_program
+from kincal.io.programs import read_program, write_program
 from kincal.io.urdf import from_urdf, tree_from_urdf, tree_to_urdf
 from kincal.kinematics import Robot, forward_kinematics
 from kincal.kinematics.couplings import derive_readings
 from kincal.kinematics.tree import tip_pose
 from kincal.experiments.camera import project
 from kincal.lie import se3
+from kincal.lie.rotations import matrix_to_quat_wxyz
 from kincal.simulate import (GENERATORS, Perturbation, generate_markers, generate_pose, perturb_robot,
                              random_configurations, workspace_sample)
 from kincal.workflow.compensate import BRANCH_RAD, compensate_joints, compensate_poses
@@ -180,9 +181,10 @@ def _random_readings(robot: Robot, n: int, seed: int) -> dict:
     return {a: derive_readings(robot[a].couplings, robot[a].joint_names, v) for a, v in q.items()}
 
 
-def test_calibrated_tree_exports_one_branched_urdf_that_reimports_to_the_same_kinematics(tree5):
+@pytest.mark.parametrize("seed", [5, 6])
+def test_calibrated_tree_exports_one_branched_urdf_that_reimports_to_the_same_kinematics(seed, tree5):
     pytest.importorskip("yourdfpy")
-    _, _, res = tree5
+    _, _, res = tree5 if seed == 5 else calibrated_tree(seed)
     coupled = res.robot.replace_arm("torso", res.robot["torso"].replace(couplings={"t2": {"t1": -0.5, "constant": 0.1}}))
     for robot in (res.robot, coupled):
         text, notes = tree_to_urdf(robot)
@@ -340,3 +342,23 @@ def test_cli_design_from_tree_configurations_and_from_the_torso_scenario(tmp_pat
     assert doc["mounts"] == {"right": "torso", "left": "torso"}
     head = (tmp_path / "b" / "targets.csv").read_text().splitlines()[0].split(",")
     assert head[:2] == ["torso.t1", "torso.t2"] and len(head) == 16
+
+
+def test_cartesian_tree_program_through_the_files(tmp_path, tree5):
+    nominal, _, res = tree5
+    program = _program(nominal, 6, 9)
+    T = tip_pose(nominal, "right", program)
+    quat = np.array([matrix_to_quat_wxyz(R) for R in T[:, :3, :3]])
+    header = [*(f"torso.{j}" for j in nominal["torso"].joint_names), *(f"right.{j}" for j in nominal["right"].joint_names),
+              *(f"right.{k}" for k in ("x", "y", "z", "qw", "qx", "qy", "qz"))]
+    path = _write(tmp_path / "poses.csv", header, np.hstack([program["torso"], program["right"], T[:, :3, 3], quat]))
+    prog = read_program(path, nominal)
+    assert prog.form == "poses" and set(prog.poses) == {"right"} and set(prog.q) == {"torso", "right"}
+    comp = compensate_poses(res.robot, prog.poses, prog.q, nominal=nominal)
+    assert set(comp.held) == {"torso"}
+    write_program(tmp_path / "out.csv", prog, res.robot, comp)
+    head = (tmp_path / "out.csv").read_text().splitlines()[0].split(",")
+    assert head[:2] == ["torso.t1", "torso.t2"] and head[-1] == "right.status"
+    ok = comp.status["right"] == "ok"
+    reached = tip_pose(res.robot, "right", {"torso": program["torso"], "right": comp.q["right"]})
+    assert ok.sum() >= 5 and np.abs(reached[ok] - T[ok]).max() < 1e-6
