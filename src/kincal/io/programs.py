@@ -95,7 +95,7 @@ def _arms(path: Path, table: Table, robot: Robot) -> list[str]:
                 raise DataFormatError(f"{path}: line {table.header_line}, column '{first}': missing; arm '{a}' is "
                                       f"mounted on '{c}', whose readings each target of '{a}' needs (held fixed "
                                       f"while '{a}' is solved)")
-    return [a for a in robot.arms if a in arms]
+    return arms
 
 
 def _form(table: Table, arms) -> str:
@@ -115,9 +115,10 @@ def _joint_columns(table: Table, a: str, m, scale: np.ndarray) -> np.ndarray:
     q = derive_readings(m.couplings, m.joint_names, given)
     bad = np.argwhere(np.abs(q - given)[:, free] > COUPLING_TOL)
     if len(bad):
-        r, j = bad[0][0], m.joint_names[free[bad[0][1]]]
-        raise DataFormatError(f"{table.path}: line {table.lines[r]}, column '{a}.{j}': {given[r, free[bad[0][1]]]:.6g} "
-                              f"disagrees with the coupling of {j} ({q[r, free[bad[0][1]]]:.6g} SI from the joints it "
+        r, i = bad[0][0], free[bad[0][1]]
+        j = m.joint_names[i]
+        raise DataFormatError(f"{table.path}: line {table.lines[r]}, column '{a}.{j}': {given[r, i] / scale[i]:.6g} "
+                              f"disagrees with the coupling of {j} ({q[r, i] / scale[i]:.6g} from the joints it "
                               f"follows; model field arms.{a}.couplings.{j})")
     return q
 
@@ -148,7 +149,6 @@ def write_program(path, program: Program, robot: Robot, comp, *, overwrite: bool
         for i, row in enumerate(values):
             fh.write(",".join([repr(float(x)) for x in row] + [str(s[i]) for s in status]) + "\n")
     return Path(path)
-
 
 
 def _joint_block(program: Program, robot: Robot, a: str, q: np.ndarray, header: list, cols: list, fa, fl) -> None:
