@@ -362,3 +362,13 @@ def test_cartesian_tree_program_through_the_files(tmp_path, tree5):
     ok = comp.status["right"] == "ok"
     reached = tip_pose(res.robot, "right", {"torso": program["torso"], "right": comp.q["right"]})
     assert ok.sum() >= 5 and np.abs(reached[ok] - T[ok]).max() < 1e-6
+
+
+def test_cli_fk_of_a_mounted_arm_is_its_world_pose(capsys):
+    nominal = robots.load("dual7_torso")
+    q = {"torso": np.array([0.2, 0.1]), "left": np.linspace(-0.3, 0.3, 7)}
+    args = ["fk", "dual7_torso", "--arm", "left", "--q-rad", ",".join(str(float(x)) for x in np.concatenate([q["torso"], q["left"]])),
+            "--json"]
+    assert main(args) == 0
+    data = yaml.safe_load(capsys.readouterr().out)
+    assert np.allclose(data["matrix"], tip_pose(nominal, "left", q), atol=1e-12)
