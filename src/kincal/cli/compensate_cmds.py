@@ -29,7 +29,8 @@ FAILED_EXIT = 1
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
 def compensate_cmd(calibrated, program: Path, nominal, output: Path, angle, length, overwrite) -> None:
     """Compensate PROGRAM.csv (joint targets in model or controller order, or Cartesian tool poses with their
-    nominal joint values) for the CALIBRATED model. Exit 1 when some rows could not be compensated (they are
+    nominal joint values) for the CALIBRATED model. On a tree-structured robot the carriers' readings (a torso's)
+    are held as given and the arms on them solved. Exit 1 when some rows could not be compensated (they are
     named here and marked in the output)."""
     cal, nom = load_robot(calibrated), load_robot(nominal)
     prog = read_program(program, nom, angle, length)
@@ -41,8 +42,11 @@ def compensate_cmd(calibrated, program: Path, nominal, output: Path, angle, leng
     console = _console()
     failed = comp.failed()
     rows = len(prog.lines)
-    console.print(f"wrote {output}: {rows} rows, {rows * len(prog.q) - len(failed)} arm targets compensated, "
+    console.print(f"wrote {output}: {rows} rows, {rows * len(comp.q) - len(failed)} arm targets compensated, "
                   f"{len(failed)} not")
+    for arm in comp.held:
+        console.print(f"  arm '{arm}' carries {', '.join(a for a in comp.q if arm in cal.lineage(a))}: its readings "
+                      "are held as the program gives them (the carried arms are solved through it)")
     for arm, i, status in failed[:SHOWN]:
         console.print(f"  {program}: line {prog.lines[i]}, arm '{arm}': {status} (remaining "
                       f"{comp.position_error[arm][i] * 1e3:.3g} mm)")

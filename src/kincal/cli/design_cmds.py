@@ -98,11 +98,17 @@ def _design(source, K, free, criterion, pool, seed, limits, console):
                   f"{d.random:.6g} for the median of 20 random designs; rank {d.rank} of {d.free}")
     console.print(f"predicted tool position std over the workspace: {d.tool_rms * 1e3:.4g} mm RMS "
                   f"(max {d.tool_max * 1e3:.4g}); random designs of {K}: {d.random_tool_rms * 1e3:.4g} mm RMS")
+    if robot.mounts:
+        console.print(f"tree: {', '.join(f'{a} on {c}' for a, c in robot.mounts.items())}; the targets set every "
+                      "joint of the composite chains, the carriers' once", highlight=False)
+    if d.unidentifiable:
+        console.print(f"not identifiable from this experiment: {', '.join(d.unidentifiable)}", highlight=False)
     summary = _common(source, criterion, free, pool if given is None else d.pool, seed) | {
         "experiment": kind, "configurations": K, "candidates": d.pool, "rank": d.rank, "free_parameters": d.free,
         "criterion_value": d.selection.value, "criterion_random_median": d.random,
         "exchanges": d.selection.exchanges, "tool_position_std_rms_m": d.tool_rms,
-        "tool_position_std_max_m": d.tool_max, "tool_position_std_rms_random_m": d.random_tool_rms}
+        "tool_position_std_max_m": d.tool_max, "tool_position_std_rms_random_m": d.random_tool_rms,
+        "not_identifiable": list(d.unidentifiable)} | ({"mounts": dict(robot.mounts)} if robot.mounts else {})
     return robot, dict(d.dataset.q), summary
 
 

@@ -9,7 +9,7 @@ import click
 from kincal.cli.calibrate_cmds import _console
 from kincal.errors import DataFormatError
 from kincal.io.dh_table import read_dh_table
-from kincal.io.export import FORMATS, export_text, import_urdf, write_text
+from kincal.io.export import FORMATS, export_text, export_tree, import_urdf, write_text
 from kincal.io.ur_ros import ur_ros_text
 from kincal.io.models import dump_robot, load_robot, select_arm
 from kincal.kinematics import Robot
@@ -53,12 +53,20 @@ def import_cmd(source: Path, base_link, tip_link, arm, name, output: Path, overw
                    "channel in motor units), json, ur-ros (the Universal Robots ROS driver's kinematics file).")
 @click.option("--ur-hash", default=None, help="ur-ros: the robot's calibration checksum (the hash line "
               "ur_calibration writes for it), which the driver checks at start-up.")
-@click.option("--arm", default=None, help="Arm to export (default: the only one).")
+@click.option("--arm", default=None, help="Arm to export (default: the only one; a tree-structured robot: every "
+              "arm in one file, urdf or controller; a mounted arm: its chain with its carriers).")
 @click.option("-o", "--output", type=click.Path(path_type=Path), required=True)
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
 def export_cmd(model: Path, fmt: str, ur_hash, arm, output: Path, overwrite: bool) -> None:
     """Write MODEL (a model file or built-in name, e.g. a calibration's model.yaml) in another format."""
     robot = load_robot(model)
+    if arm is None and robot.mounts and fmt != "json":  # a tree: every arm in one file
+        text, notes = export_tree(robot, fmt)
+        write_text(output, text, overwrite)
+        _console().print(f"wrote {output} ({fmt}, the tree: {_tree_words(robot)})", highlight=False)
+        for note in notes:
+            _console().print(f"note: {note}", highlight=False)
+        return
     if arm is None and fmt != "json":
         select_arm(robot)  # one arm, or an error naming them
     name = arm or next(iter(robot.arms))
@@ -74,6 +82,10 @@ def export_cmd(model: Path, fmt: str, ur_hash, arm, output: Path, overwrite: boo
     console.print(f"wrote {output} ({fmt}, arm '{name}')")
     for note in notes:
         console.print(f"note: {note}", highlight=False)
+
+
+def _tree_words(robot: Robot) -> str:
+    return ", ".join(f"{a} on {robot.mounts[a]}" if a in robot.mounts else a for a in robot.arms)
 
 
 def register(group: click.Group) -> None:

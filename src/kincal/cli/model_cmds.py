@@ -16,6 +16,7 @@ from kincal.cli.calibrate_cmds import _console
 from kincal.io.models import load_robot, select_arm
 from kincal.lie.rotations import matrix_to_quat_wxyz, matrix_to_rpy
 from kincal.kinematics import forward_kinematics
+from kincal.kinematics.tree import tip_model
 from kincal.kinematics.model import REVOLUTE, ArmModel
 
 
@@ -162,11 +163,14 @@ def _plain(x):
 @click.option("--q-rad", default=None, help="Joint readings in radians, comma or space separated (m for prismatic).")
 @click.option("--json", "as_json", is_flag=True, help="Machine-readable output.")
 def fk(source: str, arm: str | None, q_deg: str | None, q_rad: str | None, as_json: bool) -> None:
-    """Tool pose T_world_tool for one joint configuration: matrix, xyz, rpy (deg), quaternion (w, x, y, z)."""
+    """Tool pose T_world_tool for one joint configuration: matrix, xyz, rpy (deg), quaternion (w, x, y, z).
+    A mounted arm (a tree) takes its carriers' readings first (torso, then arm)."""
     if (q_deg is None) == (q_rad is None):
         raise click.UsageError("give the joint readings with exactly one of --q-deg or --q-rad")
     robot = load_robot(source)
     model = select_arm(robot, arm)
+    if arm is not None and len(robot.lineage(arm)) > 1:
+        model = tip_model(robot, arm)  # a mounted arm's tool in the world: its carriers' readings first
     raw = _parse_q(q_deg if q_deg is not None else q_rad, "--q-deg" if q_deg is not None else "--q-rad")
     if raw.size != model.dof:
         raise ShapeError(f"arm '{model.name}' of robot '{robot.name}' has {model.dof} joints "

@@ -12,7 +12,7 @@ from kincal.cli.calibrate_cmds import _console
 from kincal.io.atomic import output_directory, output_file
 from kincal.report import write_plots
 from kincal.report.html import report_html
-from kincal.simulate import random_configurations
+from kincal.simulate import workspace_sample
 from kincal.workflow.outputs import require_plots
 from kincal.workflow.recompute import recompute
 
@@ -34,7 +34,7 @@ def report_cmd(result_dir: Path, output, workspace: int, seed: int, overwrite: b
     out = output or result_dir / "report.html"
     result, prov = recompute(result_dir)
     rng = np.random.default_rng(seed)
-    sample = {a: random_configurations(result.robot[a], workspace, rng) for a in result.state.arms}
+    sample = {a: workspace_sample(result.robot, a, workspace, rng) for a in result.state.arms}
     text = report_html(result, title=f"kincal calibration: {Path(prov['job']).name}", workspace=sample,
                        provenance=prov)
     with output_file(out, overwrite=overwrite) as tmp:

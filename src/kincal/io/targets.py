@@ -3,7 +3,8 @@
 A folder with three files:
 
 - ``targets.csv``: one line per configuration, columns ``<arm>.<joint>`` in model order, rad (m for prismatic
-  joints), the order to measure them in;
+  joints), the order to measure them in; on a tree-structured robot the carriers' columns too (``torso.t1``),
+  each shared joint once;
 - ``controller.csv``: the same targets as the controller takes them, columns ``<arm>.ch<c>`` in controller
   channel order, motor rad via the gear ratios (``motor = q * gear_ratio``, thesis Table 3.1);
 - ``design.yaml``: what was chosen and why (criterion, values against random designs, predicted accuracy).
@@ -40,7 +41,7 @@ def write_targets(directory, robot: Robot, q: Mapping[str, np.ndarray], summary:
 
 
 def _write(folder: Path, robot: Robot, q: Mapping[str, np.ndarray], summary: Mapping) -> None:
-    arms = list(q)
+    arms = sorted(q, key=lambda a: len(robot.lineage(a)))  # a tree's carriers (a torso) before the arms on them
     joints = np.concatenate([q[a] for a in arms], axis=1)
     header = [f"{a}.{j}" for a in arms for j in robot[a].joint_names]
     _csv(folder / "targets.csv", header, joints)

@@ -6,7 +6,8 @@ transform). Joint i with URDF origin ``O_i`` and unit axis ``a_i`` (in its own f
 ``p = t(F_i)`` (revolute, continuous) or ``(w, 0)`` (prismatic); ``home = T_base_link_tip_link`` at q = 0.
 Revolute/prismatic limits are kept (missing lower/upper attributes mean unlimited); continuous joints
 are unlimited. URDF axes are normalized (URDF
-treats ``axis`` as a direction). Mimic, floating and planar joints are refused.
+treats ``axis`` as a direction). Floating and planar joints are refused, and so are mimic joints in a chain import
+(``tree_from_urdf`` reads them as couplings).
 Inertials (``inertials=True``): each link's ``<inertial>`` mass and origin, lumped per moving joint of the chain
 (a link belongs to the last chain joint on its path from base_link: links on fixed joints, side branches and
 links beyond tip_link included, other joints at zero), centres of mass in base_link's frame at q = 0; the
@@ -18,7 +19,10 @@ the base to the first such link is an arm of its own (a torso, named after that 
 mounted on it with ``base`` = identity (its chain starts at the torso's end link, which is the torso's home).
 A segment without moving joints is folded into the bases of the segments below it.
 
-Export (``to_urdf``): one link per joint (named ``<joint>_link``), every joint frame parallel to the arm base
+Mimic joints (``tree_from_urdf``, or ``from_urdf(mimic=True)``) become joint couplings of their arm.
+
+Export of a tree (``tree_to_urdf``): every arm in one URDF, each mounted arm hung on its carrier's tool link; a
+coupling on one joint is written as ``<mimic>``. Export (``to_urdf``): one link per joint (named ``<joint>_link``), every joint frame parallel to the arm base
 frame at q = 0,
 so axes are generally not along z; joint offsets are folded into the origins
 (``exp(xi (q + o)) = F exp(xi_local o) exp(xi_local q) F^-1``). Meant for cross-checks (pinocchio).
@@ -32,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from kincal.errors import DataFormatError, ModelError
+from kincal.kinematics.couplings import CONSTANT, coupling_map
 from kincal.kinematics.model import PRISMATIC, REVOLUTE, ArmModel, Robot
 from kincal.lie import se3
 from kincal.lie.rotations import matrix_to_rpy
@@ -83,14 +88,16 @@ def _chain(robot, base_link: str, tip_link: str, label: str) -> list:
 
 
 def from_urdf(source, base_link: str, tip_link: str, *, name: str | None = None, inertials: bool = True,
-              **model_fields) -> ArmModel:
+              mimic: bool = False, **model_fields) -> ArmModel:
     """ArmModel of the URDF chain from ``base_link`` to ``tip_link`` (``home = T_base_link_tip_link`` at q = 0).
 
     ``source`` is a URDF file path or URDF text. ``model_fields`` go to ArmModel (base, tool, gear_ratios,
     gravity, ...). Joint names are the URDF joint names. ``inertials``: read the links' masses and centres of
-    mass (module docstring).
+    mass (module docstring). ``mimic``: read mimic joints as couplings (``ArmModel.couplings``: the joint's
+    reading is ``multiplier x`` the mimicked joint's ``+ offset``; both in the chain), else refuse them.
     """
     robot, label = _load(source)
+    couplings = {}
     T = np.eye(4)
     screws, names, types, lower, upper = [], [], [], [], []
     for joint in _chain(robot, base_link, tip_link, label):
@@ -102,8 +109,13 @@ def from_urdf(source, base_link: str, tip_link: str, *, name: str | None = None,
             raise DataFormatError(
                 f"{label}: joint {joint.name!r}: type {joint.type!r} is not supported in a serial chain"
             )
+        if joint.mimic is not None and not mimic:
+            raise DataFormatError(f"{label}: joint {joint.name!r}: mimic joints are not supported in a chain import "
+                                  "(tree_from_urdf reads them as joint couplings)")
         if joint.mimic is not None:
-            raise DataFormatError(f"{label}: joint {joint.name!r}: mimic joints are not supported")
+            couplings[joint.name] = {joint.mimic.joint: float(1.0 if joint.mimic.multiplier is None
+                                                              else joint.mimic.multiplier),
+                                     CONSTANT: float(joint.mimic.offset or 0.0)}
         axis = np.asarray(joint.axis, dtype=float)
         norm = np.linalg.norm(axis)
         if not np.isfinite(norm) or norm < 1e-9:
@@ -126,6 +138,13 @@ def from_urdf(source, base_link: str, tip_link: str, *, name: str | None = None,
         types.append(kind)
     if not screws:
         raise DataFormatError(f"{label}: no moving joint between {base_link!r} and {tip_link!r}")
+    for joint, terms in couplings.items():
+        lead = next(iter(terms))
+        if lead not in names:
+            raise DataFormatError(f"{label}: joint {joint!r}: mimics joint {lead!r}, which is not a moving joint of "
+                                  f"the chain {base_link!r} -> {tip_link!r}")
+    if couplings:
+        model_fields.setdefault("couplings", couplings)
     model_fields.setdefault("lower", lower)
     model_fields.setdefault("upper", upper)
     if inertials:
@@ -159,7 +178,7 @@ def tree_from_urdf(source, base_link: str, tips: dict[str, str] | None = None, *
             base = carried.get(start, np.eye(4))  # a fixed segment above folds into this base
             parent = next((k for k in arms if k == start), None)
             try:
-                arms[key] = from_urdf(source, start, end, name=key, base=base)
+                arms[key] = from_urdf(source, start, end, name=key, base=base, mimic=True)
             except DataFormatError as exc:
                 if "no moving joint" not in str(exc):
                     raise
@@ -220,9 +239,52 @@ def to_urdf(model: ArmModel, *, root: str = "world", flange: str = "flange", tip
     Joint names are the model's joint names. Revolute joints with infinite limits become 'continuous';
     prismatic joints need finite limits (URDF requires them).
     """
-    rows = [f'<robot name="{model.name}">', f'  <link name="{root}"/>', '  <link name="base"/>']
-    rows += _joint_xml("base_joint", "fixed", root, "base", model.base)
-    previous, prev_link = np.eye(4), "base"
+    rows = [f'<robot name="{model.name}">', f'  <link name="{root}"/>']
+    rows += _arm_rows(model, root, "", "base", flange, tip, {})
+    rows.append("</robot>")
+    return "\n".join(rows) + "\n"
+
+
+def tree_to_urdf(robot: Robot, *, root: str = "world") -> tuple[str, list[str]]:
+    """One branched URDF of every arm of ``robot`` (text, notes): links ``<arm>_base`` -> ``<arm>_<joint>_link``
+    -> ``<arm>_flange`` -> ``<arm>`` (the arm's tool), a mounted arm's base joint hung on its carrier's tool link
+    ``<carrier>``, joints named ``<arm>_<joint>`` (shared joints once). A coupling on one joint becomes a
+    ``<mimic>`` (readings: joint offsets are folded into the origins); one on several joints cannot be written
+    in URDF: the joint is written free and a note says so. ``tree_from_urdf(text, root)`` reads it back with the
+    same arms, mounts and forward kinematics."""
+    rows, notes = [f'<robot name="{robot.name}">', f'  <link name="{root}"/>'], []
+    for arm in sorted(robot.arms, key=lambda a: len(robot.lineage(a))):  # carriers before what they carry
+        model, line = robot[arm], robot.lineage(arm)
+        mimics, dropped = _mimics(model, f"{arm}_")
+        notes += [f"arm '{arm}': joint {j} follows several joints ({', '.join(d)}); URDF's mimic takes one: "
+                  f"written as a free joint (give its reading)" for j, d in dropped.items()]
+        parent = root if len(line) == 1 else line[-2]
+        rows += _arm_rows(model, parent, f"{arm}_", f"{arm}_base", f"{arm}_flange", arm, mimics)
+    rows.append("</robot>")
+    return "\n".join(rows) + "\n", notes
+
+
+def _mimics(model: ArmModel, prefix: str) -> tuple[dict[str, str], dict[str, list[str]]]:
+    """(joint -> ``<mimic>`` element, joint -> its several leading joints) of ``model``'s couplings, resolved
+    through chains of couplings (``kincal.kinematics.couplings.coupling_map``)."""
+    A, b = coupling_map(model.couplings, model.joint_names)
+    out, dropped = {}, {}
+    for j in model.couplings:
+        i = model.joint_names.index(j)
+        lead = np.flatnonzero(A[i])
+        if len(lead) == 1:
+            out[j] = (f'<mimic joint="{prefix}{model.joint_names[lead[0]]}" multiplier="{float(A[i, lead[0]])!r}" '
+                      f'offset="{float(b[i])!r}"/>')
+        else:
+            dropped[j] = [model.joint_names[k] for k in lead]
+    return out, dropped
+
+
+def _arm_rows(model: ArmModel, parent: str, prefix: str, base: str, flange: str, tip: str, mimics) -> list[str]:
+    """The links and joints of ``model`` hung on link ``parent`` (``to_urdf``)."""
+    rows = [f'  <link name="{base}"/>']
+    rows += _joint_xml(f"{prefix}base_joint", "fixed", parent, base, model.base)
+    previous, prev_link = np.eye(4), base
     for i, (jname, kind) in enumerate(zip(model.joint_names, model.joint_types)):
         v, w = se3.split(model.screws[i])
         if kind == REVOLUTE:
@@ -233,7 +295,7 @@ def to_urdf(model: ArmModel, *, root: str = "world", flange: str = "flange", tip
             local = se3.join(v, np.zeros(3))
         frame = se3.make(np.eye(3), point)
         origin = se3.inverse(previous) @ frame @ se3.exp(local * model.offsets[i])
-        link = f"{jname}_link"
+        link = f"{prefix}{jname}_link"
         rows.append(f'  <link name="{link}"/>')
         lo, up = model.lower[i], model.upper[i]
         if kind == REVOLUTE and not (np.isfinite(lo) and np.isfinite(up)):
@@ -246,13 +308,12 @@ def to_urdf(model: ArmModel, *, root: str = "world", flange: str = "flange", tip
             jtype = "revolute" if kind == REVOLUTE else "prismatic"
             limit = f'<limit lower="{float(lo)!r}" upper="{float(up)!r}" effort="0" velocity="0"/>'
         axis_xml = f'<axis xyz="{" ".join(repr(float(a)) for a in axis)}"/>'
-        rows += _joint_xml(jname, jtype, prev_link, link, origin, axis_xml + limit)
+        rows += _joint_xml(f"{prefix}{jname}", jtype, prev_link, link, origin, axis_xml + limit + mimics.get(jname, ""))
         previous, prev_link = frame, link
     rows += [f'  <link name="{flange}"/>', f'  <link name="{tip}"/>']
-    rows += _joint_xml("flange_joint", "fixed", prev_link, flange, se3.inverse(previous) @ model.home)
-    rows += _joint_xml("tool_joint", "fixed", flange, tip, model.tool)
-    rows.append("</robot>")
-    return "\n".join(rows) + "\n"
+    rows += _joint_xml(f"{prefix}flange_joint", "fixed", prev_link, flange, se3.inverse(previous) @ model.home)
+    rows += _joint_xml(f"{prefix}tool_joint", "fixed", flange, tip, model.tool)
+    return rows
 
 
 def _joint_xml(name: str, jtype: str, parent: str, child: str, origin: np.ndarray, extra: str = "") -> list[str]:

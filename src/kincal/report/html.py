@@ -4,7 +4,9 @@ inline as PNG.
 Order: what a person needs first. The verdict (status, whether the model can be trusted, what cannot be
 identified, what to measure next), then the estimates, residuals and validation, the singular value spectrum,
 a predicted accuracy map over the workspace, and where it all came from (job, input files with SHA-256,
-kincal version, date).
+kincal version, date). A tree-structured robot (``Robot.mounts``) gets a table of which arm carries which and
+whose parameters each carrier's estimates move (a torso's once, for every arm on it); validation and the accuracy
+map of a mounted arm go through its carriers (the composite chain).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from kincal.kinematics import forward_kinematics
+from kincal.kinematics.tree import tip_pose
 from kincal.report.plots import _prediction, _pyplot, _residuals, _spectrum, _uncertainty
 
 DEG = 180.0 / math.pi
@@ -40,6 +43,8 @@ def report_html(result, *, title: str, workspace: Mapping[str, np.ndarray] | Non
     ``provenance``: job, inputs (file, sha256), version, date; ``next_steps``: what to measure next, in words."""
     plt = _pyplot()
     parts = [f"<h1>{_e(title)}</h1>", _verdict(result, next_steps)]
+    if result.robot.mounts:
+        parts += ["<h2>Tree: which arm carries which</h2>", tree_table(result)]
     parts += ["<h2>Estimates</h2>", _estimates(result), _image(plt, _uncertainty(plt, result))]
     parts += ["<h2>Residuals before and after</h2>", _residual_table(result), _image(plt, _residuals(plt, result))]
     if result.stages:
@@ -139,6 +144,27 @@ def _estimates(result) -> str:
     return out
 
 
+def tree_table(result) -> str:
+    """One row per arm of a tree-structured robot: what carries it, what it carries (every arm whose pose its
+    joints and parameters move), its joints and its estimates (each shared parameter once, under its arm)."""
+    robot = result.robot
+    rows = ["<tr><th>arm</th><th>mounted on</th><th>carries</th><th>joints</th><th>estimated parameters</th></tr>"]
+    for arm in robot.arms:
+        line = robot.lineage(arm)
+        carried = [a for a in robot.arms if a != arm and arm in robot.lineage(a)]
+        count = sum(1 for e in result.estimates if e.name.startswith(f"{arm}."))
+        rows.append(f"<tr><td>{_e(arm)}</td><td>{_e(' -> '.join(line[:-1])) or '(the base)'}</td>"
+                    f"<td>{_e(', '.join(carried)) or '-'}</td><td>{_e(', '.join(robot[arm].joint_names))}</td>"
+                    f"<td>{count}</td></tr>")
+    return ("<p>A carrier's parameters (a torso's) exist once: they move every arm it carries, and the estimates "
+            "table lists them once.</p><table>" + "".join(rows) + "</table>")
+
+
+def _tip(robot, arm: str) -> str:
+    line = robot.lineage(arm) if arm in robot.arms else (arm,)
+    return arm if len(line) == 1 else f"{arm} (on {' -> '.join(line[:-1])})"
+
+
 def _residual_table(result) -> str:
     rows = ["<tr><th>data set</th><th>kind</th><th>samples</th><th>position RMS before (mm)</th>"
             "<th>after</th><th>orientation RMS before (deg)</th><th>after</th></tr>"]
@@ -161,20 +187,27 @@ def _stage_table(result) -> str:
 
 
 def _validation(result) -> str:
-    rows = ["<tr><th>held-out set</th><th>samples</th><th>position RMS, nominal model (mm)</th>"
+    """One row per held-out set; the arm (a tip, through its carriers) where the prediction says which."""
+    arms = {name: p.arm for name, p in result.predictions}
+    rows = ["<tr><th>held-out set</th><th>arm</th><th>samples</th><th>position RMS, nominal model (mm)</th>"
             "<th>calibrated</th><th>orientation RMS, nominal (deg)</th><th>calibrated</th></tr>"]
     for v in result.validation:
-        rows.append(f"<tr><td>{_e(v.experiment)}</td><td>{v.after.samples}</td>"
+        arm = arms.get(v.experiment)
+        rows.append(f"<tr><td>{_e(v.experiment)}</td><td>{_e(_tip(result.robot, arm)) if arm else '-'}</td>"
+                    f"<td>{v.after.samples}</td>"
                     f"<td>{_num(v.before.position_rms, 1e3)}</td><td>{_num(v.after.position_rms, 1e3)}</td>"
                     f"<td>{_num(v.before.orientation_rms, DEG)}</td><td>{_num(v.after.orientation_rms, DEG)}</td></tr>")
     return "<table>" + "".join(rows) + "</table>"
 
 
-def accuracy_map(plt, result, arm: str, q: np.ndarray):
+def accuracy_map(plt, result, arm: str, q):
     """Top and side views of the tool positions at configurations q, coloured by the predicted standard
-    deviation of the calibrated tool position (mm)."""
+    deviation of the calibrated tool position (mm). A mounted arm: q maps its lineage's arms to readings
+    (``kincal.simulate.workspace_sample``), the tool through its carriers."""
     pred = result.predict(q, arm)
-    p = forward_kinematics(result.robot[arm], q)[:, :3, 3]
+    mounted = isinstance(q, Mapping)
+    p = (tip_pose(result.robot, arm, q) if mounted else forward_kinematics(result.robot[arm], q))[:, :3, 3]
+    n = len(p)
     std = pred.position_std * 1e3
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.4))
     for ax, (i, j, label) in zip(axes, ((0, 1, "top view: x, y"), (0, 2, "side view: x, z"))):
@@ -184,7 +217,7 @@ def accuracy_map(plt, result, arm: str, q: np.ndarray):
         ax.set_title(label)
         ax.set_aspect("equal", adjustable="datalim")
     fig.colorbar(sc, ax=axes, label="predicted tool position std [mm]")
-    fig.suptitle(f"arm '{arm}': predicted accuracy at {len(q)} configurations (RMS {np.sqrt(np.mean(std**2)):.3g} "
+    fig.suptitle(f"arm '{_tip(result.robot, arm)}': predicted accuracy at {n} configurations (RMS {np.sqrt(np.mean(std**2)):.3g} "
                  f"mm, max {std.max():.3g} mm){'' if pred.trusted else ' - NOT TRUSTED'}")
     return fig
 

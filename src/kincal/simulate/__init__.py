@@ -11,6 +11,8 @@ API summary (SI units; ``rng`` is a numpy Generator or an integer seed; same see
     generate_socket(robot, arm, n=, rng=, noise=, p_world_socket=, known_socket=)
     GENERATORS[kind], OPTIONS[kind]                              every generator (kincal.simulate.generators, one
                                                                  module per kind) and its scenario options
+    tip_configurations(robot, arm, n, rng) -> {arm: q}            readings of an arm with its carriers (trees)
+    workspace_sample(robot, arm, n, rng)                         readings as analysis.prediction takes them
     dataset_spread(dataset, robot, truth) -> {arm: JointSpread}   per-joint range, weak joints, branches
     solve_ik(model, T_world_tool, q0) / solve_closed_chain(model_a, model_b, T_toolA_toolB, q0_a, q0_b) -> IKResult
     explore(constraint, rng, ...) -> Exploration                 self-motion walks (clamped / closed chain)
@@ -36,7 +38,9 @@ from kincal.simulate.generators import (
     plate_layout,
     random_configurations,
     reachable_pose,
+    tip_configurations,
     validation_set,
+    workspace_sample,
 )
 from kincal.simulate.ik import (
     ClosedChainConstraint,
@@ -59,5 +63,5 @@ __all__ = [
     "dataset_spread", "explore", "generate_clamp", "generate_dual", "generate_markers", "generate_plate",
     "generate_pose", "generate_socket", "joint_spread", "perturb_arm", "perturb_robot", "perturbation",
     "plate_layout", "random_configurations", "reachable_pose", "solve", "solve_closed_chain", "solve_ik",
-    "validation_set",
+    "tip_configurations", "validation_set", "workspace_sample",
 ]

@@ -18,7 +18,7 @@ from kincal.errors import ModelError
 from kincal.estimation import Problem, SolverOptions
 from kincal.estimation.plan import Plan, plan
 from kincal.kinematics import Robot
-from kincal.simulate import random_configurations
+from kincal.simulate import workspace_sample
 
 WORKSPACE_SAMPLES = 200
 
@@ -61,7 +61,7 @@ def analyze(robot: Robot, datasets, free="offsets", *, fixed: Sequence[str] = ()
     problem = Problem.build(robot, datasets, free, fixed=fixed, priors=priors, noise=noise, constraints=constraints)
     p = plan(problem, options, held)
     rng = np.random.default_rng(seed)
-    qs = {arm: random_configurations(robot[arm], workspace, rng) for arm in p.result.state.arms}
+    qs = {arm: workspace_sample(robot, arm, workspace, rng) for arm in p.result.state.arms}
     preds = {arm: p.result.predict(q, arm) for arm, q in qs.items()}
     held_tool: dict[str, dict[str, ToolEffect]] = {}
     shift, error_tool = None, {}

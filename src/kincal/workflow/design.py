@@ -10,6 +10,10 @@ half-angle of the direction to the tracker).
 The pool is linearized once at the nominal model (``Problem.linearize``): each candidate's whitened rows on the
 identifiable subspace feed ``kincal.analysis.design.select``. The I and G criteria use the tool position's
 sensitivity over a workspace sample (registered as validation registers).
+
+Tree-structured robots: the generators draw the carriers' readings with the arms' (a torso moves with them), so
+every candidate is a configuration of the composite chain and the selection weighs the torso's joints like the
+arms'; the limits, the workspace box and the workspace sample go through the composite chain.
 """
 
 from __future__ import annotations
@@ -25,9 +29,10 @@ from kincal.data import Dataset
 from kincal.errors import DegenerateExperimentError, ModelError
 from kincal.estimation import Problem, SolverOptions
 from kincal.estimation.plan import identifiable_basis, plan
-from kincal.kinematics import Robot, forward_kinematics
+from kincal.kinematics import Robot
+from kincal.kinematics.tree import tip_pose
 from kincal.noise import Noise
-from kincal.simulate import GENERATORS, random_configurations
+from kincal.simulate import GENERATORS, workspace_sample
 from kincal.simulate.noise import Noise as SimNoise
 
 RANDOM_DRAWS = 20
@@ -40,7 +45,8 @@ class Design:
     selection, the criterion of random designs of the same size (``random``: median, and all draws), the
     identifiable rank and the predicted tool position error (m, RMS and max over the workspace sample) of
     the designed design and the median over the random ones; ``outside``: the pool's configurations left out
-    for lying outside the joint limits."""
+    for lying outside the joint limits; ``unidentifiable``: the robot's free parameters the experiment cannot
+    determine (a torso's, from a dual clamp)."""
 
     dataset: Dataset
     pool: int
@@ -53,6 +59,7 @@ class Design:
     tool_max: float
     random_tool_rms: float
     outside: int = 0
+    unidentifiable: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -89,7 +96,7 @@ def _within(ds: Dataset, robot: Robot, truth, limits: Candidates) -> np.ndarray:
         raise ModelError(f"a workspace box or line-of-sight cone applies to tracker experiments (pose, markers), "
                          f"not to '{ds.kind}'")
     (arm,) = ds.arms
-    T = forward_kinematics(robot[arm], ds.q[arm])
+    T = tip_pose(robot, arm, ds.q)  # a mounted arm's through its carriers
     if limits.box is not None:
         lo, hi = limits.box
         keep &= np.all((T[:, :3, 3] >= lo) & (T[:, :3, 3] <= hi), axis=1)
@@ -136,17 +143,24 @@ def choose(robot: Robot, pool: Dataset, K: int, *, free="offsets", criterion: st
     values = np.array([criterion_value(information(X[d]), criterion, W, K) for d in draws])
     tools = [_tool_error(information(X[d]), W)[0] for d in draws]
     tool = _tool_error(information(X[sel.indices]), W)
-    return Design(pool.subset(sel.indices), pool.size, sel, p.rank, len(p.identifiability.names),
-                  float(np.median(values)), values, tool[0], tool[1], float(np.median(tools)), outside)
+    ident = p.identifiability
+    return Design(pool.subset(sel.indices), pool.size, sel, p.rank, len(ident.names), float(np.median(values)),
+                  values, tool[0], tool[1], float(np.median(tools)), outside,
+                  tuple(n for n, ok in zip(ident.names, ident.identifiable) if not ok and n.split(".")[0] in robot.arms))
 
 
 def _within_limits(robot: Robot, pool: Dataset) -> tuple[Dataset, int]:
     """The pool without its configurations outside the joint limits, and how many those were."""
-    keep = np.logical_and.reduce([robot[a].within_limits(pool.q[a]) for a in pool.arms])
+    keep = np.logical_and.reduce([robot[a].within_limits(pool.q[a]) for a in _readings_of(robot, pool)])
     if not keep.any():
         raise ModelError(f"none of the {pool.size} configurations of data set '{pool.name}' lies within the joint "
                          "limits: give configurations within the model's limits")
     return (pool if keep.all() else pool.subset(np.flatnonzero(keep))), int((~keep).sum())
+
+
+def _readings_of(robot: Robot, ds: Dataset) -> list[str]:
+    """The arms whose readings a configuration of ``ds`` sets: its arms and their carriers (a torso)."""
+    return [a for a in robot.arms if a in ds.q and any(a in robot.lineage(b) for b in ds.arms)]
 
 
 def ds_rows(problem: Problem) -> int:
@@ -165,8 +179,7 @@ def _candidate_rows(problem: Problem, p, V: np.ndarray) -> np.ndarray:
 def _workspace_rows(robot: Robot, p, V: np.ndarray, n: int, seed: int) -> np.ndarray:
     """(arms * n, 3, r): the registered tool position's sensitivity over a workspace sample of every arm."""
     rng = np.random.default_rng(seed + 2)
-    out = [tool_motion(p.result, random_configurations(robot[a], n, rng), a, V)[:, :3, :]
-           for a in p.result.state.arms]
+    out = [tool_motion(p.result, workspace_sample(robot, a, n, rng), a, V)[:, :3, :] for a in p.result.state.arms]
     return np.concatenate(out)
 
 

@@ -19,7 +19,8 @@ from kincal.data import Dataset
 from kincal.errors import DataFormatError
 from kincal.io import jobs
 from kincal.io.planjobs import PREDICTABLE, Plan
-from kincal.kinematics import Robot, forward_kinematics
+from kincal.kinematics import Robot
+from kincal.kinematics.tree import tip_pose
 from kincal.lie import se3
 from kincal.schema import SCHEMAS
 from kincal.simulate import GENERATORS, Noise
@@ -52,12 +53,13 @@ def _configurations(plan: Plan, robot: Robot) -> Dataset:
     gives its arms, known frames and nominal frame values."""
     ds, truth, _ = GENERATORS[plan.kind](robot, n=1, rng=0, noise=Noise(), n_validation=1, **plan.options)
     table = plan.table
-    q = {a: table.take([f"{a}.{j}" for j in robot[a].joint_names]) * plan.angle for a in ds.arms}
+    arms = list(dict.fromkeys(c for a in ds.arms for c in robot.lineage(a)))  # a mounted arm's carriers too
+    q = {a: table.take([f"{a}.{j}" for j in robot[a].joint_names]) * plan.angle for a in arms}
     extra = [c for c in table.header if c not in table.used]
     if extra:
         raise DataFormatError(f"{table.path}: line {table.header_line}, column '{extra[0]}': not a joint of the "
                               f"experiment's arms; expected the columns "
-                              f"{', '.join(f'{a}.{j}' for a in ds.arms for j in robot[a].joint_names)}")
+                              f"{', '.join(f'{a}.{j}' for a in arms for j in robot[a].joint_names)}")
     measured = {k: _NOMINAL[k](robot, ds.arms, q, truth.values) for k in PREDICTABLE
                 if any(m.key == k for m in SCHEMAS[plan.kind].measured)}
     return Dataset(plan.kind, robot.name, ds.arms, q, measured, dict(ds.known), plan.name, {})
@@ -65,7 +67,7 @@ def _configurations(plan: Plan, robot: Robot) -> Dataset:
 
 def _tool_in_tracker(robot: Robot, arms, q, values) -> np.ndarray:
     (arm,) = arms
-    return se3.inverse(values["T_world_tracker"]) @ forward_kinematics(robot[arm], q[arm])
+    return se3.inverse(values["T_world_tracker"]) @ tip_pose(robot, arm, q)  # through a mounted arm's carriers
 
 
 def _markers_in_tracker(robot: Robot, arms, q, values) -> np.ndarray:

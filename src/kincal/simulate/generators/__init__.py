@@ -23,7 +23,7 @@ import pkgutil
 
 from kincal.simulate.generators._clamped import reachable_pose
 from kincal.simulate.generators._common import (REGISTRY, Generator, Option, dataset_spread, random_configurations,
-                                                validation_set)
+                                                tip_configurations, validation_set, workspace_sample)
 from kincal.simulate.generators._tracker import random_markers, random_tracker_pose, random_wrenches
 
 
@@ -44,4 +44,5 @@ GENERATORS = {kind: g.function for kind, g in REGISTRY.items()}
 OPTIONS = {kind: g.options for kind, g in REGISTRY.items()}
 
 __all__ = ["GENERATORS", "OPTIONS", "Generator", "Option", "dataset_spread", "random_configurations",
-           "random_markers", "random_tracker_pose", "random_wrenches", "reachable_pose", "validation_set", *_PUBLIC]
+           "random_markers", "random_tracker_pose", "random_wrenches", "reachable_pose", "tip_configurations",
+           "validation_set", "workspace_sample", *_PUBLIC]

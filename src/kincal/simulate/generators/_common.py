@@ -120,6 +120,23 @@ def random_configurations(model: ArmModel, n: int, rng: np.random.Generator, mar
     return rng.uniform(lo, hi, (n, model.dof))
 
 
+def tip_configurations(robot: Robot, arm: str, n: int, rng: np.random.Generator, margin: float = 0.0) -> dict:
+    """n random readings (``random_configurations``) of ``arm`` and every arm carrying it, couplings applied, and
+    of the other arms whose weight loads its carriers (gravity on a tree): arm -> (n, dof)."""
+    q = with_couplings(robot, {s: random_configurations(robot[s], n, rng, margin) for s in robot.lineage(arm)})
+    q.update(hung_readings(robot, arm, n, lambda m, k: random_configurations(m, k, rng, margin)))
+    return q
+
+
+def workspace_sample(robot: Robot, arm: str, n: int, rng: np.random.Generator):
+    """n random readings of ``arm`` as ``analysis.prediction.tool_jacobian`` takes them: (n, dof) for an arm
+    alone (the root of a tree too), a mapping over its lineage and the arms loading it (``tip_configurations``)
+    for a mounted arm."""
+    if len(robot.lineage(arm)) == 1:
+        return random_configurations(robot[arm], n, rng)
+    return tip_configurations(robot, arm, n, rng)
+
+
 def validation_set(robot: Robot, arms, n: int, rng: np.random.Generator, name: str = "validation") -> dict:
     """``{arm: Dataset(kind="pose")}``: n fresh random configurations with noise-free true tool poses.
 
@@ -130,8 +147,7 @@ def validation_set(robot: Robot, arms, n: int, rng: np.random.Generator, name: s
     """
     out = {}
     for a in arms:
-        q = with_couplings(robot, {s: random_configurations(robot[s], n, rng) for s in robot.lineage(a)})
-        q.update(hung_readings(robot, a, n, lambda m, k: random_configurations(m, k, rng)))  # gravity on a tree
+        q = tip_configurations(robot, a, n, rng)
         line = robot.lineage(a)
         if tree_has_gravity(robot, a):  # sags under the whole tree's weight
             T = true_tool_poses(robot, a, tip_model(robot, a), np.concatenate([q[s] for s in line], -1), None,

@@ -1,4 +1,8 @@
-"""A calibrated pinhole camera sees one point on the tool at random configurations (kind ``camera``)."""
+"""A calibrated pinhole camera sees one point on the tool at random configurations (kind ``camera``).
+
+A mounted arm (``Robot.mounts``) is simulated through its composite chain (``kincal.kinematics.tree.tip_model``):
+its carriers (a torso) move too, their readings are in the data set, and on a tree with gravity the tool sags
+under the whole tree's weight (``_tree.true_tool_poses``)."""
 
 from __future__ import annotations
 
@@ -9,6 +13,7 @@ from kincal.data import Dataset
 from kincal.errors import DegenerateExperimentError
 from kincal.experiments.camera import project
 from kincal.kinematics import Robot, forward_kinematics
+from kincal.kinematics.tree import tip_model
 from kincal.lie import se3
 from kincal.noise import PIXEL, Noise
 from kincal.schema import LENGTH, NONE
@@ -16,6 +21,7 @@ from kincal.simulate.generators._common import (ARM, Option, check_n, count_opti
                                                 known_option, noisy_readings, pick_arm, pose_or,
                                                 random_configurations)
 from kincal.simulate.generators._tracker import random_markers, random_tracker_pose
+from kincal.simulate.generators._tree import coupled_readings, hung_readings, tip_readings, true_tool_poses
 from kincal.simulate.truth import Truth
 
 __all__ = ["CAMERA_INTRINSICS", "generate_camera"]
@@ -51,12 +57,15 @@ def generate_camera(
     random configurations (limits shrunk by ``margin``) that put the point in front of the camera and inside
     the image (``image`` = width, height in px). Pixel noise: ``noise.other["pixel"]`` (px)."""
     n, rng = check_n(n), np.random.default_rng(rng)
-    arm, model = pick_arm(robot, arm)
+    arm, _ = pick_arm(robot, arm)
+    model = tip_model(robot, arm)  # with the arms carrying it (a torso), whose readings the data set holds too
     K = as_array(intrinsics, "intrinsics", (4,))
     C = pose_or(T_world_camera, "T_world_camera", lambda: random_tracker_pose(robot, arm, rng))
     x = random_markers(1, rng)[0] if p_tool_point is None else as_array(p_tool_point, "p_tool_point", (3,))
+    draw = lambda m, k: random_configurations(m, k, rng, margin)  # noqa: E731
     q = _views(model, n, rng, margin, C, x, K, np.asarray(image, dtype=float))
-    uv = _pixels(model, q, C, x, K)
+    others = hung_readings(robot, arm, len(q), draw)  # the other arms loading the carriers (gravity on a tree)
+    uv = _pixels(robot, arm, model, q, others, C, x, K)
     sigma = noise.sigma(PIXEL)
     if sigma:
         uv = uv + rng.normal(0.0, sigma, uv.shape)
@@ -65,27 +74,33 @@ def generate_camera(
         known["T_world_camera"] = C
     if known_point:
         known["p_tool_point"] = x
-    ds = Dataset("camera", robot.name, (arm,), noisy_readings({arm: q}, noise, rng), {"pixel": uv}, known, "camera",
-                 dataset_meta("camera", noise))
-    truth = Truth(robot, {"T_world_camera": C, "p_tool_point": x}, {arm: q}, noise, {"generator": "camera"})
+    readings = {**tip_readings(robot, arm, noisy_readings({arm: q}, noise, rng)[arm]), **noisy_readings(others, noise, rng)}
+    ds = Dataset("camera", robot.name, (arm,), readings, {"pixel": uv}, known, "camera", dataset_meta("camera", noise))
+    truth = Truth(robot, {"T_world_camera": C, "p_tool_point": x}, {**tip_readings(robot, arm, q), **others}, noise,
+                  {"generator": "camera"})
     # Validate what this experiment observes: noise-free pixels at fresh configurations, camera and point left
     # unknown (refitted); one point says nothing about the tool's orientation, which a pose set would score.
     qv = _views(model, n_validation, rng, margin, C, x, K, np.asarray(image, dtype=float))
-    validation = {arm: Dataset("camera", robot.name, (arm,), {arm: qv}, {"pixel": _pixels(model, qv, C, x, K)},
+    ov = hung_readings(robot, arm, len(qv), draw)
+    validation = {arm: Dataset("camera", robot.name, (arm,), {**tip_readings(robot, arm, qv), **ov},
+                               {"pixel": _pixels(robot, arm, model, qv, ov, C, x, K)},
                                {"intrinsics": K}, f"validation-{arm}",
                                {"noise_free": True, "noise": {"pixel_px": 0.0}})}
     return ds, truth, validation
 
 
-def _pixels(model, q, C, x, K) -> np.ndarray:
-    return project(se3.transform_points(se3.inverse(C) @ forward_kinematics(model, q), x), K)[0]
+def _pixels(robot, arm, model, q, others, C, x, K) -> np.ndarray:
+    """Pixels of the point at the tip readings q (N, m) of ``model`` (the arm's tip model), the true tool poses
+    sagging under the tree's weight where it has gravity (the other arms at ``others``)."""
+    T = true_tool_poses(robot, arm, model, q, None, others)
+    return project(se3.transform_points(se3.inverse(C) @ T, x), K)[0]
 
 
 def _views(model, n, rng, margin, C, x, K, image) -> np.ndarray:
     """n random configurations whose point the camera sees (in front, inside the image)."""
     found = []
     for _ in range(50):
-        q = random_configurations(model, 4 * n, rng, margin)
+        q = coupled_readings(model, random_configurations(model, 4 * n, rng, margin))
         c = se3.transform_points(se3.inverse(C) @ forward_kinematics(model, q), x)
         uv = project(np.where(c[:, 2:] > _MIN_DEPTH_M, c, 1.0), K)[0]
         seen = (c[:, 2] > _MIN_DEPTH_M) & np.all((uv >= 0) & (uv <= image), axis=-1)
