@@ -63,9 +63,12 @@ def _connect(workers: int | None, scheduler: str | None):
         except (OSError, TimeoutError) as exc:
             raise KincalError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there ({exc})") from None
     n = default_workers() if workers is None else workers
-    # Forked workers start in a fraction of a second with kincal already imported (spawned ones take seconds
-    # each to import numpy, scipy and kincal again): fork where the platform has it.
-    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
+    # Workers forked from a clean server process start fast with kincal imported once, where forking this
+    # process itself (threads of its own, the caller's, BLAS pools) can deadlock a child on a held lock;
+    # spawned workers would import numpy, scipy and kincal again, seconds each.
+    method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
+    if method == "forkserver":
+        multiprocessing.set_forkserver_preload(["distributed", "kincal.workflow.study", "kincal.workflow.batch"])
     with dask.config.set({"distributed.worker.multiprocessing-method": method}):
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
                                silence_logs=logging.ERROR)
