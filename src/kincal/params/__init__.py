@@ -28,6 +28,7 @@ from kincal.params.kinds import (
     COMPLIANCE_UNITS,
     FRAME_KINDS,
     HOME,
+    LATERAL,
     OFFSETS,
     PLANE,
     POINT,
@@ -50,7 +51,7 @@ from kincal.params.ops import (
 from kincal.params.values import ArmValues, Plane, State
 
 __all__ = [
-    "ARM_KINDS", "ArmValues", "BASE", "Block", "COMPLIANCE", "COMPLIANCE_UNITS", "FRAME_KINDS", "HOME", "LEVELS",
+    "ARM_KINDS", "ArmValues", "BASE", "Block", "COMPLIANCE", "COMPLIANCE_UNITS", "FRAME_KINDS", "HOME", "LATERAL", "LEVELS",
     "Layout", "OFFSETS", "PLANE", "POINT", "POINTS", "POSE", "POSE_COORDS", "ParamKind", "Plane", "Prior", "State",
     "TOOL", "TWISTS", "build_layout", "displacement", "level_patterns", "pose_retraction_jacobians", "recentre",
     "retract", "scale_direction", "twist_coordinates",

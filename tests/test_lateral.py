@@ -1,0 +1,73 @@
+"""Lateral compliance (kincal.kinematics.lateral): kinematics, model file, Jacobians against finite differences."""
+
+import numpy as np
+import pytest
+
+from kincal.kinematics import Robot, loaded_forward_kinematics
+from kincal.kinematics.lateral import lateral_axes
+from kincal.params import LATERAL, State, build_layout, retract
+from test_gravity import _heavy, _pose_case
+from test_piecewise_compliance import _noded
+from test_residuals import _robot, check_residual
+
+
+def _lateral(robot, rng, arm="a", scale=0.002):
+    a = robot[arm]
+    return Robot(robot.name, {**robot.arms, arm: a.replace(lateral=rng.uniform(0, scale, (a.dof, 2)))},
+                 dict(robot.meta), dict(robot.mounts))
+
+
+def test_lateral_axes_are_normal_to_the_joint_through_its_axis():
+    screws = np.array([[0, 0, 0, 0, 0, 1], [0, 0, 0.3, 0, 1, 0], [-0.2, 0.5, 0, 1, 0, 0]], float)
+    screws[1, :3] = -np.cross([0, 1, 0], [0.1, 0, 0.4])
+    eta = lateral_axes(screws)
+    for xi, (ex, ey) in zip(screws, eta):
+        w, p = xi[3:], np.cross(xi[3:], xi[:3])
+        x, y = ex[3:], ey[3:]
+        np.testing.assert_allclose([x @ w, y @ w, x @ y], 0, atol=1e-15)
+        np.testing.assert_allclose(np.cross(x, y), w, atol=1e-15)
+        np.testing.assert_allclose([ex[:3], ey[:3]], [np.cross(p, x), np.cross(p, y)], atol=1e-15)
+    np.testing.assert_allclose(eta[0, :, 3:], [[1, 0, 0], [0, 1, 0]])  # a z joint bends about base x and y
+
+
+def test_lateral_compliance_bends_the_arm_and_zero_changes_nothing(rng):
+    robot = _heavy(_robot(rng, compliance=0.002), rng)
+    q = rng.uniform(-2, 2, (4, 6))
+    T = loaded_forward_kinematics(robot["a"], q)
+    zero = robot["a"].replace(lateral=np.zeros((6, 2)))
+    np.testing.assert_allclose(loaded_forward_kinematics(zero, q), T, atol=1e-14)
+    bent = _lateral(robot, rng)["a"]
+    assert np.abs(loaded_forward_kinematics(bent, q)[:, :3, 3] - T[:, :3, 3]).max() > 1e-3
+
+
+def test_the_parameter_kind_names_two_per_joint_and_only_on_arms_that_declare_it(rng):
+    robot = _lateral(_heavy(_robot(rng, compliance=0.002), rng), rng)
+    layout = build_layout(State.from_robot(robot), ["kinematic", "elastic", "lateral"])
+    names = [layout.names[i] for i in np.flatnonzero(layout.free) if "lateral" in layout.names[i]]
+    assert names == [f"a.j{j}.lateral_{c}" for j in range(1, 7) for c in "xy"]
+    assert [b.name for b in layout.blocks if b.kind is LATERAL] == ["a.lateral"]
+    plain = build_layout(State.from_robot(robot), ["kinematic", "elastic"])
+    assert not any("lateral" in n for n in plain.free_names)
+
+
+@pytest.mark.parametrize("kind, payload, nodes, wrench", [
+    ("pose", False, False, False), ("markers", True, False, False), ("pose", True, True, False),
+    ("markers", True, True, True), ("pose", False, False, True)])
+def test_jacobians_with_lateral_compliance_match_differences(rng, kind, payload, nodes, wrench):
+    """Every block (lateral included, twists moving the lateral axes along) and the readings."""
+    robot = _robot(rng, compliance=0.002)
+    robot = _lateral(_heavy(_noded(robot) if nodes else robot, rng, payload), rng)
+    check_residual(rng, robot, _pose_case(rng, robot, wrench, kind))
+
+
+def test_twist_steps_carry_the_lateral_axes_rigidly(rng):
+    """After a twist step the lateral axes stay normal to their joint's axis and meet it (reciprocal product 0)."""
+    robot = _lateral(_heavy(_robot(rng, compliance=0.002), rng), rng)
+    state = State.from_robot(robot)
+    layout = build_layout(state, ["a.twists"])
+    a = retract(state, layout, rng.normal(scale=0.1, size=layout.size)).arms["a"]
+    assert np.abs(a.screws - robot["a"].screws).max() > 1e-2
+    for xi, eta in zip(a.screws, a.lateral_axes):
+        w = xi[3:]
+        np.testing.assert_allclose([eta[0, 3:] @ w, eta[1, 3:] @ w, eta[0, 3:] @ eta[1, 3:]], 0, atol=1e-12)
+        np.testing.assert_allclose(eta[:, 3:] @ xi[:3] + eta[:, :3] @ w, 0, atol=1e-12)
