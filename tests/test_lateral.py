@@ -6,7 +6,12 @@ import pytest
 from kincal.kinematics import Robot, loaded_forward_kinematics
 from kincal.kinematics.lateral import lateral_axes
 from kincal.params import LATERAL, State, build_layout, retract
+from kincal.kinematics.branches import tree_loaded_kinematics
+from kincal.kinematics.lateral import chain_lateral
+from kincal.kinematics.tree import composite, tip_model
 from test_gravity import _heavy, _pose_case
+from test_tree_gravity import _case as _tree_case
+from test_tree_gravity import check_gravity_tree, gravity_tree
 from test_piecewise_compliance import _noded
 from test_residuals import _robot, check_residual
 
@@ -71,3 +76,30 @@ def test_twist_steps_carry_the_lateral_axes_rigidly(rng):
         w = xi[3:]
         np.testing.assert_allclose([eta[0, 3:] @ w, eta[1, 3:] @ w, eta[0, 3:] @ eta[1, 3:]], 0, atol=1e-12)
         np.testing.assert_allclose(eta[:, 3:] @ xi[:3] + eta[:, :3] @ w, 0, atol=1e-12)
+
+
+@pytest.mark.parametrize("kind, arm, coupled", [("pose", "b", False), ("markers", "b", True),
+                                                 ("markers", "torso", False)])
+def test_jacobians_of_a_tree_with_lateral_compliance_match_differences(rng, kind, arm, coupled):
+    """Torso and both arms bend laterally: the composite chain carries the torso's lateral axes (mapped like its
+    screws), the other arm's weight loads them; every block and every arm's readings against differences."""
+    robot = gravity_tree(rng, compliance=0.001, coupled=coupled)  # differences of deflections of 0.1 rad lose digits
+    for a in robot.arms:
+        robot = _lateral(robot, rng, a, 0.001)
+    check_gravity_tree(rng, robot, _tree_case(kind, rng, robot, arm=arm))
+
+
+def test_a_tree_and_its_serial_tip_model_bend_alike(rng):
+    """The tip's composite with lateral compliance equals the same robot written as one serial chain."""
+    robot = gravity_tree(rng)
+    robot = Robot(robot.name, {k: robot[k] for k in ("torso", "b")}, mounts={"b": "torso"})
+    for a in robot.arms:
+        robot = _lateral(robot, rng, a, 0.003)
+    q = {a: rng.uniform(-2, 2, (4, m.dof)) for a, m in robot.arms.items()}
+    T = tree_loaded_kinematics(robot, "b", q).tool
+    tip = tip_model(robot, "b")
+    comp = composite([robot["torso"], robot["b"]])
+    tip = tip.replace(lateral=np.concatenate([robot["torso"].lateral, robot["b"].lateral]),
+                      lateral_axes=chain_lateral([robot["torso"], robot["b"]], comp.frames)[0])
+    np.testing.assert_allclose(loaded_forward_kinematics(tip, np.concatenate([q["torso"], q["b"]], axis=1)), T,
+                               atol=1e-12)

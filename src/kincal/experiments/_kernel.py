@@ -174,8 +174,7 @@ def _insertions(kin, G, comp, segs, line, parts, ch, branches, out) -> None:
     if not pts:
         return
     x = ch.step
-    moved = [[(x * mb, mass, S) for mb, mass, S in (b.hung for b in branches) if mb == m and k <= b.k]
-             for k, _, m, _ in pts]
+    moved = [[(x * b.m, *b.hung[1:]) for b in branches if b.m == m and k <= b.k] for k, _, m, _ in pts]
     Js = insertion_jacobians(kin, G, ch.screws, [(x * m, X) for _, _, m, X in pts], ch.coeffs, ch.basis, moved)
     for (k, p, _, _), J in zip(pts, Js):
         _add(out, f"{line[k]}.{p}", J)
