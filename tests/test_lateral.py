@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import yaml
 
 from kincal.kinematics import Robot, loaded_forward_kinematics
 from kincal.kinematics.lateral import lateral_axes
@@ -9,7 +10,9 @@ from kincal.params import LATERAL, State, build_layout, retract
 from kincal.kinematics.branches import tree_loaded_kinematics
 from kincal.kinematics.lateral import chain_lateral
 from kincal.kinematics.tree import composite, tip_model
+from kincal.errors import DataFormatError, ModelError
 from kincal.estimation import calibrate
+from kincal.io.models import dump_robot, parse_robot
 from kincal.simulate.generators import generate_markers
 from kincal.simulate.noise import Noise
 from test_gravity import TILT, UR10_MASSES, _heavy, _pose_case, _ur10_with_weights
@@ -148,3 +151,40 @@ def test_a_sagging_arm_calibrates_its_lateral_compliances_from_its_own_weight(be
     assert after.position_rms < 0.5 * joint.validation[0].after.position_rms
     model = res.robot["arm"]  # the returned model is the solver's: it predicts what the fit saw
     np.testing.assert_allclose(model.lateral.ravel()[:10], [res.estimate(n).value for n in list(truth)[6:16]])
+
+
+def test_model_file_declares_lateral_compliance_and_round_trips(bending):
+    """``lateral: [x, y]`` per joint (angle unit/(N m)); ``save_robot`` writes the axes too (calibrated twists carry
+    them), so a calibrated model loads back as it was; bad values get one line naming file and field."""
+    _, true = bending
+    text = dump_robot(true)
+    assert parse_robot(text, "m.yaml") == true
+    data = yaml.safe_load(text)
+    data["units"]["angle"] = "deg"
+    for j in data["arms"]["arm"]["joints"]:
+        j.pop("lateral_axes")
+        j["lateral"] = [float(np.degrees(x)) for x in j["lateral"]]
+        j.pop("offset", None)
+        j.pop("limits", None)
+        j["compliance"] = float(np.degrees(j["compliance"]))
+    data["arms"]["arm"]["joints"][2].pop("lateral")  # a joint without: zero lateral compliance
+    arm = parse_robot(yaml.safe_dump(data), "m.yaml")["arm"]
+    np.testing.assert_allclose(arm.lateral[[0, 1, 3, 4, 5]], true["arm"].lateral[[0, 1, 3, 4, 5]], rtol=1e-12)
+    np.testing.assert_allclose(arm.lateral[2], 0.0)
+    np.testing.assert_allclose(arm.lateral_axes, lateral_axes(arm.screws))
+    assert "lateral" not in yaml.safe_load(dump_robot(Robot("r", {"arm": true["arm"].replace(
+        lateral=None, lateral_axes=None)})))["arms"]["arm"]["joints"][0]
+
+    def bad(edit, message):
+        d = yaml.safe_load(text)
+        edit(d["arms"]["arm"]["joints"])
+        with pytest.raises(DataFormatError, match=message):
+            parse_robot(yaml.safe_dump(d), "m.yaml")
+
+    bad(lambda js: js[1].update(lateral=[-1e-6, 0.0]),
+        r"^m.yaml: arms.arm.joints\[1\].lateral: expected two lateral compliances >= 0")
+    bad(lambda js: js[1].update(lateral=[1e-6]), r"arms.arm.joints\[1\].lateral: expected a list of 2 numbers")
+    bad(lambda js: js[1].pop("lateral"), r"arms.arm.joints\[1\].lateral_axes: 'lateral_axes' goes with 'lateral'")
+    bad(lambda js: js[1].update(lateral_axes=[[0, 0, 0, 1, 0, 0]]), r"joints\[1\].lateral_axes: expected two twists")
+    with pytest.raises(ModelError, match="lateral must be finite with shape"):
+        true["arm"].replace(lateral=np.zeros(6))
