@@ -188,3 +188,21 @@ def test_model_file_declares_lateral_compliance_and_round_trips(bending):
     bad(lambda js: js[1].update(lateral_axes=[[0, 0, 0, 1, 0, 0]]), r"joints\[1\].lateral_axes: expected two twists")
     with pytest.raises(ModelError, match="lateral must be finite with shape"):
         true["arm"].replace(lateral=np.zeros(6))
+
+
+def test_a_negative_lateral_compliance_is_reported_and_kept(bending):
+    """An estimate below 0 stays in the returned model (which then equals the solver's fit) and is reported."""
+    nominal, true = bending
+    lat = true["arm"].lateral.copy()
+    lat[1, 0] = -2e-5
+    true = Robot("ur10", {"arm": true["arm"].replace(lateral=lat, allow_negative_compliance=True)})
+    ds, _, _ = generate_markers(true, n=80, rng=4, markers=3, noise=Noise(position=2e-5), known_tracker=True,
+                                known_markers=True)
+    res = calibrate(nominal, [ds], ["offsets", "elastic", "lateral"])
+    name = f"arm.{nominal['arm'].joint_names[1]}.lateral_x"
+    assert [c.name for c in res.negative_compliances if c.significant] == [name]
+    arm = res.robot["arm"]
+    assert arm.allow_negative_compliance and arm.lateral[1, 0] == res.estimate(name).value < 0
+    q = ds.q["arm"]
+    T = loaded_forward_kinematics(arm, q)
+    np.testing.assert_allclose(T[:, :3, 3], loaded_forward_kinematics(true["arm"], q)[:, :3, 3], atol=2e-4)
