@@ -78,6 +78,12 @@ class ArmModel:
         Gravitational acceleration (m/s^2) in the world frame, e.g. (0, 0, -9.81); None (default): the mass
         model loads nothing. With masses and gravity, the weights load the joint compliances in every
         configuration (``kincal.kinematics.gravity``).
+    lateral : ndarray, shape (n, 2), optional
+        Lateral compliances (rad/(N m)) about each joint's two lateral axes (``kincal.kinematics.lateral``); None
+        (default): the arm has no lateral compliance (no ``lateral`` parameters).
+    lateral_axes : ndarray, shape (n, 2, 6), optional
+        The lateral axes as screws at q = 0 (arm base frame), default ``kincal.kinematics.lateral.lateral_axes``
+        of the screws; stored, so calibrated twists carry them (``replace(screws=...)`` keeps them as they are).
     meta : mapping
         Free-form provenance (source, notes); not used in computation.
     """
