@@ -348,49 +348,19 @@ def justin_robot(path: Path, masses: bool = False) -> Robot:
     return Robot("justin", {"torso": torso, **arms}, {"source": JUSTIN}, mounts={"right": "torso", "left": "torso"})
 
 
-JUSTIN_BENDS = ("bx", "by")  # the bending joints after each joint: about its DH frame's x and y axes
-
-
-def justin_bending(robot: Robot, path: Path) -> Robot:
-    """Lateral compliance emulated by virtual joints: after each joint j of the torso and the arms, two revolute
-    joints ``<j>_bx``, ``<j>_by`` about the x and y axes of DH frame j (normal to j's axis, through the frame's
-    origin, turning with j), their readings held at 0 (couplings with a constant). Free only their compliances
-    (``JUSTIN_BENDING_FIXED`` holds their offsets and twists): each then bends, first order, by its compliance
-    times the moment of the weight beyond it about its axis, as the paper's kappa_alpha, kappa_beta. Link j's
-    mass moves with its bends. Not kincal's lateral compliance kind (not built; docs/real-data.md)."""
+def justin_lateral(robot: Robot, path: Path) -> Robot:
+    """Every joint of the torso and the arms with lateral compliance (``kincal.kinematics.lateral``, starting at
+    0) about the x and y axes of its DH frame (normal to its axis, through the frame's origin, turning with it),
+    stated as the arm's ``lateral_axes``: the paper's kappa_alpha, kappa_beta. Each bends, first order, by its
+    compliance times the moment of the weight beyond the joint about that axis."""
     m = _justin_model(path)
-    return Robot(robot.name, {a: _with_bends(robot[a], _dh_frames(m[f"DH_{a.upper()}"])) for a in robot.arms},
-                 dict(robot.meta), robot.mounts)
-
-
-def _with_bends(arm: ArmModel, frames: np.ndarray) -> ArmModel:
-    screws, names, masses, coms, couplings = [], [], [], [], dict(arm.couplings)
-    for j, name in enumerate(arm.joint_names):
-        R, o = frames[j, :3, :3], frames[j, :3, 3]
-        screws += [arm.screws[j]] + [np.append(-np.cross(R[:, k], o), R[:, k]) for k in (0, 1)]
-        names += [name] + [f"{name}_{b}" for b in JUSTIN_BENDS]
-        masses += [0.0, 0.0, arm.link_masses[j]]
-        coms += [np.zeros(3), np.zeros(3), arm.link_coms[j]]
-        couplings |= {f"{name}_{b}": {"constant": 0.0} for b in JUSTIN_BENDS}
-    n = len(names)
-    return ArmModel(arm.name, np.array(screws), arm.home, base=arm.base, tool=arm.tool, joint_names=tuple(names),
-                    couplings=couplings, link_masses=np.array(masses), link_coms=np.array(coms),
-                    payload_mass=arm.payload_mass, payload_com=arm.payload_com, gravity=arm.gravity,
-                    offsets=np.zeros(n), meta=dict(arm.meta))
-
-
-def with_bend_readings(robot: Robot, ds: Dataset) -> Dataset:
-    """``ds`` with the bending joints' readings (0) derived, for ``justin_bending``'s robot."""
-    q = {}
-    for a, v in ds.q.items():
-        model = robot[a]
-        full = np.zeros((len(v), model.dof))
-        full[:, [i for i, n in enumerate(model.joint_names) if not n.endswith(JUSTIN_BENDS)]] = v
-        q[a] = derive_readings(model.couplings, model.joint_names, full)
-    return Dataset(ds.kind, ds.robot, ds.arms, q, ds.measured, ds.known, ds.name, ds.meta, ds.frames)
-
-
-JUSTIN_BENDING_FIXED = ["*_bx.offset", "*_by.offset", "*_bx.xi.*", "*_by.xi.*"]
+    arms = {}
+    for a, arm in robot.arms.items():
+        F = _dh_frames(m[f"DH_{a.upper()}"])
+        n = F[:, :3, :2].transpose(0, 2, 1)  # (n, 2, 3): each frame's x and y axes
+        axes = np.concatenate([np.cross(F[:, None, :3, 3], n), n], axis=-1)
+        arms[a] = arm.replace(lateral=np.zeros((arm.dof, 2)), lateral_axes=axes)
+    return Robot(robot.name, arms, dict(robot.meta), robot.mounts)
 
 
 def _dh_frames(rows) -> np.ndarray:
@@ -456,26 +426,23 @@ JUSTIN_LEVELS = {
 # Motion capture as for TALOS/TIAGo (0.3 mm): every level leaves millimetres unexplained, which reads as a misfit.
 JUSTIN_NOISE = NOISE["mocap"]
 # The compliant levels, loaded by the robot's own weight (the JSON's mass model): published fit on all 500 poses.
-# Lateral compliance is emulated by bending joints (``justin_bending``); kincal has no lateral compliance kind yet.
 JUSTIN_ELASTIC = {"joint compliances": (5.64, 2.57, 12.83), "lateral compliances": (3.12, 1.71, 8.23)}
 
 
 def justin_elastic_case(path: Path, level: str) -> tuple[Robot, list[Dataset], dict]:
-    """Robot (masses, bending joints for ``lateral compliances``), both hands' data sets (with the other arm's
+    """Robot (masses; lateral compliance for ``lateral compliances``, ``justin_lateral``), both hands' data sets (with the other arm's
     readings) and ``calibrate`` options (``free=None``) of a compliant level: staged, the geometry first
     (``kinematic``, rigid: the compliances start at 0), then every compliance with the geometry held. The single
     solve of ``[kinematic, elastic]`` crawls (docs/real-data.md), so this is the staged optimum, not the joint one.
     The pan joint's compliance is held at 0: its axis is vertical, so the weight does not load it (named as not
     identifiable when free), and freed it trades off against the tilt of that axis."""
     robot, sets = justin_robot(path, masses=True), list(justin_markers(path, both_arms=True))
-    fixed = ["torso.t1.compliance"]
+    fixed, free = ["torso.t1.compliance"], ("elastic",)
     if level == "lateral compliances":
-        robot = justin_bending(robot, path)
-        sets = [with_bend_readings(robot, d) for d in sets]
-        fixed += JUSTIN_BENDING_FIXED
+        robot, free = justin_lateral(robot, path), ("elastic", "lateral")
     elif level != "joint compliances":
         raise ValueError(f"unknown compliant level {level!r}; levels: {', '.join(JUSTIN_ELASTIC)}")
-    stages = [Stage("kinematic", tuple(fixed), "geometry"), Stage(("elastic",), tuple(fixed), "compliances")]
+    stages = [Stage("kinematic", tuple(fixed), "geometry"), Stage(free, tuple(fixed), "compliances")]
     return robot, sets, {"stages": stages, "noise": JUSTIN_NOISE, "outliers": "keep"}
 
 

@@ -128,3 +128,24 @@ def test_joint_compliances_loaded_by_the_weight_lower_the_held_out_error():
         arm, joint, _ = name.split(".")
         model = res.robot[arm]
         assert model.compliance[model.joint_names.index(joint)] == pytest.approx(est[name].value, rel=1e-9)
+
+
+def test_lateral_compliances_loaded_by_the_weight_lower_the_fit_error():
+    """The lateral level on kincal's lateral compliance kind (``realdata.justin_lateral``: every joint of the torso
+    and the arms bends about its DH frame's x and y axes), staged as the joint level. Pins what kincal reaches by
+    this route: fit 6.32 mm (held-out 6.72 in docs/real-data.md, by bench/real_data.py: the 5 folds take 40 s),
+    against 7.09 with joint compliances only; the paper's 3.12 (fit) is not reached. Negative lateral compliances
+    are reported and kept."""
+    robot, sets, options = rd.justin_elastic_case(PATH, "lateral compliances")
+    res = calibrate(robot, sets, None, **options)
+    fit = np.concatenate([ho.prediction_errors(res, d)[0] for d in sets]) * 1e3
+    assert fit.mean() <= 6.37 and fit.max() <= 19.5
+    assert np.sqrt(np.mean(fit**2) / 3) / 0.3 == pytest.approx(np.sqrt(res.sigma2), rel=0.02)
+    est = {e.name: e for e in res.estimates}
+    lateral = [n for n in est if ".lateral_" in n]
+    assert len(lateral) == 2 * (4 + 7 + 7)
+    for name in [n for n in lateral if est[n].value < -1e-9]:
+        arm, joint, axis = name.split(".")
+        model = res.robot[arm]
+        assert model.lateral[model.joint_names.index(joint), "xy".index(axis[-1])] == est[name].value
+        assert any(name in c.name for c in res.negative_compliances)

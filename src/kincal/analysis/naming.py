@@ -78,7 +78,7 @@ def describer(lin: Linearization, layout: Layout, experiments: Sequence) -> Call
         words = [_frame_motion(name, Ad @ row[idx], axes) for name, idx, Ad in poses
                  if np.linalg.norm(row[idx]) >= 1e-9]
         moved = set(part[np.abs(row) > 1e-9].tolist())
-        if "compliance" in moved and not loads:
+        if moved & {"compliance", "lateral"} and not loads:
             words.append("no data set applies a load (wrench_tool) and no arm has a mass model with gravity, so joint "
                          "compliance has no effect")
         if "offsets" in moved and moved & {"twists", "home"}:

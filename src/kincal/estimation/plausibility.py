@@ -18,7 +18,7 @@ import numpy as np
 
 from kincal.data import Dataset
 from kincal.kinematics import PRISMATIC, Robot, forward_kinematics
-from kincal.params import COMPLIANCE, Layout
+from kincal.params import COMPLIANCE, LATERAL, Layout
 from kincal.schema import LENGTH, SCHEMAS
 
 # A reading of a revolute joint with limits beyond this (rad) is not an angle in radians (a continuous joint,
@@ -170,9 +170,10 @@ class NegativeCompliance:
 
 
 def negative_compliances(layout: Layout, estimates) -> tuple[NegativeCompliance, ...]:
-    """The compliance ``estimates`` (``kincal.estimation.result.Estimate``) below 0 (below
+    """The compliance ``estimates`` (``kincal.estimation.result.Estimate``; joint and lateral) below 0 (below
     ``-ROUND_OFF_COMPLIANCE``), in layout order."""
-    names = {layout.names[i] for b in layout.blocks if b.kind is COMPLIANCE for i in range(b.start, b.stop)}
+    names = {layout.names[i] for b in layout.blocks if b.kind in (COMPLIANCE, LATERAL)
+             for i in range(b.start, b.stop)}
     return tuple(NegativeCompliance(e.name, e.value, e.std, e.unit) for e in estimates
                  if e.name in names and e.value < -ROUND_OFF_COMPLIANCE)
 

@@ -5,17 +5,21 @@ Jacobians of poses are w.r.t. *left (space) increments*: ``T -> exp(d) T`` with 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from kincal.kinematics import Kinematics
 from kincal.kinematics.branches import branch_torque_derivatives, loaded_tree
 from kincal.kinematics.elastic import LoadedKinematics
 from kincal.kinematics.jacobians import TOOL_PARTS, insertion_jacobians, joint_jacobian, tool_jacobians
+from kincal.kinematics.lateral import (chain_lateral, collapse_twists, expand_basis, expand_generators, expand_screws,
+                                      expand_values, lateral_columns, real_columns)
 from kincal.kinematics.tree import composite, insertion_points
 from kincal.lie import se3, so3
 from kincal.params import ArmValues
 
-ARM_PARTS = TOOL_PARTS
+ARM_PARTS = TOOL_PARTS + ("lateral",)
 BRANCH_PARTS = ("offsets", "twists", "home", "base", "tool")  # another branch's parts its weight depends on
 
 
@@ -62,22 +66,70 @@ def _add(out: dict, key: str, J: np.ndarray) -> None:
     out[key] = out[key] + J if key in out else J
 
 
+@dataclass(frozen=True)
+class _Chain:
+    """The chain the Jacobians run on: the composite's own, or its expanded chain when the tip is loaded and some
+    segment has lateral compliance (``kincal.kinematics.lateral``: ``step`` 3 joints per joint). ``coeffs`` and
+    ``basis``: its compliance coefficients (joints' then, expanded with nodes, the lateral ones) and basis."""
+
+    screws: np.ndarray
+    coeffs: np.ndarray
+    basis: tuple | None
+    step: int
+    lateral: tuple | None  # (axes, compliances) of the composite, None when no segment has lateral compliance
+
+    def gens(self, gens) -> tuple:
+        return expand_generators(gens) if self.step == 3 else gens
+
+
+def _chain(segs, comp, kin, q) -> _Chain:
+    coeffs, basis = _tree_compliance(segs, q)
+    lat = chain_lateral(segs, comp.frames)
+    if lat is None or not isinstance(kin, LoadedKinematics):
+        return _Chain(comp.screws, coeffs, basis, 1, lat)
+    screws = expand_screws(comp.screws, lat[0])
+    if basis is None:
+        return _Chain(screws, expand_values(coeffs, lat[1]), None, 3, lat)
+    n = comp.screws.shape[0]
+    return _Chain(screws, np.concatenate([coeffs, lat[1].ravel()]), expand_basis(basis, n, len(q[0])), 3, lat)
+
+
+def _collapse(ch: _Chain, blocks: dict, gq, widths) -> tuple[dict, np.ndarray | None]:
+    """The expanded chain's blocks as the composite's own: offsets and readings the real joints' columns, twists
+    summed over each joint's three screws, compliance split into the joints' and the lateral ones."""
+    if ch.step == 1:
+        return blocks, gq
+    out = dict(blocks)
+    if "offsets" in blocks:
+        out["offsets"] = real_columns(blocks["offsets"])
+    if "twists" in blocks:
+        out["twists"] = collapse_twists(blocks["twists"], widths)
+    if "compliance" in blocks:
+        J = blocks["compliance"]
+        p = len(ch.coeffs) - 2 * len(ch.lateral[1])
+        joint, lat = (real_columns(J), lateral_columns(J)) if ch.basis is None else (J[..., :p], J[..., p:])
+        out["compliance"], out["lateral"] = joint, lat
+    return out, (None if gq is None else real_columns(gq))
+
+
 def tree_jacobians(state, line, q, kin, G, parts, jq: bool, out: dict, jqs: dict) -> None:
     """Blocks of every arm of ``line`` (root first; ``parts[arm]``: the wanted parts) for the tip's left
     increment derivative G at readings ``q`` (arm -> (N, n)), added to ``out``; ``G @ J_q`` per arm added to
     ``jqs`` (if ``jq``). Under gravity, the other arms whose weight loads the lineage (``parts`` may list
-    them) add their blocks and readings too."""
+    them) add their blocks and readings too. Lateral compliance runs on the expanded chain (``_Chain``)."""
     segs = [state.arms[s] for s in line]
     comp = composite(segs)
-    coeffs, basis = _tree_compliance(segs, [q[s] for s in line])
+    ch = _chain(segs, comp, kin, [q[s] for s in line])
     branches = kin.branches if isinstance(kin, LoadedKinematics) else ()  # weighed once, by tree_kin
     wanted = set().union(*(parts.get(s, ()) for s in line))
-    cparts = [p for p in ("offsets", "twists", "compliance") if p in wanted]
+    cparts = [p for p in ("offsets", "twists") if p in wanted] + ["compliance"] * bool({"compliance", "lateral"} & wanted)
     cparts += ["base"] * ("base" in parts[line[0]])
     if not branches:  # else the tip's home and tool are insertions too, which may move weights hung at n
         cparts += [p for p in ("home", "tool") if p in parts[line[-1]]]
     gens = comp.generators([a.generators for a in segs])
-    blocks, gq = tool_jacobians(kin, G, comp.screws, gens, coeffs, cparts, jq, basis)
+    blocks, gq = tool_jacobians(kin, G, ch.screws, ch.gens(gens), ch.coeffs, cparts, jq, ch.basis)
+    blocks, gq = _collapse(ch, blocks, gq, [g.shape[1] for g in gens])
+    _lateral_blocks(ch, segs, line, parts, blocks, G, out)
     widths = {"offsets": None, "twists": [sum(g.shape[1] for g in a.generators) for a in segs],
               "compliance": [len(a.joint_compliance) for a in segs]}
     for p, w in widths.items():
@@ -91,15 +143,27 @@ def tree_jacobians(state, line, q, kin, G, parts, jq: bool, out: dict, jqs: dict
         _add(out, f"{line[-1]}.tool", blocks["tool"])
     if "home" in blocks:
         _add(out, f"{line[-1]}.home", blocks["home"] @ se3.adjoint(comp.frames[-1]))
-    _insertions(kin, G, comp, segs, line, parts, coeffs, basis, branches, out)
+    _insertions(kin, G, comp, segs, line, parts, ch, branches, out)
     if jq:
         for s, a, J in zip(line, segs, comp.split(gq)):
             _add(jqs, s, coupled(a, J))
     if branches:
-        _branch_blocks(state, kin, G, comp, coeffs, basis, branches, parts, jq, out, jqs)
+        _branch_blocks(state, kin, G, ch, branches, parts, jq, out, jqs)
 
 
-def _insertions(kin, G, comp, segs, line, parts, coeffs, basis, branches, out) -> None:
+def _lateral_blocks(ch: _Chain, segs, line, parts, blocks, G, out) -> None:
+    """Each segment's lateral block (zero when nothing loads the chain)."""
+    if ch.lateral is None:
+        return
+    J = blocks.get("lateral")
+    if J is None:
+        J = np.zeros(G.shape[:2] + (2 * len(ch.lateral[1]),))
+    for s, a, Js in zip(line, segs, np.split(J, 2 * np.cumsum([a.dof for a in segs])[:-1], axis=-1)):
+        if a.lateral is not None and "lateral" in parts[s]:
+            _add(out, f"{s}.lateral", Js)
+
+
+def _insertions(kin, G, comp, segs, line, parts, ch, branches, out) -> None:
     """The blocks of the rigid transforms inside the composite chain (``tree.insertion_points``; with branches
     the tip's home and tool too), each with the hung weights it carries (segment index <= the branch's)."""
     pts = insertion_points(comp, segs)
@@ -109,25 +173,27 @@ def _insertions(kin, G, comp, segs, line, parts, coeffs, basis, branches, out) -
     pts = [(k, p, m, X) for k, p, m, X in pts if p in parts[line[k]]]
     if not pts:
         return
-    moved = [[b.hung for b in branches if b.m == m and k <= b.k] for k, _, m, _ in pts]
-    Js = insertion_jacobians(kin, G, comp.screws, [(m, X) for _, _, m, X in pts], coeffs, basis, moved)
+    x = ch.step
+    moved = [[(x * b.m, *b.hung[1:]) for b in branches if b.m == m and k <= b.k] for k, _, m, _ in pts]
+    Js = insertion_jacobians(kin, G, ch.screws, [(x * m, X) for _, _, m, X in pts], ch.coeffs, ch.basis, moved)
     for (k, p, _, _), J in zip(pts, Js):
         _add(out, f"{line[k]}.{p}", J)
 
 
-def _branch_blocks(state, kin, G, comp, coeffs, basis, branches, parts, jq, out, jqs) -> None:
+def _branch_blocks(state, kin, G, ch, branches, parts, jq, out, jqs) -> None:
     """The blocks and readings of the other arms whose weight loads the lineage (through the carriers'
     deflection; ``kincal.kinematics.branches``)."""
-    c = coeffs if basis is None else basis[0] @ coeffs
-    cjq = joint_jacobian(kin, G, comp.screws) * np.asarray(c)[..., None, :]
+    c = ch.coeffs if ch.basis is None else ch.basis[0] @ ch.coeffs
+    cjq = joint_jacobian(kin, G, ch.screws) * np.asarray(c)[..., None, :]
     for b in branches:
         a = state.arms[b.arm]
         want = [p for p in parts.get(b.arm, ()) if p in BRANCH_PARTS] + ["readings"] * jq
         if not want:
             continue
-        D = branch_torque_derivatives(kin.axes, kin.gravity, b, a.generators, a.base, want)
+        m = ch.step * b.m
+        D = branch_torque_derivatives(kin.axes[:, :m], kin.gravity, b, a.generators, a.base, want)
         for p in want:
-            J = cjq[..., : b.m] @ D[p]
+            J = cjq[..., :m] @ D[p]
             if p == "readings":
                 _add(jqs, b.arm, coupled(a, J))
             else:

@@ -26,6 +26,7 @@ from kincal.io import units
 from kincal.lie.rotations import quat_wxyz_to_matrix, rpy_to_matrix
 from kincal.io.yamlfile import clip, parse_yaml, quote, read_text
 from kincal.kinematics.model import PRISMATIC, REVOLUTE, ArmModel, Robot
+from kincal.kinematics.lateral import lateral_axes
 from kincal.lie import se3, so3
 
 FORMAT = "kincal-model"
@@ -44,7 +45,8 @@ NEGATIVE_HINT = ("; a calibrated model's estimates below 0 load with 'allow_nega
 _TOP_KEYS = {"format", "version", "name", "units", "meta", "arms", "orthonormalize"}
 _ARM_KEYS = {"joints", "base", "home", "tool", "controller_order", "meta", "allow_negative_compliance",
              "mount", "couplings", "payload", "gravity"}
-_JOINT_KEYS = {"name", "type", "axis", "point", "twist", "offset", "limits", "gear_ratio", "compliance", "mass", "com"}
+_JOINT_KEYS = {"name", "type", "axis", "point", "twist", "offset", "limits", "gear_ratio", "compliance", "mass", "com",
+               "lateral", "lateral_axes"}
 _POSE_KEYS = {"matrix", "xyz", "rpy", "quaternion_wxyz", "rotation", "orthonormalize"}
 
 
@@ -181,6 +183,7 @@ def _arm(ctx: _Ctx, name: str, data: Any, path: str) -> ArmModel:
             couplings=_couplings(ctx, d.get("couplings"), dict(zip(names, (p["type"] for p in parsed))),
                                  f"{path}.couplings"),
             **_mass_model(ctx, d, parsed, path),
+            **_lateral_model(parsed),
         )
     except KincalError as exc:  # cross-field problems the per-field checks cannot see
         raise ctx.fail(path, str(exc)) from None
@@ -283,7 +286,44 @@ def _joint(ctx: _Ctx, data: Any, path: str, index: int, negative: bool = False) 
             raise ctx.fail(f"{path}.compliance", f"expected a compliance >= 0 ({unit}), found "
                            f"{quote(compliance / scale)}{NEGATIVE_HINT}")
     return {"name": name, "type": kind, "twist": twist, "offset": offset, "lower": lower, "upper": upper,
-            "gear_ratio": ratio, "compliance": compliance, **_link_mass(ctx, d, path)}
+            "gear_ratio": ratio, "compliance": compliance, **_link_mass(ctx, d, path),
+            **_joint_lateral(ctx, d, path, kind, negative)}
+
+
+def _joint_lateral(ctx: _Ctx, d: dict, path: str, kind: str, negative: bool) -> dict:
+    """A joint's ``lateral: [x, y]`` compliances (angle unit/(N m)) and optional ``lateral_axes`` (two twists,
+    as ``save_robot`` writes them; default: ``kincal.kinematics.lateral.lateral_axes``)."""
+    if "lateral" not in d:
+        if "lateral_axes" in d:
+            raise ctx.fail(f"{path}.lateral_axes", "'lateral_axes' goes with 'lateral' (the two compliances)")
+        return {}
+    if kind != REVOLUTE:
+        raise ctx.fail(f"{path}.lateral", "lateral compliance (bending about the axes normal to the joint axis) "
+                       "needs a revolute joint")
+    c = _vector(ctx, d["lateral"], f"{path}.lateral", 2) * ctx.angle
+    if np.any(c < 0) and not negative:
+        raise ctx.fail(f"{path}.lateral", f"expected two lateral compliances >= 0 (angle unit/(N m)), found "
+                       f"{quote(d['lateral'])}{NEGATIVE_HINT}")
+    out = {"lateral": c}
+    if "lateral_axes" in d:
+        raw = d["lateral_axes"]
+        if not isinstance(raw, list) or len(raw) != 2:
+            raise ctx.fail(f"{path}.lateral_axes", f"expected two twists [x axis, y axis], found {quote(raw)}")
+        out["lateral_axes"] = np.stack([_twist(ctx, t, f"{path}.lateral_axes[{i}]", REVOLUTE)
+                                        for i, t in enumerate(raw)])
+    return out
+
+
+def _lateral_model(parsed: list[dict]) -> dict:
+    """ArmModel's ``lateral`` and ``lateral_axes`` from the joints (none when no joint states ``lateral``; a
+    joint without it then has zero lateral compliance)."""
+    if not any("lateral" in p for p in parsed):
+        return {}
+    out = {"lateral": np.array([p.get("lateral", np.zeros(2)) for p in parsed])}
+    if any("lateral_axes" in p for p in parsed):
+        nominal = lateral_axes(np.array([p["twist"] for p in parsed]))
+        out["lateral_axes"] = np.stack([p.get("lateral_axes", x) for p, x in zip(parsed, nominal)])
+    return out
 
 
 def _link_mass(ctx: _Ctx, d: dict, path: str) -> dict:
@@ -547,6 +587,8 @@ def _arm_to_dict(arm: ArmModel) -> dict:
             j["compliance"] = float(arm.compliance[i])
         if arm.link_masses[i] != 0 or np.any(arm.link_coms[i]):
             j.update(mass=float(arm.link_masses[i]), com=_floats(arm.link_coms[i]))
+        if arm.lateral is not None:  # the axes too: calibrated twists carry them, they are no longer nominal
+            j.update(lateral=_floats(arm.lateral[i]), lateral_axes=[_floats(x) for x in arm.lateral_axes[i]])
         joints.append(j)
     out = {
         "base": {"matrix": [_floats(r) for r in arm.base]},

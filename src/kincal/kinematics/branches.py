@@ -28,6 +28,7 @@ import numpy as np
 from kincal.errors import DataFormatError, ModelError
 from kincal.kinematics.fk import Kinematics, chain
 from kincal.kinematics.elastic import joint_compliance, loaded_chain
+from kincal.kinematics.lateral import chain_lateral
 from kincal.kinematics.gravity import GravityLoad, gravity_load, mass_beyond
 from kincal.kinematics.model import Robot, lineage
 from kincal.kinematics.tree import Composite, composite
@@ -122,10 +123,10 @@ def _branch(arms, loads, mounts, line, o, q, offsets, g) -> Branch:
 
 def branch_torque_derivatives(axes: np.ndarray, g: np.ndarray, b: Branch, generators: Sequence[np.ndarray],
                               base: np.ndarray, parts) -> dict[str, np.ndarray]:
-    """``dtau/dp`` (N, b.m, d) of the tip chain's joints before the branch (``axes`` (N, n, 6) its space axes
-    at the unloaded readings) for the branch arm's own parts (offsets, twists, home, tool, base; ``readings``
+    """``dtau/dp`` (N, m, d) of the tip chain's joints before the branch (``axes`` (N, m, 6) their space axes
+    at the unloaded readings; m = b.m, or 3 b.m on a chain expanded for lateral compliance) for the branch arm's own parts (offsets, twists, home, tool, base; ``readings``
     too: as offsets); ``generators`` and ``base``: the branch segment's own (its composite chain's are ``Ad(M_K) G``)."""
-    u = np.cross(g, axes[:, : b.m, 3:])  # (N, m, 3)
+    u = np.cross(g, axes[..., 3:])  # (N, m, 3)
     rows = lambda l: np.concatenate([b.M[l] * u, np.cross(b.S[:, l, None], u)], axis=-1)  # noqa: E731
     n, m, kin, MK = len(b.M) - 1, b.m, b.kin, b.comp.frames[-1]
     out = {}
@@ -164,7 +165,7 @@ def loaded_tree(arms: Mapping, loads: Mapping[str, GravityLoad | None], complian
         cs = [np.broadcast_to(x, theta0.shape[:-1] + x.shape[-1:]) for x in cs]
     c = np.concatenate(cs, axis=-1)
     kin = loaded_chain(comp.screws, theta0, comp.base, comp.home, comp.tool, c, wrench_tool, load,
-                       [b.hung for b in branches])
+                       [b.hung for b in branches], chain_lateral([arms[s] for s in line], comp.frames))
     return replace(kin, branches=branches)
 
 

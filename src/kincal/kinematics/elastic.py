@@ -38,6 +38,7 @@ import numpy as np
 from kincal._validate import as_array
 from kincal.kinematics.fk import Kinematics, chain, forward_kinematics, joint_array
 from kincal.kinematics.gravity import GravityLoad, gravity_load, mass_beyond, weight_wrenches
+from kincal.kinematics.lateral import expand_load, expand_screws, expand_values
 from kincal.kinematics.model import ArmModel
 from kincal.lie import se3
 
@@ -66,10 +67,16 @@ class LoadedKinematics(Kinematics):
 
 
 def loaded_chain(screws, theta0, base, home, tool, compliance, wrench_tool,
-                 weights: GravityLoad | None = None, hung=()) -> LoadedKinematics:
+                 weights: GravityLoad | None = None, hung=(), lateral=None) -> LoadedKinematics:
     """Unvalidated kernel on raw arrays: ``theta0`` (..., n) unloaded joint values, ``wrench_tool`` (..., 6) or
     None (no tool load), ``compliance`` (n,) or per sample (..., n), ``weights`` the arm's mass model or None;
-    ``hung``: weights beyond the chain (``gravity.mass_beyond``; other branches of a tree)."""
+    ``hung``: weights beyond the chain (``gravity.mass_beyond``; other branches of a tree); ``lateral``: None or
+    (lateral axes (n, 2, 6), lateral compliances (n, 2)): then the result is the *expanded* chain of 3n joints
+    (``kincal.kinematics.lateral``)."""
+    if lateral is not None:
+        screws, theta0 = expand_screws(screws, lateral[0]), expand_values(theta0, 0.0)
+        compliance, weights = expand_values(compliance, lateral[1]), expand_load(weights)
+        hung = [(3 * m, mass, moment) for m, mass, moment in hung]
     kin0 = chain(screws, theta0, base, home, tool)
     if wrench_tool is None:
         F_s = np.zeros(kin0.theta.shape[:-1] + (6,))
@@ -146,7 +153,14 @@ def loaded_kinematics(model: ArmModel, q, wrench_tool=None) -> LoadedKinematics:
     q = joint_array(model, q)
     w = None if wrench_tool is None else _wrench(wrench_tool, q.shape[:-1])
     c = joint_compliance(model, q)
-    return loaded_chain(model.screws, q + model.offsets, model.base, model.home, model.tool, c, w, gravity_load(model))
+    return loaded_chain(model.screws, q + model.offsets, model.base, model.home, model.tool, c, w, gravity_load(model),
+                        lateral=model_lateral(model))
+
+
+def model_lateral(model) -> tuple[np.ndarray, np.ndarray] | None:
+    """(lateral axes, lateral compliances) of an ``ArmModel`` or ``ArmValues``, None without lateral compliance:
+    the ``lateral`` of ``loaded_chain``."""
+    return None if model.lateral is None else (model.lateral_axes, model.lateral)
 
 
 def loaded_forward_kinematics(model: ArmModel, q, wrench_tool=None) -> np.ndarray:
@@ -159,5 +173,6 @@ def loaded_forward_kinematics(model: ArmModel, q, wrench_tool=None) -> np.ndarra
 
 def load_torques(model: ArmModel, q, wrench_tool=None) -> np.ndarray:
     """Joint load torques ``J_b(q + o)^T wrench_tool`` (..., n) at the unloaded configuration, plus the arm's
-    own weight when the model has a mass model and gravity."""
-    return loaded_kinematics(model, q, wrench_tool).tau
+    own weight when the model has a mass model and gravity (the joints' own, without lateral moments)."""
+    tau = loaded_kinematics(model, q, wrench_tool).tau
+    return tau if model.lateral is None else tau[..., 0::3]

@@ -11,6 +11,7 @@ import numpy as np
 from kincal._validate import as_array, check_transform
 from kincal.errors import ModelError
 from kincal.kinematics.couplings import checked_couplings
+from kincal.kinematics.lateral import lateral_axes
 from kincal.lie import se3
 
 REVOLUTE = "revolute"
@@ -77,6 +78,12 @@ class ArmModel:
         Gravitational acceleration (m/s^2) in the world frame, e.g. (0, 0, -9.81); None (default): the mass
         model loads nothing. With masses and gravity, the weights load the joint compliances in every
         configuration (``kincal.kinematics.gravity``).
+    lateral : ndarray, shape (n, 2), optional
+        Lateral compliances (rad/(N m)) about each joint's two lateral axes (``kincal.kinematics.lateral``); None
+        (default): the arm has no lateral compliance (no ``lateral`` parameters).
+    lateral_axes : ndarray, shape (n, 2, 6), optional
+        The lateral axes as screws at q = 0 (arm base frame), default ``kincal.kinematics.lateral.lateral_axes``
+        of the screws; stored, so calibrated twists carry them (``replace(screws=...)`` keeps them as they are).
     meta : mapping
         Free-form provenance (source, notes); not used in computation.
     """
@@ -105,6 +112,9 @@ class ArmModel:
     payload_mass: float = 0.0
     payload_com: np.ndarray | None = None
     gravity: np.ndarray | None = None
+    # lateral compliance (kincal.kinematics.lateral): None, or (n, 2) rad/(N m) about each joint's lateral axes
+    lateral: np.ndarray | None = None
+    lateral_axes: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         where = f"arm '{self.name}'"
@@ -173,6 +183,8 @@ class ArmModel:
         set_("controller_order", order)
         set_("meta", MappingProxyType(dict(self.meta)))
         set_("couplings", checked_couplings(self.couplings, names, where))
+        for key, value in _lateral_fields(self, where).items():
+            set_(key, value)
 
     @property
     def dof(self) -> int:
@@ -212,9 +224,32 @@ class ArmModel:
             and _plain_couplings(self) == _plain_couplings(other)
             and (self.gravity is None) == (other.gravity is None)
             and (self.gravity is None or np.array_equal(self.gravity, other.gravity))
+            and (self.lateral is None) == (other.lateral is None)
+            and (self.lateral is None or (np.array_equal(self.lateral, other.lateral)
+                                          and np.array_equal(self.lateral_axes, other.lateral_axes)))
         )
 
     __hash__ = None  # type: ignore[assignment]
+
+
+def _lateral_fields(arm: ArmModel, where: str) -> dict:
+    """``lateral`` (n, 2) and ``lateral_axes`` (n, 2, 6) checked (None when the arm has no lateral compliance;
+    the axes default to ``kincal.kinematics.lateral.lateral_axes`` of the screws)."""
+    if arm.lateral is None:
+        if arm.lateral_axes is not None:
+            raise ModelError(f"{where}: lateral_axes given without lateral compliances")
+        return {}
+    n = arm.screws.shape[0]
+    c = np.asarray(arm.lateral, dtype=float)
+    if c.shape != (n, 2) or not np.all(np.isfinite(c)):
+        raise ModelError(f"{where}: lateral must be finite with shape ({n}, 2) (x, y per joint), got shape {c.shape}")
+    if np.any(c < 0) and not arm.allow_negative_compliance:
+        raise ModelError(f"{where}: lateral compliance must be >= 0 (rad/(N m)), got {c.tolist()}"
+                         "; a calibration's estimates below 0 need allow_negative_compliance")
+    axes = lateral_axes(arm.screws) if arm.lateral_axes is None else np.asarray(arm.lateral_axes, dtype=float)
+    if axes.shape != (n, 2, 6) or not np.all(np.isfinite(axes)):
+        raise ModelError(f"{where}: lateral_axes must be finite with shape ({n}, 2, 6), got shape {axes.shape}")
+    return {"lateral": _frozen(c), "lateral_axes": _frozen(axes)}
 
 
 def _plain_couplings(arm: ArmModel) -> dict:

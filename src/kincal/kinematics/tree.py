@@ -25,6 +25,7 @@ import numpy as np
 
 from kincal.kinematics.couplings import CONSTANT
 from kincal.kinematics.fk import Kinematics, chain
+from kincal.kinematics.lateral import chain_lateral
 from kincal.kinematics.model import ArmModel, Robot
 from kincal.lie import se3
 
@@ -106,7 +107,17 @@ def tip_model(robot: Robot, arm: str) -> ArmModel:
                     link_masses=cat("link_masses"),
                     link_coms=np.concatenate([s.link_coms @ M[:3, :3].T + M[:3, 3] for s, M in zip(segs, comp.frames)]),
                     payload_mass=segs[-1].payload_mass, payload_com=segs[-1].payload_com,
-                    gravity=next((s.gravity for s in segs if s.gravity is not None), None))
+                    gravity=next((s.gravity for s in segs if s.gravity is not None), None),
+                    **_tip_lateral(segs, comp))
+
+
+def _tip_lateral(segs, comp: Composite) -> dict:
+    """The composite's lateral compliance (``kincal.kinematics.lateral.chain_lateral``), when a segment has it."""
+    lat = chain_lateral(segs, comp.frames)
+    if lat is None:
+        return {}
+    negative = any(s.allow_negative_compliance for s in segs)
+    return {"lateral": lat[1], "lateral_axes": lat[0], "allow_negative_compliance": negative}
 
 
 def tip_kinematics(robot: Robot, arm: str, readings: Mapping[str, np.ndarray]) -> Kinematics:

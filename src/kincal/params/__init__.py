@@ -12,6 +12,8 @@ kind                local coordinates (stable names)            retraction
                     tilt_2`` (prismatic: ``tilt_1, tilt_2``)    joint axis (stays unit, zero pitch)
 ``HOME/BASE/TOOL``  ``right.home.v_x .. w_z``                   ``exp(d) T`` (left increment)
 ``COMPLIANCE``      ``right.j3.compliance`` (rad/Nm; m/N)       ``c + d`` (meaningful only with loads)
+``LATERAL``         ``right.j3.lateral_x, lateral_y`` (rad/Nm)  ``l + d``: bending about the joint's lateral
+                                                                axes (arms that declare it; level ``lateral``)
 ``POSE``            ``fixture.v_x .. w_z``                      ``exp(d) T``
 ``POINT/POINTS``    ``socket.x``, ``markers.m1.x``              ``p + d``
 ``PLANE``           ``plane.n_1, plane.n_2, plane.d``           ``n = normalize(n0 + U d_n)``, ``d + d_d``
@@ -28,6 +30,7 @@ from kincal.params.kinds import (
     COMPLIANCE_UNITS,
     FRAME_KINDS,
     HOME,
+    LATERAL,
     OFFSETS,
     PLANE,
     POINT,
@@ -50,7 +53,7 @@ from kincal.params.ops import (
 from kincal.params.values import ArmValues, Plane, State
 
 __all__ = [
-    "ARM_KINDS", "ArmValues", "BASE", "Block", "COMPLIANCE", "COMPLIANCE_UNITS", "FRAME_KINDS", "HOME", "LEVELS",
+    "ARM_KINDS", "ArmValues", "BASE", "Block", "COMPLIANCE", "COMPLIANCE_UNITS", "FRAME_KINDS", "HOME", "LATERAL", "LEVELS",
     "Layout", "OFFSETS", "PLANE", "POINT", "POINTS", "POSE", "POSE_COORDS", "ParamKind", "Plane", "Prior", "State",
     "TOOL", "TWISTS", "build_layout", "clear_caches", "displacement", "level_patterns", "pose_retraction_jacobians",
     "recentre", "retract", "scale_direction", "twist_coordinates",

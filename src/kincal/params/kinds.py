@@ -17,6 +17,7 @@ import numpy as np
 
 from kincal.errors import ModelError
 from kincal.kinematics import PRISMATIC, REVOLUTE, TWIST_COORDS, conform_twists, tangent_frames
+from kincal.kinematics.lateral import LATERAL_COORDS
 from kincal.lie import se3, so3
 from kincal.params.values import Plane, retract_twists
 
@@ -216,6 +217,31 @@ class _Compliance(ParamKind):
         return a.joint_compliance
 
 
+class _Lateral(ParamKind):
+    """Lateral compliances (``kincal.kinematics.lateral``), ``l + d``: two per joint of an arm that declares them
+    (``arm.j2.lateral_x``, ``arm.j2.lateral_y``, rad/(N m)); none for an arm without."""
+
+    name, rank, absolute, on_arm = "lateral", 6, True, True
+
+    def coordinates(self, prefix, a):
+        if a.lateral is None:
+            return [], []
+        return [f"{prefix}.{j}.{c}" for j in a.joint_names for c in LATERAL_COORDS], ["rad/Nm"] * (2 * a.dof)
+
+    def retract(self, a, d):
+        return replace(a, lateral=a.lateral + d.reshape(-1, 2)) if a.lateral is not None else a
+
+    def displacement(self, a, a0):
+        d = np.ravel(a.lateral) - np.ravel(a0.lateral)
+        return d, np.eye(d.size)
+
+    def scale(self, a):  # rotational compliance: torques scale with length
+        return -np.ravel(a.lateral)
+
+    def values(self, a):
+        return np.ravel(a.lateral)
+
+
 class _Pose(ParamKind):
     name = "pose"
 
@@ -326,7 +352,8 @@ OFFSETS = _Offsets()
 TWISTS = _Twists()
 HOME, BASE, TOOL = _ArmPose("home", 2), _ArmPose("base", 3), _ArmPose("tool", 4)
 COMPLIANCE = _Compliance()
-ARM_KINDS = (OFFSETS, TWISTS, HOME, BASE, TOOL, COMPLIANCE)  # every arm's blocks, in this order
+LATERAL = _Lateral()
+ARM_KINDS = (OFFSETS, TWISTS, HOME, BASE, TOOL, COMPLIANCE, LATERAL)  # every arm's blocks, in this order
 POSE = _Pose()
 POINT = _Points(single=True)
 POINTS = _Points(single=False)

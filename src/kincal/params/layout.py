@@ -16,10 +16,10 @@ import numpy as np
 
 from kincal.errors import ModelError
 from kincal.params import values
-from kincal.params.kinds import ARM_KINDS, COMPLIANCE, HOME, OFFSETS, POSE_COORDS, TWISTS, ParamKind
+from kincal.params.kinds import ARM_KINDS, COMPLIANCE, HOME, LATERAL, OFFSETS, POSE_COORDS, TWISTS, ParamKind
 from kincal.params.values import State
 
-LEVELS = ("offsets", "kinematic", "elastic")
+LEVELS = ("offsets", "kinematic", "elastic", "lateral")  # lateral: opt-in, the arms that declare it
 
 
 @dataclass(frozen=True)
@@ -102,6 +102,8 @@ def level_patterns(level: str, arms: Sequence[str]) -> list[str]:
         return [f"{a}.{k.name}" for a in arms for k in (OFFSETS, TWISTS, HOME)]
     if level == "elastic":
         return [f"{a}.{COMPLIANCE.name}" for a in arms]
+    if level == "lateral":
+        return ["*.lateral_[xy]"]
     raise ModelError(f"unknown level {level!r}; levels: {', '.join(LEVELS)} (or a list of names/globs)")
 
 
@@ -115,6 +117,8 @@ def _blocks(state: State, arms: Sequence[str]):
     items += [(name, state.kinds[name], None, value) for name, value in state.extras.items()]
     for bname, kind, arm, value in items:
         cn, cu = kind.coordinates(arm if arm is not None else bname, value)
+        if kind is LATERAL and not cn:  # only arms that declare lateral compliance have the block
+            continue
         if kind is TWISTS:
             for j in value.joint_names:
                 twist_joint[f"{arm}.{j}"] = tuple(len(names) + k for k, c in enumerate(cn)

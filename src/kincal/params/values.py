@@ -39,6 +39,8 @@ class ArmValues:
     compliance_nodes: tuple = ()  # per joint None or its compliance node angles (m,); (): no joint has nodes
     coupling: np.ndarray | None = None  # (n, n) d readings / d free readings (kinematics.couplings); None: identity
     weights: GravityLoad | None = None  # the arm's own weight (fixed, not a parameter); None: no gravity load
+    lateral: np.ndarray | None = None  # (n, 2) lateral compliances (kinematics.lateral); None: the arm has none
+    lateral_axes: np.ndarray | None = None  # (n, 2, 6) lateral axes, moved with their joint's twist
 
     @property
     def dof(self) -> int:
@@ -116,6 +118,8 @@ class ArmValues:
             node_angles(model) if model.compliance_nodes else (),
             coupling_map(model.couplings, model.joint_names)[0] if model.couplings else None,
             gravity_load(model),
+            None if model.lateral is None else np.array(model.lateral),
+            None if model.lateral is None else np.array(model.lateral_axes),
         )
 
 
@@ -133,7 +137,8 @@ def retract_twists(a: ArmValues, d: np.ndarray) -> ArmValues:
     Jl, ad = se3.left_jacobian(g), se3.ad(screws)
     gens = [Jl[j] @ G for j, G in enumerate(a.generators)]  # retracting again from here keeps basis == -ad(xi) G
     bs = [-ad[j] @ G for j, G in enumerate(gens)]
-    return replace(a, screws=screws, bases=tuple(bs), generators=tuple(gens))
+    axes = None if a.lateral_axes is None else np.einsum("jab,jkb->jka", se3.adjoint(se3.exp(g)), a.lateral_axes)
+    return replace(a, screws=screws, bases=tuple(bs), generators=tuple(gens), lateral_axes=axes)
 
 
 def _compliance_fields(a: ArmValues) -> dict:
@@ -141,7 +146,10 @@ def _compliance_fields(a: ArmValues) -> dict:
     is kept (``allow_negative_compliance``), so the model predicts what the solver fitted; the calibration's
     verdict reports it (``kincal.estimation.plausibility.negative_compliances``)."""
     k = a.joint_compliance
-    negative = {"allow_negative_compliance": True} if np.any(k < 0) else {}
+    lat = np.zeros(0) if a.lateral is None else a.lateral
+    negative = {"allow_negative_compliance": True} if np.any(k < 0) or np.any(lat < 0) else {}
+    if a.lateral is not None:
+        negative.update(lateral=a.lateral, lateral_axes=a.lateral_axes)
     if not a.compliance_nodes:
         return {"compliance": k, **negative}
     c, nodes = np.zeros(a.dof), {}
