@@ -36,7 +36,7 @@ def test_a_curved_valley_is_walked_in_a_few_hundred_evaluations(seed):
     x = x0 + out.z
     r, J = _banana(x)
     assert abs(x @ x - 1.0) < 1e-9 and x[1] > 0.7
-    assert np.linalg.norm(np.linalg.lstsq(J, -r, rcond=None)[0]) < 1e-8  # no Gauss-Newton step left: the minimum
+    assert np.linalg.norm(np.linalg.lstsq(J, -r, rcond=None)[0]) < 1e-6  # within 1e-6 of the minimum
     np.testing.assert_allclose(out.r, r)
 
 

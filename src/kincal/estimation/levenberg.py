@@ -5,20 +5,22 @@ Levenberg-Marquardt algorithm for nonlinear least-squares minimization"): the in
 Plain LM walks along a valley only as far as its linear model holds. Where the valley curves (a joint offset
 traded against the next joints' axes and the home pose, told apart only by a weight's sag; a tracker frame
 traded against a reflector's position) its accepted steps shrink to the valley's width and it crawls for
-thousands of evaluations. Geodesic acceleration adds the second-order correction ``a``: the residual's second
-directional derivative along the step ``v`` (one evaluation, by finite differences) pulled back through the
-same damped solve, so that the step ``v + a / 2`` bends with the valley. A step whose correction is not small
-against it (``2 |a| > ALPHA |v|``) is refused without evaluating it.
+thousands of evaluations. Each damped step ``v`` is tried straight first (one evaluation); when it is refused,
+the second-order correction ``a`` (the residual's second directional derivative along ``v``, one evaluation by
+finite differences, pulled back through the same damped solve) bends it with the valley, ``v + a / 2``, unless
+the correction is not small against the step (``2 |a| > ALPHA |v|``: refused without evaluating it). Straight
+steps first keep a far start on plain LM's path (a camera pose turned by a radian: the bent steps took it to
+another minimum) and cost one evaluation less where the linear model holds.
 
 Each point's Jacobian is decomposed once (SVD): the damped step for any damping is then a diagonal formula,
 exact at any conditioning (the valleys' singular values are 1e-9 of the largest). The damping is isotropic in
 the solve's coordinates, as scipy's LM with ``x_scale=1`` was. It starts nearly at Gauss-Newton (``TAU``: an
 over-damped start costs a step per factor 3 on the way down, dozens of evaluations on an easy problem) and
-moves by Nielsen's rule, up by 2, 4, 8 ... on refusals (refusals by the acceleration test cost one evaluation)
-and down by at most 3 on acceptance ("delayed gratification", which suits long valleys). The solve stops when
-``done`` accepts the undamped Gauss-Newton step left at the current point (``steps``: a negligible fraction of
-a standard deviation), when the evaluation budget is spent, or when not even a step damped to a gradient step
-``STALL`` times shorter reduces the cost (round-off)."""
+moves by Nielsen's rule, up by 2, 4, 8 ... on refusals and down by at most 3 on acceptance ("delayed
+gratification", which suits long valleys). The solve stops when ``done`` accepts the undamped Gauss-Newton step
+left at the current point (``steps``: a negligible fraction of a standard deviation), when the evaluation budget
+is spent, or when not even a step damped to a gradient step ``STALL`` times shorter reduces the cost
+(round-off)."""
 
 from __future__ import annotations
 
@@ -101,24 +103,34 @@ def minimize(evaluate: Callable, r0: np.ndarray, J0: np.ndarray, done: Callable[
 
 
 def _trial(evaluate: Callable, pt: _Point, lam: float):
-    """One damped step with its geodesic acceleration from ``pt``: ``(z, rho, evaluations)``, ``z`` None when
-    the step is refused, else the new point and the ratio of actual to predicted cost reduction."""
+    """One damped step from ``pt``, bent by its geodesic acceleration when the straight step is refused:
+    ``(z, rho, evaluations)``, ``z`` None when both are refused, else the new point and the ratio of actual to
+    predicted cost reduction."""
     v = pt.damped(pt.utr, lam)
     if not np.any(v):
         return None, 0.0, 0
     Jv = pt.J @ v
+    linear = pt.r + Jv
+    z, rho = _accept(pt, pt.z + v, evaluate(pt.z + v, False)[0], pt.cost2 - float(linear @ linear))
+    if z is not None:
+        return z, rho, 1
     r_h = evaluate(pt.z + H * v, False)[0]
     rvv = (2.0 / H) * ((r_h - pt.r) / H - Jv)  # the second directional derivative of r along v
     if not np.all(np.isfinite(rvv)):
-        return None, 0.0, 1
+        return None, 0.0, 2
     a = pt.damped(pt.U.T @ rvv, lam)
     if 2.0 * np.linalg.norm(a) > ALPHA * np.linalg.norm(v):
-        return None, 0.0, 1
+        return None, 0.0, 2
     step = v + 0.5 * a
-    model = pt.r + Jv + 0.5 * (pt.J @ a + rvv)  # the residual after the step, to second order
-    predicted = pt.cost2 - float(model @ model)
-    r_new = evaluate(pt.z + step, False)[0]
+    model = linear + 0.5 * (pt.J @ a + rvv)  # the residual after the step, to second order
+    z, rho = _accept(pt, pt.z + step, evaluate(pt.z + step, False)[0], pt.cost2 - float(model @ model))
+    return z, rho, 3
+
+
+def _accept(pt: _Point, z: np.ndarray, r_new: np.ndarray, predicted: float):
+    """``(z, rho)`` when the cost at ``z`` fell by at least ``ACCEPT`` times the ``predicted`` reduction, else
+    ``(None, 0)``."""
     actual = pt.cost2 - float(r_new @ r_new)
     if not (predicted > 0 and np.isfinite(actual) and actual > ACCEPT * predicted):
-        return None, 0.0, 2
-    return pt.z + step, actual / predicted, 2
+        return None, 0.0
+    return z, actual / predicted
