@@ -5,12 +5,13 @@ Levenberg-Marquardt algorithm for nonlinear least-squares minimization"): the in
 Plain LM walks along a valley only as far as its linear model holds. Where the valley curves (a joint offset
 traded against the next joints' axes and the home pose, told apart only by a weight's sag; a tracker frame
 traded against a reflector's position) its accepted steps shrink to the valley's width and it crawls for
-thousands of evaluations. Each damped step ``v`` is tried straight first (one evaluation); when it is refused,
-the second-order correction ``a`` (the residual's second directional derivative along ``v``, one evaluation by
-finite differences, pulled back through the same damped solve) bends it with the valley, ``v + a / 2``, unless
-the correction is not small against the step (``2 |a| > ALPHA |v|``: refused without evaluating it). Straight
-steps first keep a far start on plain LM's path (a camera pose turned by a radian: the bent steps took it to
-another minimum) and cost one evaluation less where the linear model holds.
+thousands of evaluations. A refused step ``v`` is bent with the valley by the second-order correction ``a``
+(the residual's second directional derivative along ``v``, one evaluation by finite differences, pulled back
+through the same damped solve): ``v + a / 2``, unless the correction is not small against the step
+(``2 |a| > ALPHA |v|``: refused without evaluating it). Steps are tried straight (one evaluation) until a bent
+step has been accepted, bent from then on: straight steps keep a far start on plain LM's path (a camera pose a
+radian away: bending every step took it to another minimum), and once in a valley, trying each step straight
+first would cost an evaluation per step.
 
 Each point's Jacobian is decomposed once (SVD): the damped step for any damping is then a diagonal formula,
 exact at any conditioning (the valleys' singular values are 1e-9 of the largest). The damping is isotropic in
@@ -81,7 +82,7 @@ def minimize(evaluate: Callable, r0: np.ndarray, J0: np.ndarray, done: Callable[
     pt = _Point(np.zeros(J0.shape[1]), r0, J0)
     top = pt.S[0] ** 2 if len(pt.S) else 1.0
     lam = TAU * top
-    nu, evaluations, accepted = UP, 0, 0
+    nu, evaluations, accepted, bent = UP, 0, 0, False
     while True:
         step = pt.gauss_newton()
         if done(step, pt.cost2 - step ** 2):
@@ -90,7 +91,7 @@ def minimize(evaluate: Callable, r0: np.ndarray, J0: np.ndarray, done: Callable[
             return Outcome(pt.z, pt.r, evaluations, "budget", accepted)
         if lam > STALL * top:
             return Outcome(pt.z, pt.r, evaluations, "stalled", accepted)
-        z, rho, spent = _trial(evaluate, pt, lam)
+        z, rho, spent, bent = _trial(evaluate, pt, lam, bent)
         evaluations += spent
         if z is None:
             lam, nu = lam * nu, nu * UP
@@ -102,29 +103,32 @@ def minimize(evaluate: Callable, r0: np.ndarray, J0: np.ndarray, done: Callable[
         lam, nu = lam * max(1.0 / DOWN, 1.0 - (2.0 * rho - 1.0) ** 3), UP
 
 
-def _trial(evaluate: Callable, pt: _Point, lam: float):
-    """One damped step from ``pt``, bent by its geodesic acceleration when the straight step is refused:
-    ``(z, rho, evaluations)``, ``z`` None when both are refused, else the new point and the ratio of actual to
-    predicted cost reduction."""
+def _trial(evaluate: Callable, pt: _Point, lam: float, bent: bool):
+    """One damped step from ``pt``: straight (unless ``bent``), then bent by its geodesic acceleration when
+    refused. ``(z, rho, evaluations, bent)``: ``z`` None when refused, else the new point and the ratio of actual
+    to predicted cost reduction; ``bent``: whether steps are bent from now on."""
     v = pt.damped(pt.utr, lam)
     if not np.any(v):
-        return None, 0.0, 0
+        return None, 0.0, 0, bent
     Jv = pt.J @ v
     linear = pt.r + Jv
-    z, rho = _accept(pt, pt.z + v, evaluate(pt.z + v, False)[0], pt.cost2 - float(linear @ linear))
-    if z is not None:
-        return z, rho, 1
+    n = 0
+    if not bent:
+        z, rho = _accept(pt, pt.z + v, evaluate(pt.z + v, False)[0], pt.cost2 - float(linear @ linear))
+        if z is not None:
+            return z, rho, 1, False
+        n = 1
     r_h = evaluate(pt.z + H * v, False)[0]
     rvv = (2.0 / H) * ((r_h - pt.r) / H - Jv)  # the second directional derivative of r along v
     if not np.all(np.isfinite(rvv)):
-        return None, 0.0, 2
+        return None, 0.0, n + 1, bent
     a = pt.damped(pt.U.T @ rvv, lam)
     if 2.0 * np.linalg.norm(a) > ALPHA * np.linalg.norm(v):
-        return None, 0.0, 2
+        return None, 0.0, n + 1, bent
     step = v + 0.5 * a
     model = linear + 0.5 * (pt.J @ a + rvv)  # the residual after the step, to second order
     z, rho = _accept(pt, pt.z + step, evaluate(pt.z + step, False)[0], pt.cost2 - float(model @ model))
-    return z, rho, 3
+    return z, rho, n + 2, bent or z is not None
 
 
 def _accept(pt: _Point, z: np.ndarray, r_new: np.ndarray, predicted: float):
