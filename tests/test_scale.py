@@ -156,7 +156,7 @@ def test_the_blocked_inner_solve_reaches_the_minimum_least_squares_finds(small, 
         order = priority(problem, "min-change")
         ana = identify(lin, problem.layout, problem.experiments, rtol=1e-9, priority=order)
         V = gauge_basis(lin.Rf, ana, "min-change", order)
-        z, cost, _ = steps.inner_solve(problem, problem.start, lin, V, loss, 3.0)
+        z, cost, _, _ = steps.inner_solve(problem, problem.start, lin, V, loss, 3.0)
         found[problem.blocked] = (V @ z, cost, lin.Rf)
     (d0, c0, R), (d1, c1, _) = found[False], found[True]
     assert c1 == pytest.approx(c0, rel=1e-9)

@@ -1,6 +1,7 @@
 """The outer loop of ``solve``: re-linearize around the current state, analyse the rank, restrict the step to the
-identifiable subspace (the gauge), take a Gauss-Newton step or solve the inner problem with
-``scipy.optimize.least_squares``, re-centre (conform twists, re-linearize tangent bases)."""
+identifiable subspace (the gauge), take a Gauss-Newton step or solve the inner problem (``steps.inner_solve``:
+geodesic Levenberg-Marquardt, or ``scipy.optimize.least_squares`` with a robust loss), re-centre (conform
+twists, re-linearize tangent bases)."""
 
 from __future__ import annotations
 
@@ -90,11 +91,12 @@ def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.nd
     """One step from ``lin`` in the subspace V: (new state, whether it was negligible, whether Gauss-Newton is
     still fast, residual evaluations spent).
 
-    The Gauss-Newton step ``z`` first (it costs one residual evaluation); least_squares (LM, or TRF with a
-    robust loss) solves the inner problem when the full step does not reduce the cost as the linear model
-    predicts (far from the optimum, strongly nonlinear), when Gauss-Newton has stopped converging fast, or when
-    a robust loss is asked for."""
-    accepted, evaluations, moved = False, 0, None
+    The Gauss-Newton step ``z`` first (it costs one residual evaluation); ``steps.inner_solve`` (geodesic
+    Levenberg-Marquardt, or TRF with a robust loss) solves the inner problem when the full step does not reduce
+    the cost as the linear model predicts (far from the optimum, strongly nonlinear), when Gauss-Newton has
+    stopped converging fast, or when a robust loss is asked for. An inner solve that stopped on its budget is
+    never the last step: the loop relinearizes and goes on (or ends "not converged")."""
+    accepted, evaluations, moved, finished = False, 0, None, True
     if options.loss == "linear" and fast:
         moved = retract(lin.state, problem.layout, problem.full_delta(V @ z))  # retracted once: kept if accepted
         r_new = problem.evaluate(moved, np.zeros(V.shape[0]), lin.W, jac=False)[0]
@@ -108,7 +110,7 @@ def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.nd
     if accepted:
         x, cost = z, 0.5 * cost2_new
     else:
-        x, cost, nfev = steps.inner_solve(problem, lin.state, lin, V, options.loss, options.f_scale)
+        x, cost, nfev, finished = steps.inner_solve(problem, lin.state, lin, V, options.loss, options.f_scale)
         evaluations += nfev
     delta = V @ x
     step = float(np.linalg.norm(lin.Rf @ delta))
@@ -116,10 +118,10 @@ def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.nd
     if options.progress:
         options.progress(it, 2 * cost)
     log.debug("outer %d (%s): cost %.6g, whitened step %.3g, max |delta| %.3g", it,
-              "Gauss-Newton" if accepted else "least_squares", 2 * cost, step, np.max(np.abs(delta), initial=0))
+              "Gauss-Newton" if accepted else "inner solve", 2 * cost, step, np.max(np.abs(delta), initial=0))
     # stop when the step is negligible against the residual (or, with noise, well below one sigma)
-    done = (steps.converged(step, np.sqrt(lin.cost2), cost, len(lin.r) - V.shape[1])
-            or np.max(np.abs(delta), initial=0) < 1e-13)
+    done = finished and (steps.converged(step, np.sqrt(lin.cost2), cost, len(lin.r) - V.shape[1])
+                         or np.max(np.abs(delta), initial=0) < 1e-13)
     return state, done, fast, evaluations
 
 

@@ -2,8 +2,9 @@
 
 A linearization evaluates every experiment once and reduces the tall whitened Jacobian to the triangular
 factor of ``[J_free | J_fixed | r_len | r]`` (``kincal.analysis.Linearization``); the Gauss-Newton step, its
-predicted cost and the convergence test read that factor only. ``inner_solve`` is the fallback: ``scipy.optimize.least_squares`` on the identifiable
-subspace with the analytic Jacobian.
+predicted cost and the convergence test read that factor only. ``inner_solve`` is the slow path, on the
+identifiable subspace with the analytic Jacobian: Levenberg-Marquardt with geodesic acceleration
+(``estimation.levenberg``) for plain least squares, ``scipy.optimize.least_squares`` with a robust loss.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import numpy as np
 from kincal.analysis import Linearization
 from kincal.analysis.linalg import lstsq
 from kincal.errors import DegenerateExperimentError
-from kincal.estimation import blocks
+from kincal.estimation import blocks, levenberg
 from kincal.estimation.problem import Problem
 from kincal.params import State, scale_direction
 
@@ -57,24 +58,55 @@ def _linearize_blocks(problem: Problem, state: State, W, cols: np.ndarray, every
                          cols[len(problem.free_idx):] if every else None)
 
 
-# A constant residual with a zero Jacobian row, added to the inner LM problem: MINPACK's relative ftol then
-# reads as an absolute one near a perfect fit (noise-free data), where relative reductions stay large down to
-# the round-off floor and LM would spend iterations polishing digits nobody can measure.
-_COST_FLOOR = 1.0
-_INNER_FTOL = 1e-12  # change of whitened chi^2 (with the floor) below which the inner solve stops
+# The inner solve stops where the Gauss-Newton step left is this fraction of what ``converged`` calls negligible.
+# Inside a curved valley a hundredth of a standard deviation along the valley still moves the coordinates that
+# bend with it by more than their (linearized) standard deviations say; near the minimum each further step of
+# Levenberg-Marquardt gains digits for a few evaluations, so the inner solve polishes to 1e-4 sigma.
+INNER_TOLERANCE = 1e-2
 
 
 def inner_solve(problem: Problem, state: State, lin: Linearization, V: np.ndarray, loss: str, f_scale: float,
-                 jac: str = "analytic"):
-    """``scipy.optimize.least_squares`` over coordinates ``z`` of the subspace V around ``state`` with the
-    analytic Jacobian (``jac="2-point"``: scipy's finite differences instead, for bench/bench_calibrate.py);
-    the first evaluation is the linearization already at hand. Returns (z, cost, nfev), cost = 0.5 |r|^2
-    without the floor."""
+                jac: str = "analytic"):
+    """Minimize over coordinates ``z`` of the subspace V around ``state``, from the linearization at hand:
+    ``estimation.levenberg`` (geodesic Levenberg-Marquardt) for plain least squares, scipy's ``least_squares``
+    (TRF) with a robust loss or fewer residuals than coordinates. ``jac="2-point"``: forward differences
+    instead of the analytic Jacobian (bench/bench_calibrate.py). Returns ``(z, cost, evaluations, converged)``,
+    cost = 0.5 |r|^2; ``converged`` False when the solve stopped on its evaluation budget or stalled."""
+    budget = 200 * (V.shape[1] + 1)
+    if loss == "linear" and V.shape[1] <= len(lin.r):
+        return _levenberg(problem, state, lin, V, jac, budget)
+    return _least_squares(problem, state, lin, V, loss, f_scale, jac, budget)
+
+
+def _levenberg(problem: Problem, state: State, lin: Linearization, V: np.ndarray, jac: str, budget: int):
+    """``inner_solve`` for plain least squares."""
+    dof, r0 = len(lin.r) - V.shape[1], np.sqrt(lin.cost2)
+
+    def evaluate(z, need_jac):
+        if jac == "analytic" or not need_jac:
+            return _evaluate_in(problem, state, V, z, lin.W, need_jac)
+        return _forward_differences(lambda x: _evaluate_in(problem, state, V, x, lin.W, False)[0], z)
+
+    def done(step, cost2):
+        return converged(step / INNER_TOLERANCE, r0, 0.5 * cost2, dof)
+
+    out = levenberg.minimize(evaluate, lin.r, lin.J @ V, done, budget)
+    return out.z, 0.5 * float(out.r @ out.r), out.evaluations, out.status == "converged"
+
+
+def _forward_differences(f, z: np.ndarray):
+    """``(f(z), df/dz)`` by forward differences (scipy's "2-point" step)."""
+    r = f(z)
+    h = np.sqrt(np.finfo(float).eps) * np.maximum(1.0, np.abs(z))
+    return r, np.column_stack([(f(z + h[j] * e) - r) / h[j] for j, e in enumerate(np.eye(len(z)))])
+
+
+def _least_squares(problem: Problem, state: State, lin: Linearization, V: np.ndarray, loss: str, f_scale: float,
+                   jac: str, budget: int):
+    """``inner_solve`` by ``scipy.optimize.least_squares`` (TRF: a robust loss, or more coordinates than
+    residuals)."""
     from scipy.optimize import least_squares  # a fallback; importing scipy.optimize costs more than kincal
 
-    method = "lm" if loss == "linear" and V.shape[1] <= len(lin.r) else "trf"
-    floor = np.array([_COST_FLOOR if method == "lm" else 0.0])
-    zero_row = np.zeros((1, V.shape[1]))
     cache = {np.zeros(V.shape[1]).tobytes(): (lin.r, lin.J @ V)}
 
     def both(z, need_jac):
@@ -84,14 +116,10 @@ def inner_solve(problem: Problem, state: State, lin: Linearization, V: np.ndarra
             cache[key] = _evaluate_in(problem, state, V, z, lin.W, need_jac)
         return cache[key]
 
-    sol = least_squares(
-        lambda z: np.concatenate([both(z, False)[0], floor]), np.zeros(V.shape[1]),
-        jac=(lambda z: np.vstack([both(z, True)[1], zero_row])) if jac == "analytic" else jac, method=method,
-        loss=loss if method == "trf" else "linear", f_scale=f_scale, x_scale=1.0,
-        ftol=_INNER_FTOL if method == "lm" else 1e-10, xtol=1e-10, gtol=1e-10, max_nfev=200 * (V.shape[1] + 1),
-    )
-    cost = float(sol.cost) - 0.5 * float(floor[0] ** 2) if method == "lm" else float(sol.cost)
-    return sol.x, max(cost, 0.0), sol.nfev
+    sol = least_squares(lambda z: both(z, False)[0], np.zeros(V.shape[1]),
+                        jac=(lambda z: both(z, True)[1]) if jac == "analytic" else jac, method="trf", loss=loss,
+                        f_scale=f_scale, x_scale=1.0, ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=budget)
+    return sol.x, float(sol.cost), sol.nfev, sol.status > 0
 
 
 def _evaluate_in(problem: Problem, state: State, V: np.ndarray, z: np.ndarray, W, jac: bool):
