@@ -39,75 +39,65 @@ def conform_twists(screws: np.ndarray, joint_types, mode: str = "line") -> np.nd
     return out
 
 
-def _perpendicular_pair(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    a = np.eye(3)[np.argmin(np.abs(d))]
+def _perpendicular_pairs(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit u1 (m, 3) normal to each direction d (m, 3), and u2 = d x u1."""
+    a = np.eye(3)[np.argmin(np.abs(d), axis=-1)]
     u1 = so3.cross(d, a)
-    u1 /= np.linalg.norm(u1)
+    u1 /= np.linalg.norm(u1, axis=-1, keepdims=True)
     return u1, so3.cross(d, u1)
 
 
 def tangent_basis(screw: np.ndarray, kind: str) -> np.ndarray:
-    """Orthonormal-ish basis (6, k) of admissible twist changes of one joint screw.
+    """Orthonormal-ish basis (6, k) of admissible twist changes of one joint screw (``tangent_frames``).
 
     Revolute (k = 4): shift the axis line along u1, u2 and tilt it about u1, u2 through its point
     nearest the origin (u1, u2 perpendicular to the axis). Prismatic (k = 2): tilt the direction.
     Moving along any column keeps |w| = 1 and zero pitch to first order.
     """
-    v, w = se3.split(np.asarray(screw, dtype=float))
-    if kind == REVOLUTE:
-        p = so3.cross(w, v)  # point on the axis nearest the origin
-        u1, u2 = _perpendicular_pair(w)
-        cols = [se3.join(-so3.cross(w, u), np.zeros(3)) for u in (u1, u2)]
-        cols += [se3.join(-so3.cross(u, p), u) for u in (u1, u2)]
-        return np.stack(cols, axis=-1)
-    if kind == PRISMATIC:
-        u1, u2 = _perpendicular_pair(v)
-        return np.stack([se3.join(u, np.zeros(3)) for u in (u1, u2)], axis=-1)
-    raise ValueError(f"unknown joint type {kind!r}")
+    return tangent_frames(np.asarray(screw, dtype=float)[None], (kind,))[0][0]
 
 
 def tangent_generators(screw: np.ndarray, kind: str) -> np.ndarray:
-    """Rigid-motion generators G (6, k) with ``-ad(xi) G = tangent_basis(xi)``.
+    """Rigid-motion generators G (6, k) with ``-ad(xi) G = tangent_basis(xi)`` (``tangent_frames``).
 
     ``Ad(exp(G d)) xi`` moves the joint screw along the tangent basis to first order and stays an exact
     unit, zero-pitch (or unit prismatic) screw for any d: an exact retraction of joint axes.
     Shifts are translations along u_k; tilts are rotations about w x u_k through the axis point p
     (prismatic: rotations about v x u_k through the origin).
     """
-    v, w = se3.split(np.asarray(screw, dtype=float))
-    if kind == REVOLUTE:
-        p = so3.cross(w, v)
-        u1, u2 = _perpendicular_pair(w)
-        cols = [se3.join(u, np.zeros(3)) for u in (u1, u2)]
-        cols += [se3.join(-so3.cross(so3.cross(w, u), p), so3.cross(w, u)) for u in (u1, u2)]
-        return np.stack(cols, axis=-1)
-    if kind == PRISMATIC:
-        u1, u2 = _perpendicular_pair(v)
-        return np.stack([se3.join(np.zeros(3), so3.cross(v, u)) for u in (u1, u2)], axis=-1)
-    raise ValueError(f"unknown joint type {kind!r}")
+    return tangent_frames(np.asarray(screw, dtype=float)[None], (kind,))[1][0]
 
 
 def tangent_frames(screws: np.ndarray, joint_types) -> tuple[tuple, tuple]:
-    """``tangent_basis`` and ``tangent_generators`` of every joint of an arm, the revolute ones in one batch:
-    (bases, generators), each a tuple of (6, k) per joint. The same operations as the one-joint functions (up to
-    the last bit of the normalization of the perpendicular pairs), without a Python loop per joint."""
+    """``tangent_basis`` and ``tangent_generators`` of every joint of an arm, each joint type in one batch:
+    (bases, generators), each a tuple of (6, k) per joint."""
     xi = np.asarray(screws, dtype=float)
     bases, gens = [None] * len(xi), [None] * len(xi)
-    rev = [i for i, t in enumerate(joint_types) if t == REVOLUTE]
-    for i, t in enumerate(joint_types):
-        if t != REVOLUTE:
-            bases[i], gens[i] = tangent_basis(xi[i], t), tangent_generators(xi[i], t)
-    if rev:
-        v, w = se3.split(xi[rev])
-        p = so3.cross(w, v)  # points on the axes nearest the origin
-        a = np.eye(3)[np.argmin(np.abs(w), axis=-1)]
-        u1 = so3.cross(w, a)
-        u1 /= np.linalg.norm(u1, axis=-1, keepdims=True)
-        us = (u1, so3.cross(w, u1))
-        zero = np.zeros_like(w)
-        wus = [so3.cross(w, u) for u in us]
-        B = np.stack([se3.join(-wu, zero) for wu in wus] + [se3.join(-so3.cross(u, p), u) for u in us], axis=-1)
-        G = np.stack([se3.join(u, zero) for u in us] + [se3.join(-so3.cross(wu, p), wu) for wu in wus], axis=-1)
-        for k, i in enumerate(rev):
-            bases[i], gens[i] = B[k], G[k]
+    for kind, frames in ((REVOLUTE, _revolute_frames), (PRISMATIC, _prismatic_frames)):
+        idx = [i for i, t in enumerate(joint_types) if t == kind]
+        if idx:
+            B, G = frames(*se3.split(xi[idx]))
+            for k, i in enumerate(idx):
+                bases[i], gens[i] = B[k], G[k]
+    bad = [t for t in joint_types if t not in (REVOLUTE, PRISMATIC)]
+    if bad:
+        raise ValueError(f"unknown joint type {bad[0]!r}")
     return tuple(bases), tuple(gens)
+
+
+def _revolute_frames(v: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    p = so3.cross(w, v)  # points on the axes nearest the origin
+    us = _perpendicular_pairs(w)
+    zero = np.zeros_like(w)
+    wus = [so3.cross(w, u) for u in us]
+    B = np.stack([se3.join(-wu, zero) for wu in wus] + [se3.join(-so3.cross(u, p), u) for u in us], axis=-1)
+    G = np.stack([se3.join(u, zero) for u in us] + [se3.join(-so3.cross(wu, p), wu) for wu in wus], axis=-1)
+    return B, G
+
+
+def _prismatic_frames(v: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    us = _perpendicular_pairs(v)
+    zero = np.zeros_like(v)
+    B = np.stack([se3.join(u, zero) for u in us], axis=-1)
+    G = np.stack([se3.join(zero, so3.cross(v, u)) for u in us], axis=-1)
+    return B, G
