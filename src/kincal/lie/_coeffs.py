@@ -49,28 +49,24 @@ def _horner(coeffs: np.ndarray, t2: np.ndarray) -> np.ndarray:
 _FEW = 16
 
 
-def _horner_list(cs: list, out: float, t2: float) -> float:
+def _horner_float(cs: list, out: float, t2: float) -> float:
+    """Horner on Python floats: ``cs`` the coefficients below the top one, highest first; ``out`` the top one."""
     for c in cs:
         out = out * t2 + c
     return out
-
-
-def _horner_float(coeffs: np.ndarray, t2: float) -> np.float64:
-    out = float(coeffs[-1])
-    for c in coeffs[-2::-1].tolist():
-        out = out * t2 + c
-    return np.float64(out)
 
 
 def _branch(theta: np.ndarray, coeffs: np.ndarray, closed_form) -> np.ndarray:
     theta = np.asarray(theta, dtype=float)
     small = theta < _TAYLOR_BELOW
     if theta.ndim == 0:  # one angle: Horner on Python floats (the same IEEE operations, without array overhead)
-        return _horner_float(coeffs, float(theta * theta)) if small else closed_form(theta)
+        if not small:
+            return closed_form(theta)
+        return np.float64(_horner_float(coeffs[-2::-1].tolist(), float(coeffs[-1]), float(theta * theta)))
     if small.all():  # every angle below the branch point (joint screws' small steps): no masking
         if theta.size <= _FEW:  # a few angles (one per joint): Python floats, the same IEEE operations
             cs = coeffs[-2::-1].tolist()
-            return np.array([_horner_list(cs, float(coeffs[-1]), t2) for t2 in (theta * theta).ravel().tolist()]
+            return np.array([_horner_float(cs, float(coeffs[-1]), t2) for t2 in (theta * theta).ravel().tolist()]
                             ).reshape(theta.shape)
         return _horner(coeffs, theta * theta)
     out = np.empty_like(theta)
