@@ -20,8 +20,7 @@ import numpy as np
 
 from kincal.data import Dataset
 from kincal.errors import DataFormatError
-from kincal.experiments.base import KINDS, Experiment, Residual
-from kincal.kinematics.branches import loading_branches
+from kincal.experiments.base import KINDS, Experiment, Residual, hung_arms
 from kincal.kinematics.model import lineage
 from kincal.experiments.sharing import frame_kinds, frame_names, frame_values
 from kincal.params import State
@@ -49,7 +48,7 @@ def check_joints(ds: Dataset, state: State) -> None:
                 f"data set '{ds.name}': arm '{arm}' is not in the model (arms: {', '.join(state.arms)})"
             )
         line = lineage(state.mounts, arm)
-        hung = loading_branches(state.mounts, {a: v.weights for a, v in state.arms.items()}, line) if state.mounts else []
+        hung = hung_arms(state, line)
         for carrier in (*line, *hung):
             if carrier not in ds.q:
                 why = f"which carries arm '{arm}'" if carrier in line else f"whose weight loads the joints carrying arm '{arm}'"

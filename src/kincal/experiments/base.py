@@ -144,7 +144,7 @@ class Experiment:
         weight when its model has masses and gravity (``kincal.kinematics.gravity``; on a tree the weights of all
         its arms, ``kincal.kinematics.branches``)."""
         line = lineage(state.mounts, arm)
-        if len(line) > 1 or _hung(state, line) or state.arms[arm].lateral is not None:
+        if len(line) > 1 or hung_arms(state, line) or state.arms[arm].lateral is not None:
             return tree_kin(state, line, self.dataset.q, self.dataset.measured.get("wrench_tool"))
         a = state.arms[arm]
         theta0 = self.dataset.q[arm] + a.offsets
@@ -163,7 +163,7 @@ class Experiment:
         the residual's derivative w.r.t. the left increment of ``T_world_tool``. A mounted arm adds its
         ancestors' blocks and readings too (added to what another arm of the data set put there)."""
         line = lineage(state.mounts, arm)
-        hung = _hung(state, line)
+        hung = hung_arms(state, line)
         if len(line) > 1 or hung or state.arms[arm].lateral is not None:  # lateral: the composite's expanded chain
             parts = {s: self._parts(s, want) for s in (*line, *hung)}
             if any(parts.values()) or jq:
@@ -178,7 +178,7 @@ class Experiment:
             jqs[arm] = coupled(state.arms[arm], gq)
 
 
-def _hung(state: State, line) -> list[str]:
+def hung_arms(state: State, line) -> list[str]:
     """The other arms whose weight loads the joints of ``line`` (``kincal.kinematics.branches``)."""
     if not state.mounts:
         return []

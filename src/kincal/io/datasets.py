@@ -41,9 +41,8 @@ from kincal.io.models import _Ctx, _mapping, _matrix, _number, _pose, _vector, l
 from kincal.io.references import model_reference, resolve, same_model
 from kincal.io.yamlfile import clip, quote, read_yaml
 from kincal.kinematics import PRISMATIC, Robot
-from kincal.kinematics.branches import loading_branches
+from kincal.kinematics.branches import model_loading_branches
 from kincal.kinematics.couplings import derive_readings
-from kincal.kinematics.gravity import gravity_load
 from kincal.lie import se3
 from kincal.lie.rotations import matrix_to_quat_wxyz, quat_wxyz_to_matrix
 from kincal.params import State, build_layout
@@ -168,8 +167,7 @@ def _readings(ctx, table: Table, robot: Robot, arms) -> dict[str, np.ndarray]:
 def _hung_arms(robot: Robot, arms, table: Table) -> list[str]:
     """The other arms of a tree with gravity whose weight loads the data set's arms' carriers and whose columns
     the file has (``<left>.<joint>``); a missing one is refused when the data set is used (naming it)."""
-    loads = {a: gravity_load(m) for a, m in robot.arms.items()}
-    hung = [o for arm in arms for o in loading_branches(robot.mounts, loads, robot.lineage(arm))] if robot.mounts else []
+    hung = [o for arm in arms for o in model_loading_branches(robot, robot.lineage(arm))]
     return [o for o in dict.fromkeys(hung) if any(f"{o}.{j}" in table.header for j in robot[o].joint_names)]
 
 

@@ -86,6 +86,13 @@ def loading_branches(mounts: Mapping[str, str], loads: Mapping[str, GravityLoad 
     return [a for a in others if _weighs(loads[a])]
 
 
+def model_loading_branches(robot: Robot, line: Sequence[str]) -> list[str]:
+    """``loading_branches`` of a robot model, weighed by its arms' own mass models."""
+    if not robot.mounts:
+        return []
+    return loading_branches(robot.mounts, {a: gravity_load(m) for a, m in robot.arms.items()}, line)
+
+
 def tree_gravity(arms: Mapping, loads: Mapping[str, GravityLoad | None], mounts: Mapping[str, str],
                  line: Sequence[str], q: Mapping[str, np.ndarray], offsets: Mapping[str, np.ndarray]
                  ) -> tuple[GravityLoad | None, tuple[Branch, ...]]:

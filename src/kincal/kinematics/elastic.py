@@ -38,7 +38,7 @@ import numpy as np
 from kincal._validate import as_array
 from kincal.kinematics.fk import Kinematics, chain, forward_kinematics, joint_array
 from kincal.kinematics.gravity import GravityLoad, gravity_load, mass_beyond, weight_wrenches
-from kincal.kinematics.lateral import expand_load, expand_screws, expand_values
+from kincal.kinematics.lateral import expand_load, expand_screws, expand_values, real_columns
 from kincal.kinematics.model import ArmModel
 from kincal.lie import se3
 
@@ -175,4 +175,4 @@ def load_torques(model: ArmModel, q, wrench_tool=None) -> np.ndarray:
     """Joint load torques ``J_b(q + o)^T wrench_tool`` (..., n) at the unloaded configuration, plus the arm's
     own weight when the model has a mass model and gravity (the joints' own, without lateral moments)."""
     tau = loaded_kinematics(model, q, wrench_tool).tau
-    return tau if model.lateral is None else tau[..., 0::3]
+    return tau if model.lateral is None else real_columns(tau)

@@ -7,9 +7,8 @@ import numpy as np
 
 from kincal.errors import ModelError
 from kincal.kinematics import Robot, loaded_forward_kinematics
-from kincal.kinematics.branches import loading_branches, tree_loaded_kinematics
+from kincal.kinematics.branches import model_loading_branches, tree_loaded_kinematics
 from kincal.kinematics.couplings import coupling_map
-from kincal.kinematics.gravity import gravity_load
 from kincal.kinematics.tree import tip_model
 from kincal.simulate.ik import ClosedChainConstraint, _PoseResidual
 
@@ -114,9 +113,7 @@ def uncoupled_tip(robot: Robot, arm: str, kind: str):
 def hung_readings(robot: Robot, arm: str, n: int, draw) -> dict[str, np.ndarray]:
     """Readings (couplings applied) of the other arms whose weight loads ``arm``'s carriers (gravity on a tree,
     ``kincal.kinematics.branches``), drawn by ``draw(model, n)``; {} when there are none (no draws)."""
-    loads = {a: gravity_load(m) for a, m in robot.arms.items()}
-    return with_couplings(robot, {o: draw(robot[o], n) for o in loading_branches(robot.mounts, loads,
-                                                                                   robot.lineage(arm))})
+    return with_couplings(robot, {o: draw(robot[o], n) for o in model_loading_branches(robot, robot.lineage(arm))})
 
 
 def true_tool_poses(robot: Robot, arm: str, model, q: np.ndarray, loads, others: dict) -> np.ndarray:
