@@ -76,7 +76,7 @@ class Identifiability:
 
 def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol: float = 1e-9,
              priority: Sequence[int] | None = None, report: bool = True,
-             structural: np.ndarray | None = None) -> Identifiability:
+             structural: np.ndarray | None = None, hold: np.ndarray | None = None) -> Identifiability:
     """The identifiability of the free coordinates at one linearization: the one entry point of the solver.
 
     Rank and null space of ``lin``'s whitened Jacobian with the exact symmetries held (the scale without a
@@ -87,14 +87,80 @@ def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol:
     order for the pivots of the named directions. ``structural`` (p, k): exact gauges of the start (natural
     units); those the estimate lifts only slightly are reported as weakly identifiable with their names
     (``near_gauges``: a coupling of parallel axes, whose exact gauge at the nominal model the estimated tilts
-    of the axes lift a little).
+    of the axes lift a little). ``hold`` (p, k): the exact gauges of the rigid model, which only the weight
+    lifts (natural units, ``estimation.gauge.rigid_gauges``): held by pinning one coordinate per direction
+    (``pivot_rows`` in ``priority``), named, with a message saying why.
     """
     names = [layout.names[i] for i in lin.free]
     scale = scale_null(lin, layout) if lin.every else None
     held = rotation_nulls(lin, layout, experiments)
     gauges = partial(consistent_nulls, lin, layout, experiments, rtol)
-    ana = analyse(lin.Rf, names, rtol=rtol, priority=priority, scale=scale, held=held, gauges=gauges, name=False)
+    J, pins = lin.Rf, []
+    if hold is not None:
+        hold = _orth(hold)
+        pins = pivot_rows(hold, range(len(names)) if priority is None else priority)
+        J = lin.Rf.copy()
+        J[:, pins] = 0.0  # the pinned coordinates do not move: exact nulls, the rest analysed without them
+        scale, held, gauges = _unpinned(hold, pins, scale, held, gauges)
+    ana = analyse(J, names, rtol=rtol, priority=priority, scale=scale, held=held, gauges=gauges, name=False)
+    if pins:
+        ana = _pinned(ana, hold, pins)
     return named(ana, lin, layout, experiments, priority, structural) if report else ana
+
+
+def pivot_rows(L: np.ndarray, order) -> list[int]:
+    """Rows of the orthonormal basis L (p, k), first in ``order``, that together span its k directions: holding
+    those coordinates removes them. A row counts when what it adds is not small against a unit row."""
+    Q, chosen = np.zeros((L.shape[1], 0)), []
+    for j in order:
+        if len(chosen) == L.shape[1]:
+            break
+        r = L[j] - Q @ (Q.T @ L[j])
+        if np.linalg.norm(r) > 0.1:
+            Q = np.column_stack([Q, r / np.linalg.norm(r)])
+            chosen.append(int(j))
+    return sorted(chosen)
+
+
+def _unpinned(hold: np.ndarray, pins: list[int], scale, held, gauges):
+    """The exact symmetries of the cost moved off the pinned coordinates along the held directions: what they
+    are among the coordinates that still move. One within the held directions (to well within their turn since
+    the start, where ``hold`` was taken) is held with them already: dropped."""
+    def move(v):
+        if v is None:
+            return None
+        u = v / np.linalg.norm(v)
+        if np.linalg.norm(u - hold @ (hold.T @ u)) < 0.5:
+            return None
+        return v - hold @ np.linalg.lstsq(hold[pins], v[pins], rcond=None)[0]
+
+    def moved_gauges(plain: int):
+        G = gauges(plain - len(pins))
+        if G is None or not G.shape[1]:
+            return G
+        kept = [w for w in (move(g) for g in G.T) if w is not None]
+        return np.column_stack(kept) if kept else np.zeros((len(G), 0))
+
+    return move(scale), [w for w in (move(h) for h in held) if w is not None], moved_gauges
+
+
+def _pinned(ana: Identifiability, hold: np.ndarray, pins: list[int]) -> Identifiability:
+    """``ana`` of the Jacobian without the pinned columns, its null space the held directions (the rigid
+    model's gauges, named with the coordinates they trade off against) and the rest of its own; the solver
+    still moves the coordinates of ``range_space`` only, the pinned ones never."""
+    N = ana.null_space.copy()
+    N[pins] = 0.0
+    U, S, _ = svd(N, full_matrices=False)
+    null = _orth(np.column_stack([hold, U[:, S > 0.5]]))
+    names = _list([ana.names[i] for i in pins], 8)
+    return replace(ana, null_space=null, naming_basis=null, identifiable=np.linalg.norm(null, axis=1) < 1e-6,
+                   messages=ana.messages + (RIGID_HELD.format(len(pins), names),))
+
+
+RIGID_HELD = ("{} direction(s) that the rigid model cannot identify (named above) would be lifted only by the weight: "
+              "held, {} keeping their starting values. The centres of mass are given in the nominal frames, which "
+              "these directions carry along with a choice the geometry cannot see, so what the weight's lever arms "
+              "seem to tell of them rests on that convention and the noise")
 
 
 def named(ana: Identifiability, lin: Linearization, layout: Layout, experiments: Sequence,
@@ -126,9 +192,10 @@ def coupling_gauges(state, first: "Identifiability | None") -> np.ndarray | None
 NEAR_GAUGE_RTOL = 1e-2  # a start's exact gauge lifted to below this (relative singular value) is reported weak
 
 
-def near_gauges(J: np.ndarray, structural: np.ndarray, rtol: float = NEAR_GAUGE_RTOL) -> np.ndarray:
+def near_gauges(J: np.ndarray, structural: np.ndarray, rtol: float = NEAR_GAUGE_RTOL,
+                floor: float = 0.0) -> np.ndarray:
     """The directions within span(``structural``) (p, k, natural units) whose relative singular value in the
-    column-scaled ``J`` is below ``rtol``: (p, j) natural units. Exact gauges of the nominal model that the
+    column-scaled ``J`` is below ``rtol`` (and not below ``floor``): (p, j) natural units. Exact gauges of the nominal model that the
     estimate lifts only by its own small deviations (three parallel axes coupled to sum to zero turn slightly
     apart) rest on those deviations alone: little more than the noise determines them."""
     Js, c = unit_columns(J)
@@ -137,7 +204,7 @@ def near_gauges(J: np.ndarray, structural: np.ndarray, rtol: float = NEAR_GAUGE_
     if G.shape[1] == 0 or smax == 0:
         return np.zeros((len(c), 0))
     _, S, Vt = svd(Js @ G, full_matrices=False)
-    small = Vt[S < rtol * smax]
+    small = Vt[(S < rtol * smax) & (S >= floor * smax)]
     return (G @ small.T) / c[:, None]
 
 

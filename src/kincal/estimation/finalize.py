@@ -50,7 +50,7 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
         ana = named(run.analysis, lin, problem.layout, problem.experiments, list(run.order), structural)
     else:
         ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=list(run.order),
-                       structural=structural)
+                       structural=structural, hold=run.held)
     weights, slopes = robust_weights(lin.r, options.loss, options.f_scale)
     dof = len(lin.r) - ana.rank
     sigma2, sw = noise_variance_factor(problem, lin, ana, weights, slopes)
@@ -81,7 +81,7 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
         iterations=run.iterations, evaluations=run.evaluations, messages=tuple(messages),
         extras=dict(run.state.extras), problem=problem, linearization=lin,
         twists=_twists(problem, run.state, cov), weights=None if options.loss == "linear" else weights,
-        covariance_scale=scale, negative_compliances=negative,
+        covariance_scale=scale, negative_compliances=negative, held=run.held,
     )
 
 

@@ -14,7 +14,7 @@ from kincal.analysis import Identifiability, Linearization, identify
 from kincal.analysis.covariance import right_svd
 from kincal.errors import DegenerateExperimentError
 from kincal.estimation import steps
-from kincal.estimation.gauge import gauge_basis, priority
+from kincal.estimation.gauge import gauge_basis, priority, rigid_gauges
 from kincal.estimation.options import SolverOptions
 from kincal.estimation.problem import Problem
 from kincal.estimation.stats import ResidualStats
@@ -41,6 +41,7 @@ class Iteration:
     before: tuple[ResidualStats, ...]
     order: tuple[int, ...]  # the free coordinates' pivot order (``gauge.priority``)
     analysis: Identifiability | None = None  # at ``linearization`` (``identify``, named or not), when it is kept
+    held: np.ndarray | None = None  # the rigid model's gauges the solve holds (``gauge.rigid_gauges``, at the start)
 
 
 def scale_test_needed(problem: Problem) -> bool:
@@ -52,7 +53,7 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
     """Run the outer loop from ``problem.start`` (module docstring)."""
     order = priority(problem, options.gauge)
     every = scale_test_needed(problem)
-    state, W, lin, ana = problem.start, None, None, None
+    state, W, lin, ana, hold = problem.start, None, None, None, None
     first, before = None, ()
     evaluations, status, it, fast = 0, "not converged", 0, True  # Gauss-Newton first while it converges fast
     for it in range(1, options.max_outer + 1):
@@ -63,8 +64,9 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
             W = None
         lin = steps.linearize(problem, state, W, every)
         W = lin.W
+        hold = rigid_gauges(problem, lin) if it == 1 else hold
         ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=order,
-                       report=first is None)
+                       report=first is None, hold=hold)
         if first is None:
             first, before = ana, tuple(problem.statistics(state, W))
             if ana.degenerate:
@@ -83,7 +85,7 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
             status = "converged"
             break
     return Iteration(state, status, it, evaluations, lin, W, first, before, tuple(order),
-                     None if lin is None else ana)
+                     None if lin is None else ana, hold)
 
 
 def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.ndarray, z: np.ndarray,

@@ -22,7 +22,7 @@ from kincal.analysis.sensitivity import Sensitivity, sensitivity
 from kincal.errors import ModelError
 from kincal.estimation import steps
 from kincal.estimation.finalize import finalize
-from kincal.estimation.gauge import gauge_basis, priority
+from kincal.estimation.gauge import gauge_basis, priority, rigid_gauges
 from kincal.estimation.iterate import Iteration, scale_test_needed
 from kincal.estimation.options import SolverOptions
 from kincal.estimation.problem import Problem
@@ -63,7 +63,7 @@ def plan(problem: Problem, options: SolverOptions | None = None, held: Sequence[
     order = priority(problem, options.gauge)
     lin = steps.linearize(problem, problem.start, None, scale_test_needed(problem))
     it = Iteration(problem.start, "converged", 0, 0, lin, lin.W, None, tuple(problem.statistics(problem.start, lin.W)),
-                   tuple(order))
+                   tuple(order), held=rigid_gauges(problem, lin))
     nominal = finalize(problem, options, it)
     ana = nominal.identifiability
     cov = _unit_covariance(problem, lin, ana, options.gauge, order) if ana.rank else np.zeros((lin.p, lin.p))

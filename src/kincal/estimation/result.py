@@ -113,6 +113,7 @@ class Result:
     covariance_scale: float | None = None  # what scaled ``covariance`` (None: ``sigma2``; ``finalize.covariance_scale``)
     stages: tuple[StageRecord, ...] = ()  # a staged solve's stages, the last one's being this result
     negative_compliances: tuple[NegativeCompliance, ...] = ()  # compliances estimated below 0 (``physical``)
+    held: np.ndarray | None = None  # the rigid model's gauges the solve held (``estimation.gauge.rigid_gauges``)
 
     @property
     def scale(self) -> float:
@@ -229,7 +230,8 @@ def _representative(result: Result, w: np.ndarray):
 
     def relinearize(state):
         lin = steps.linearize(problem, state, W, every)
-        return lin, identify(lin, problem.layout, problem.experiments, rtol=result.identifiability.rtol, report=False)
+        return lin, identify(lin, problem.layout, problem.experiments, rtol=result.identifiability.rtol, report=False,
+                             hold=result.held)
 
     found = representative(result.state, problem.nominal, problem.layout, problem.free_idx, w, relinearize)
     if found is None or found[2].rank != result.identifiability.rank:
