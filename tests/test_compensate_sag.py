@@ -4,13 +4,17 @@ calibration's noise floor, where rigid compensation of the same calibration miss
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 
 import numpy as np
 import pytest
 
+from kincal.cli import main
 from kincal.errors import ModelError, ShapeError
 from kincal.estimation import calibrate
+from kincal.io.models import load_robot, save_robot
+from kincal.io.programs import WRENCH
 from kincal.kinematics import Robot, forward_kinematics, loaded_forward_kinematics
 from kincal.kinematics.tree import tip_pose
 from kincal.noise import Noise
@@ -155,3 +159,45 @@ def test_bad_loads_and_missing_weights_are_refused(rng):
     weightless = Robot("w", {"w": _ur10_with_weights().replace(gravity=None)})
     with pytest.raises(ModelError, match="payload of arm 'w': its model states no gravity vector"):
         compensate_joints(weightless, weightless, {"w": np.zeros((1, 6))}, payload={"w": (1.0, np.zeros(3))})
+
+
+def _compliant_arm(rng):
+    """A 7-joint arm (one prismatic) with masses, joint compliance and gravity; and its rigid nominal."""
+    arm = gravity_tree(rng, compliance=1e-4)["b"].replace(base=np.eye(4), gravity=[0.0, 0.0, -9.81])
+    nominal = arm.replace(compliance=np.zeros(arm.dof))
+    return Robot("b", {"b": nominal}), Robot("b", {"b": arm})
+
+
+def _columns(path, names) -> np.ndarray:
+    with open(path, encoding="utf-8") as fh:
+        return np.array([[float(row[n]) for n in names] for row in csv.DictReader(fh)])
+
+
+def test_cli_compensates_under_tool_loads_and_payloads(rng, tmp_path, capsys):
+    nominal, calibrated = _compliant_arm(rng)
+    save_robot(nominal, tmp_path / "nominal.yaml")
+    save_robot(calibrated, tmp_path / "calibrated.yaml")
+    q = random_configurations(nominal["b"], 6, rng, 0.2)
+    w = rng.uniform(-10, 10, (6, 6))
+    names = [f"b.{j}" for j in nominal["b"].joint_names]
+    header = ",".join(names + [f"b.{k}" for k in WRENCH])
+    np.savetxt(tmp_path / "p.csv", np.hstack([q, w]), delimiter=",", header=header, comments="")
+    run = lambda *extra: main(["compensate", str(tmp_path / "calibrated.yaml"), str(tmp_path / "p.csv"),  # noqa
+                               "--nominal", str(tmp_path / "nominal.yaml"), "--overwrite", *extra])
+    calibrated_, nominal_ = load_robot(tmp_path / "calibrated.yaml"), load_robot(tmp_path / "nominal.yaml")
+    cases = [((), {"wrench": {"b": w}}), (("--rigid",), {"rigid": True}),
+             (("--payload", "3", "--payload-com", "0,0,0.1"), {"wrench": {"b": w}, "payload": {"b": (3.0, [0, 0, .1])}})]
+    for extra, options in cases:
+        assert run("-o", str(tmp_path / "o.csv"), *extra) == 0, capsys.readouterr()
+        expected = compensate_joints(nominal_, calibrated_, {"b": q}, **options)
+        np.testing.assert_allclose(_columns(tmp_path / "o.csv", names), expected.q["b"], atol=1e-12)
+        np.testing.assert_allclose(_columns(tmp_path / "o.csv", [f"b.{k}" for k in WRENCH]), w)  # written back
+    np.savetxt(tmp_path / "bare.csv", q, delimiter=",", header=",".join(names), comments="")
+    assert main(["compensate", str(tmp_path / "calibrated.yaml"), str(tmp_path / "bare.csv"), "--nominal",
+                 str(tmp_path / "nominal.yaml"), "-o", str(tmp_path / "b.csv"), "--wrench", "1,2,3"]) == 2
+    assert "--wrench" in capsys.readouterr().err
+    assert main(["compensate", str(tmp_path / "calibrated.yaml"), str(tmp_path / "bare.csv"), "--nominal",
+                 str(tmp_path / "nominal.yaml"), "-o", str(tmp_path / "b.csv"), "--wrench", "1,2,3,0,0,0"]) == 0
+    back = np.loadtxt(tmp_path / "b.csv", delimiter=",", skiprows=1, usecols=range(7))
+    expected = compensate_joints(nominal_, calibrated_, {"b": q}, wrench={"b": np.array([1.0, 2, 3, 0, 0, 0])})
+    np.testing.assert_allclose(back, expected.q["b"], atol=1e-12)
