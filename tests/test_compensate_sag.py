@@ -186,7 +186,8 @@ def test_cli_compensates_under_tool_loads_and_payloads(rng, tmp_path, capsys):
                                "--nominal", str(tmp_path / "nominal.yaml"), "--overwrite", *extra])
     calibrated_, nominal_ = load_robot(tmp_path / "calibrated.yaml"), load_robot(tmp_path / "nominal.yaml")
     cases = [((), {"wrench": {"b": w}}), (("--rigid",), {"rigid": True}),
-             (("--payload", "3", "--payload-com", "0,0,0.1"), {"wrench": {"b": w}, "payload": {"b": (3.0, [0, 0, .1])}})]
+             (("--payload", "3", "--payload-com", "0,0,0.1"),
+              {"wrench": {"b": w}, "payload": {"b": (3.0, [0, 0, 0.1])}})]
     for extra, options in cases:
         assert run("-o", str(tmp_path / "o.csv"), *extra) == 0, capsys.readouterr()
         expected = compensate_joints(nominal_, calibrated_, {"b": q}, **options)

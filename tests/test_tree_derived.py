@@ -22,7 +22,8 @@ def test_a_mounted_arms_tool_at_zero_is_given_in_the_world_and_in_its_mount():
     nominal = robots.load("dual7_torso")
     true = perturb_robot(nominal, "fine", rng=4)
     data = [replace(generate_pose(true, a, n=40, rng=4 + i, noise=NOISE, known_tracker=True,
-                                  T_world_tracker=TRACKER)[0], name=f"pose-{a}") for i, a in enumerate(("left", "right"))]
+                                  T_world_tracker=TRACKER)[0], name=f"pose-{a}")
+            for i, a in enumerate(("left", "right"))]
     res = calibrate(nominal, data, "kinematic", noise=NOISE)
     found = {d.name: d for d in res.derived}
     zeros = {a: np.zeros((1, nominal[a].dof)) for a in nominal.arms}

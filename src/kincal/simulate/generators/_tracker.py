@@ -32,7 +32,8 @@ def base_in_world(robot: Robot, arm: str) -> np.ndarray:
     if len(line) == 1:
         return robot[arm].base
     zeros = {a: derive_readings(robot[a].couplings, robot[a].joint_names,
-                                np.clip(np.zeros((1, robot[a].dof)), robot[a].lower, robot[a].upper)) for a in line[:-1]}
+                                np.clip(np.zeros((1, robot[a].dof)), robot[a].lower, robot[a].upper))
+             for a in line[:-1]}
     return tip_pose(robot, line[-2], zeros)[0] @ robot[arm].base
 
 
