@@ -24,6 +24,7 @@ import numpy as np
 
 from kincal.analysis.naming import block_of
 from kincal.kinematics import REVOLUTE, chain
+from kincal.kinematics.model import lineage
 from kincal.lie import se3, so3
 from kincal.params import COMPLIANCE, Layout, State, retract
 
@@ -53,11 +54,13 @@ class Derived:
 @dataclass(frozen=True)
 class _Geometry:
     """An arm at the nominal zero: joint axes in the world (points closest to the origin, unit directions;
-    points nan for prismatic joints) and the tool pose."""
+    points nan for prismatic joints), the tool pose, and the frame the arm is mounted in (a mounted arm's
+    carrier's tool at its zero readings; the world for an arm mounted on nothing)."""
 
     points: np.ndarray  # (n, 3)
     dirs: np.ndarray  # (n, 3)
     tool: np.ndarray  # (4, 4) T_world_tool
+    mount: np.ndarray  # (4, 4) T_world_mount
 
 
 @dataclass(frozen=True)
@@ -71,10 +74,19 @@ class _Group:
     fn: Callable[[_Geometry], np.ndarray]
 
 
+def carriers(state: State, arm: str) -> tuple[str, ...]:
+    """The arms carrying ``arm`` (root first; none for an arm mounted on nothing)."""
+    return lineage(state.mounts, arm)[:-1]
+
+
 def geometry(state: State, arm: str) -> _Geometry:
-    """The world joint axes and the tool pose of ``arm`` at joint readings 0."""
+    """The world joint axes and the tool pose of ``arm`` at joint readings 0 (a mounted arm's carriers too)."""
+    mount = np.eye(4)
+    for c in carriers(state, arm):
+        v = state.arms[c]
+        mount = mount @ chain(v.screws, v.offsets, v.base, v.home, v.tool).tool
     a = state.arms[arm]
-    kin = chain(a.screws, a.offsets, a.base, a.home, a.tool)
+    kin = chain(a.screws, a.offsets, mount @ a.base, a.home, a.tool)
     S = np.einsum("kij,kj->ki", se3.adjoint(kin.prefixes[:-1]), a.screws)
     v, w = S[:, :3], S[:, 3:]
     rev = np.array([t == REVOLUTE for t in a.joint_types])
@@ -82,7 +94,7 @@ def geometry(state: State, arm: str) -> _Geometry:
     nv = np.where(rev, 1.0, np.linalg.norm(v, axis=1))[:, None]
     dirs = np.where(rev[:, None], w / nw, v / nv)
     points = np.where(rev[:, None], np.cross(w, v) / nw**2, np.nan)
-    return _Geometry(points, dirs, kin.tool)
+    return _Geometry(points, dirs, kin.tool, mount)
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -172,12 +184,19 @@ def _world_frame(g: _Geometry) -> np.ndarray:
     return np.eye(4)
 
 
+def _mount_frame(g: _Geometry) -> np.ndarray:
+    return g.mount
+
+
 def _tool_groups(arm: str, names, types, g0: _Geometry, carrier: str | None = None) -> list[_Group]:
-    """The tool pose at the nominal zero in the world frame (for an arm mounted on ``carrier``: in the carrier's
-    tool frame, ``mount``) and, when the first two axes are revolute and not parallel, in their frame: position,
-    and rotation from the nominal tool orientation (about the frame's axes)."""
-    frames = [("world", "the world frame", _world_frame) if carrier is None else
-              ("mount", f"the tool frame of {carrier}, which carries the arm", _world_frame)]
+    """The tool pose at the nominal zero in the world frame (for an arm mounted on ``carrier``: through its
+    carriers at their zero readings, and in the carrier's tool frame, ``mount``) and, when the first two axes are
+    revolute and not parallel, in their frame: position, and rotation from the nominal tool orientation (about
+    the frame's axes)."""
+    frames = [("world", "the world frame" if carrier is None else
+               "the world frame, its carriers at their zero readings", _world_frame)]
+    if carrier is not None:
+        frames.insert(0, ("mount", f"the tool frame of {carrier}, which carries the arm", _mount_frame))
     if len(names) > 1 and types[0] == REVOLUTE == types[1] and \
             np.linalg.norm(_cross(g0.dirs[0], g0.dirs[1])) >= PARALLEL_SIN:
         frames.insert(0, ("axes12", f"the frame of the axes of {names[0]} and {names[1]} (origin on the first at "
@@ -222,11 +241,13 @@ def evaluate(state: State, arms_groups: dict) -> np.ndarray:
 
 def jacobian(state: State, layout: Layout, free: np.ndarray, arms_groups: dict, step: float = STEP) -> np.ndarray:
     """d values / d free local coordinates (m, p) by central differences through ``retract``; zero for the
-    coordinates the geometry at zero does not depend on (experiment frames, other arms, compliances: no load)."""
+    coordinates the geometry at zero does not depend on (experiment frames, arms other than these and their
+    carriers, compliances: no load)."""
     G = np.zeros((len(names(arms_groups)), len(free)))
+    moving = {*arms_groups, *(c for arm in arms_groups for c in carriers(state, arm))}
     for k, i in enumerate(free):
         b = block_of(layout, int(i))
-        if b.arm not in arms_groups or b.kind is COMPLIANCE:
+        if b.arm not in moving or b.kind is COMPLIANCE:
             continue
         d = np.zeros(layout.size)
         d[i] = step

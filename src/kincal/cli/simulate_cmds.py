@@ -17,6 +17,7 @@ from kincal.io.datasets import load_scenario
 from kincal.io.logs import EXTCTRL_PERIOD_S, convert_log as convert, write_joint_csv
 from kincal.io.models import load_robot
 from kincal.kinematics.model import PRISMATIC
+from kincal.simulate import joint_spread
 from kincal.simulate.generators import dataset_spread
 from kincal.simulate.scenario import build_scenario, run
 from kincal.workflow.outputs import SIMULATION_ENTRIES, write_simulation_output
@@ -65,12 +66,21 @@ def simulate(scenario: str, output: Path, seed: int | None, overwrite: bool, qui
     if stats:
         out.print("  generator: " + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in stats.items()))
     # how much of each joint's range the data cover, whatever the kind: identifiability rests on it
-    for arm, sp in dataset_spread(ds, sc.robot, truth).items():
+    for arm, sp in _spreads(ds, sc.robot, truth).items():
         out.print(_spread_table(arm, sp, sc.robot[arm].joint_types))
         if sp.n_branches is not None:
             out.print(f"  self-motion branches visited: {sp.n_branches}")
         if sp.weak:
             out.print(f"  [yellow]hardly excited: {', '.join(sp.weak)}[/]")
+
+
+def _spreads(ds, robot, truth) -> dict:
+    """``dataset_spread`` of the data set's arms, preceded by their carriers' (a torso's joints, shared by the
+    arms on it: their spread is what identifies them)."""
+    spreads = dataset_spread(ds, robot, truth)
+    carriers = dict.fromkeys(c for a in ds.arms for c in robot.lineage(a)[:-1] if c not in spreads and c in ds.q)
+    return {**{c: joint_spread(ds.q[c], robot[c].joint_names, robot[c].lower, robot[c].upper) for c in carriers},
+            **spreads}
 
 
 def _spread_table(arm: str, sp, kinds) -> Table:

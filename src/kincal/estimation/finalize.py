@@ -69,7 +69,7 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
             f"(residual variance factor {sigma2:.3g}); the estimates absorb what the free parameters cannot model "
             f"and their standard deviations assume a model that fits. {_misfit_advice(problem)}"))
     names = [problem.layout.names[i] for i in problem.free_idx]
-    estimates = tuple(_estimates(problem, run.state, std, ok))
+    estimates = tuple(_estimates(problem, run.state, std, ok, cov))
     negative = negative_compliances(problem.layout, estimates)
     messages[:0] = negative_compliance_notes(negative)
     return Result(
@@ -237,9 +237,17 @@ def _twists(problem: Problem, state, cov: np.ndarray) -> tuple[TwistEstimate, ..
     return tuple(TwistEstimate(n, float(v), float(s)) for n, v, s in zip(names, values, std))
 
 
-def _estimates(problem: Problem, state, std, ok) -> list[Estimate]:
+def _estimates(problem: Problem, state, std, ok, cov=None) -> list[Estimate]:
+    """One Estimate per free coordinate: absolute kinds (offsets, compliance) their value, the others the
+    displacement from nominal, whose std is the covariance ``cov`` (in the tangent coordinates at ``state``)
+    propagated through the displacement's Jacobian, so value and std are in the same coordinates (a twist moved
+    far from nominal: its tilts at the estimate are no longer its tilts from nominal)."""
     layout = problem.layout
-    disp, _ = displacement(state, problem.nominal, layout, problem.free_idx, jacobian=False)
+    free = problem.free_idx
+    disp, D = displacement(state, problem.nominal, layout, free, jacobian=cov is not None)
+    if cov is not None:
+        Df = D[np.ix_(free, free)]
+        std = np.where(ok, np.sqrt(np.clip(np.einsum("ij,jk,ik->i", Df, cov, Df), 0, None)), np.nan)
     nominal = np.zeros(layout.size)  # absolute kinds (offsets, compliance) report values, the others changes
     value = disp.copy()
     for b in layout.blocks:

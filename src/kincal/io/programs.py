@@ -11,11 +11,15 @@ Tree-structured robots: a mounted arm's rows carry its carriers' readings (``tor
 in a controller program; joint columns in a Cartesian one), which are held (``kincal.workflow.compensate``) and
 written back unchanged. A coupled joint's column may be left out (it is derived); given, it must agree with the
 coupling (``kincal.io.datasets.COUPLING_TOL``).
+
+Tool loads: a solved arm's rows may carry its tool wrench ``<arm>.wrench.fx, .fy, .fz, .tx, .ty, .tz`` (N, N m;
+tool frame, applied TO the tool, as the data sets' ``wrench.*`` columns): a compliant calibrated model is
+compensated deflected by it (``kincal.workflow.sag``); the columns are written back unchanged.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
@@ -34,13 +38,14 @@ from kincal.lie.rotations import quat_wxyz_to_matrix
 
 FORMS = ("joints", "controller", "poses")
 POSE = ("x", "y", "z", "qw", "qx", "qy", "qz")
+WRENCH = ("wrench.fx", "wrench.fy", "wrench.fz", "wrench.tx", "wrench.ty", "wrench.tz")
 
 
 @dataclass(frozen=True, eq=False)
 class Program:
     """A program read from ``path``: ``form`` (one of ``FORMS``), per arm the joint values in model order and SI
     (for poses: the seeds), ``poses`` per arm (N, 4, 4) for Cartesian programs, the file ``lines`` of the rows,
-    and the units to write back in."""
+    the units to write back in, and ``wrench`` per arm with tool-load columns (N, 6) (N, N m, tool frame)."""
 
     path: Path
     form: str
@@ -49,6 +54,7 @@ class Program:
     lines: np.ndarray
     angle: str
     length: str
+    wrench: Mapping[str, np.ndarray] = field(default_factory=dict)
 
 
 def read_program(path, robot: Robot, angle: str = "rad", length: str = "m") -> Program:
@@ -69,11 +75,13 @@ def read_program(path, robot: Robot, angle: str = "rad", length: str = "m") -> P
             q[a] = _joint_columns(table, a, m, np.array([fl if t == "prismatic" else fa for t in m.joint_types]))
         if form == "poses" and a not in carriers:
             poses[a] = _poses(path, table, table.take([f"{a}.{k}" for k in POSE]), fl)
+    wrench = {a: table.take([f"{a}.{k}" for k in WRENCH]) for a in arms
+              if a not in carriers and any(f"{a}.{k}" in table.col for k in WRENCH)}
     extra = [c for c in table.header if c not in table.used]
     if extra:
         raise DataFormatError(f"{path}: line {table.header_line}, column '{extra[0]}': not a column of this "
                               f"{form} program")
-    return Program(path, form, q, poses, table.lines, angle, length)
+    return Program(path, form, q, poses, table.lines, angle, length, wrench)
 
 
 def _arms(path: Path, table: Table, robot: Robot) -> list[str]:
@@ -140,6 +148,9 @@ def write_program(path, program: Program, robot: Robot, comp, *, overwrite: bool
         _joint_block(program, robot, a, q, header, cols, fa, fl)
     for a, q in comp.q.items():
         _joint_block(program, robot, a, q, header, cols, fa, fl)
+        if a in program.wrench:
+            header += [f"{a}.{k}" for k in WRENCH]
+            cols.append(program.wrench[a])
         header += [f"{a}.position_error_{program.length}", f"{a}.rotation_error_{program.angle}"]
         cols.append(np.column_stack([comp.position_error[a] / fl, comp.rotation_error[a] / fa]))
     values = np.concatenate(cols, axis=1)

@@ -15,6 +15,13 @@ is held, never solved), and the mounted arm alone is solved for the target seen 
 tool at those readings: ``T_carriertool_target = T_world_carriertool(calibrated, q_carriers)^-1 T_world_target``.
 Coupled joints (``ArmModel.couplings``) are derived from the joints they follow, never solved: the inverse
 kinematics runs over the free joints (``_Coupled``).
+
+Sag (``kincal.workflow.sag``): when the calibrated model is compliant and loaded (tool wrenches, a payload, the
+weights of its mass model, on an arm or a tree), the compensated readings make the *deflected* calibrated model
+reach the target, with the deflection model of the solver's residuals; the intended pose of a joint program is the
+nominal model's own prediction under the same loads (its rigid pose when it has no compliance). On a tree the
+carriers are still held, but they deflect too: every solved arm is solved through the whole loaded chain, and
+the arms whose weight loads the carriers need readings in the program. ``rigid=True`` ignores the deflection.
 """
 
 from __future__ import annotations
@@ -30,6 +37,8 @@ from kincal.kinematics.couplings import coupling_map, derive_readings
 from kincal.kinematics.tree import tip_pose
 from kincal.lie import se3, so3
 from kincal.simulate import PoseConstraint, PositionConstraint, solve
+from kincal.workflow.sag import (PASSES, STILL, LoadedTip, arm_free, loaded_pose, needed, sags, tip_errors,
+                                 tool_wrenches, with_payload)
 
 # A row is compensated when the calibrated tool reaches the intended pose within these (m, rad).
 TOL_M = 1e-9
@@ -45,7 +54,8 @@ class Compensation:
     """Per arm: ``q`` (N, n) compensated joint values, ``position_error`` and ``rotation_error`` (N,) of the
     calibrated tool there against the intended pose (m, rad), ``status`` (N,) of ``ok``, ``limit`` (a joint
     at its limit keeps the pose out of reach), ``unreachable`` (not in the program's branch: the pose left
-    it, typically near a singularity), ``branch changed`` (reached, but ``BRANCH_RAD`` or more from the
+    it, typically near a singularity), ``not converged`` (under sag on a tree: the passes over the arms did not
+    settle this row), ``branch changed`` (reached, but ``BRANCH_RAD`` or more from the
     program's row) or ``outside limits`` (the program's own row is past a limit), and ``change`` (N,) the
     largest joint change (rad or m). ``held``: the readings of the carriers of a tree (a torso), kept as the
     program gives them (coupled joints derived)."""
@@ -62,36 +72,64 @@ class Compensation:
         return [(a, int(i), str(s[i])) for a, s in self.status.items() for i in np.flatnonzero(s != "ok")]
 
 
-def compensate_joints(nominal: Robot, calibrated: Robot, program: Mapping[str, np.ndarray]) -> Compensation:
+def compensate_joints(nominal: Robot, calibrated: Robot, program: Mapping[str, np.ndarray], *, wrench=None,
+                      payload=None, rigid: bool = False) -> Compensation:
     """Compensate joint programs ``{arm: (N, n) joint values}`` written for ``nominal``: each row's intended
     pose is the nominal model's tool pose there (both arms of a dual-arm program in the common world frame; a
-    mounted arm's through its carriers, whose readings the program holds: module docstring)."""
+    mounted arm's through its carriers, whose readings the program holds: module docstring). Loads (``wrench``:
+    arm -> (6,) or (N, 6) tool wrench; ``payload``: arm -> (kg, centre of mass in the tool frame)) deflect a
+    compliant calibrated model, and the compensation reaches the target with that deflection
+    (``kincal.workflow.sag``) unless ``rigid``."""
+    nominal, calibrated = with_payload(nominal, payload), with_payload(calibrated, payload)
     held, program = _held(nominal, program)
+    solved = [a for a in program if a not in held]
+    loads = tool_wrenches(wrench, {a: len(program[a]) for a in solved})
+    if not rigid and any(sags(calibrated, a, loads[a]) for a in solved):
+        _needs(calibrated, solved, program)
+        targets = {a: loaded_pose(nominal, a, program, loads[a]) for a in solved}
+        return _collect(_solve_loaded(calibrated, targets, program, loads, nominal), held)
     out = {}
-    for arm, q in program.items():
-        if arm not in held:
-            line = nominal.lineage(arm)
-            T = tip_pose(nominal, arm, {s: program[s] for s in line})
-            out[arm] = _solve_tip(calibrated, arm, T, program, nominal)
+    for arm in solved:
+        line = nominal.lineage(arm)
+        T = tip_pose(nominal, arm, {s: program[s] for s in line})
+        out[arm] = _solve_tip(calibrated, arm, T, program, nominal)
     return _collect(out, held)
 
 
 def compensate_poses(calibrated: Robot, targets: Mapping[str, np.ndarray], seeds: Mapping[str, np.ndarray],
-                     nominal: Robot | None = None) -> Compensation:
+                     nominal: Robot | None = None, *, wrench=None, payload=None, rigid: bool = False) -> Compensation:
     """Compensate Cartesian targets ``{arm: (N, 4, 4) tool poses}`` (world frame), starting each row's IK at
     ``seeds[arm]`` (N, n): the nominal joint values that reach it (which choose the branch). A mounted arm's
-    carriers are held at ``seeds[carrier]`` (module docstring)."""
+    carriers are held at ``seeds[carrier]`` (module docstring); loads as in ``compensate_joints``."""
+    calibrated = with_payload(calibrated, payload)
     limits = nominal or calibrated
     held, seeds = _held(limits, seeds, targets)
-    out = {}
+    poses = {}
     for arm, T in targets.items():
         T = np.asarray(T, float)
         if T.ndim != 3 or T.shape[1:] != (4, 4):
             raise ShapeError(f"targets of arm '{arm}': expected (N, 4, 4) tool poses, found shape {T.shape}")
         if len(seeds[arm]) != len(T):
             raise ShapeError(f"targets of arm '{arm}': {len(T)} poses but {len(seeds[arm])} seed configurations")
-        out[arm] = _solve_tip(calibrated, arm, T, seeds, limits)
-    return _collect(out, held)
+        poses[arm] = T
+    loads = tool_wrenches(wrench, {a: len(T) for a, T in poses.items()})
+    if not rigid and any(sags(calibrated, a, loads[a]) for a in poses):
+        _needs(calibrated, list(poses), seeds)
+        return _collect(_solve_loaded(calibrated, poses, seeds, loads, limits), held)
+    return _collect({a: _solve_tip(calibrated, a, T, seeds, limits) for a, T in poses.items()}, held)
+
+
+def _needs(robot: Robot, solved, program: Mapping[str, np.ndarray]) -> None:
+    """Every arm whose weight loads a solved arm's carriers has readings in the program, one per row."""
+    for arm in solved:
+        for other in needed(robot, arm):
+            if other not in program:
+                raise ModelError(f"program: the weight of arm '{other}' loads the carriers of arm '{arm}' (gravity on "
+                                 f"a tree), so its compensation under sag needs '{other}' readings: give them as "
+                                 f"{other}.<joint> values (or compensate rigidly)")
+            if len(program[other]) != len(program[arm]):
+                raise ShapeError(f"program of arm '{arm}': {len(program[arm])} rows, but arm '{other}', whose weight "
+                                 f"loads its carriers, has {len(program[other])}")
 
 
 def _held(robot: Robot, program: Mapping[str, np.ndarray], solved=None) -> tuple[dict, dict]:
@@ -142,26 +180,64 @@ def _joints(model: ArmModel, q, arm: str) -> np.ndarray:
 
 
 def _solve(model: ArmModel, T: np.ndarray, seed: np.ndarray, limits: ArmModel):
-    free = model.dof - len(model.couplings)
+    free = arm_free(model)
     if free < 6:  # fewer than six joints place the tool point; its orientation follows
         constraint = PositionConstraint(model, T[:, :3, 3])
-        tol_rad = np.inf
     else:
-        constraint, tol_rad = PoseConstraint(model, T), TOL_RAD
-    if model.couplings:
-        constraint = _Coupled(constraint, model)
-    ik = solve(constraint, seed, tol_m=TOL_M, tol_rad=tol_rad, max_iter=MAX_ITER)
+        constraint = PoseConstraint(model, T)
+    ik = _ik(constraint, model, seed)
     q = derive_readings(model.couplings, model.joint_names, ik.last)
     rot = so3.angle(so3.log(np.swapaxes(T[:, :3, :3], 1, 2) @ forward_kinematics(model, q)[:, :3, :3]))
-    reached = (ik.last_pos_err < 1e3 * TOL_M) & ((rot < 1e3 * TOL_RAD) | (free < 6))  # 1 um, 1 urad
-    status = np.where(reached, "ok", "unreachable").astype(object)
+    return _status(model, q, seed, ik.last_pos_err, rot, np.zeros(len(q), bool), limits)
+
+
+def _ik(constraint, model: ArmModel, seed: np.ndarray):
+    """Damped least squares to TOL_M / TOL_RAD (the rotation free for fewer than six joints), couplings held."""
+    if model.couplings:
+        constraint = _Coupled(constraint, model)
+    tol_rad = np.inf if arm_free(model) < 6 else TOL_RAD
+    return solve(constraint, seed, tol_m=TOL_M, tol_rad=tol_rad, max_iter=MAX_ITER)
+
+
+def _status(model: ArmModel, q, seed, perr, rot, settled, limits: ArmModel):
+    """(q, position error, rotation error, status, change) of one arm's rows; ``settled``: rows whose last IK
+    converged (a remaining error there means the sag passes did not settle: ``not converged``)."""
+    reached = (perr < 1e3 * TOL_M) & ((rot < 1e3 * TOL_RAD) | (arm_free(model) < 6))  # 1 um, 1 urad
+    status = np.where(reached, "ok", np.where(settled, "not converged", "unreachable")).astype(object)
     at_limit = np.any((q <= model.lower + 1e-12) | (q >= model.upper - 1e-12), axis=1)
     status[~(status == "ok") & at_limit] = "limit"
     status[(status == "ok") & ~model.within_limits(q, 1e-12)] = "limit"  # a derived (coupled) joint past a limit
     change = np.max(np.abs(q - seed), axis=1)
     status[(status == "ok") & (change > BRANCH_RAD)] = "branch changed"
     status[~limits.within_limits(seed)] = "outside limits"
-    return q, ik.last_pos_err, rot, status, change
+    return q, perr, rot, status, change
+
+
+def _solve_loaded(calibrated: Robot, targets: Mapping[str, np.ndarray], q: Mapping[str, np.ndarray], loads,
+                  limits: Robot) -> dict:
+    """Every arm of ``targets`` solved for its loaded pose, in passes until no reading moves
+    (``kincal.workflow.sag``); carriers and other arms at ``q``. Errors from all arms' final readings."""
+    q, seeds = dict(q), {a: np.asarray(q[a], float) for a in targets}
+    tips = {a: LoadedTip(calibrated, a, T, q, loads[a], arm_free(calibrated[a]) < 6) for a, T in targets.items()}
+    settled = {}
+    for _ in range(PASSES):
+        moved = 0.0
+        for a, tip in tips.items():
+            m = calibrated[a]
+            ik = _ik(tip, m, q[a])
+            new = derive_readings(m.couplings, m.joint_names, ik.last)
+            moved = max(moved, float(np.max(np.abs(new - q[a]), initial=0.0)))
+            q[a], settled[a] = new, np.isin(np.arange(len(new)), ik.index)
+        if moved <= STILL:
+            break
+    out = {}
+    for a, T in targets.items():
+        perr, rot = tip_errors(calibrated, a, T, q, loads[a])
+        out[a] = _status(calibrated[a], q[a], seeds[a], perr, rot, settled[a], limits[a])
+        line = calibrated.lineage(a)
+        held_ok = np.logical_and.reduce([limits[s].within_limits(q[s]) for s in line[:-1]], initial=True)
+        out[a][3][~held_ok] = "outside limits"
+    return out
 
 
 def _collect(per_arm, held=None) -> Compensation:

@@ -7,12 +7,15 @@ import numpy as np
 from kincal._validate import as_array
 from kincal.errors import ModelError
 from kincal.kinematics import ArmModel, Robot, loaded_forward_kinematics
+from kincal.kinematics.couplings import derive_readings
+from kincal.kinematics.tree import tip_pose
 from kincal.lie import se3, so3
 
 
 def random_tracker_pose(robot: Robot, arm: str, rng: np.random.Generator, distance_m: float = 2.5) -> np.ndarray:
-    """A tracker ``distance_m`` from the arm base, roughly level with it, looking at it (z towards the arm)."""
-    base = robot[arm].base[:3, 3]
+    """A tracker ``distance_m`` from the arm base (in the world: a mounted arm's through its carriers at their
+    zero readings), roughly level with it, looking at it (z towards the arm)."""
+    base = base_in_world(robot, arm)[:3, 3]
     az = rng.uniform(-np.pi, np.pi)
     p = base + np.array([distance_m * np.cos(az), distance_m * np.sin(az), rng.uniform(-0.2, 0.5)])
     z = (base - p) / np.linalg.norm(base - p)
@@ -20,6 +23,18 @@ def random_tracker_pose(robot: Robot, arm: str, rng: np.random.Generator, distan
     x /= np.linalg.norm(x)
     R = np.stack([x, np.cross(z, x), z], axis=-1)
     return se3.make(so3.exp(rng.normal(0, 0.05, 3)) @ R, p)
+
+
+def base_in_world(robot: Robot, arm: str) -> np.ndarray:
+    """``T_world_base`` of ``arm``: its ``base``, or for a mounted arm its base through its carriers at their zero
+    readings (clipped into their limits, couplings derived)."""
+    line = robot.lineage(arm)
+    if len(line) == 1:
+        return robot[arm].base
+    zeros = {a: derive_readings(robot[a].couplings, robot[a].joint_names,
+                                np.clip(np.zeros((1, robot[a].dof)), robot[a].lower, robot[a].upper))
+             for a in line[:-1]}
+    return tip_pose(robot, line[-2], zeros)[0] @ robot[arm].base
 
 
 def random_markers(m: int, rng: np.random.Generator, radius_m: float = 0.1) -> np.ndarray:
