@@ -105,19 +105,23 @@ def test_gravity_torques_equal_a_hand_computation():
     np.testing.assert_allclose(kin.tau, hand, atol=5e-3)
 
 
-def test_joint_compliances_loaded_by_the_weight_lower_the_held_out_error():
-    """The compliant level (``realdata.justin_elastic_case``: the geometry, then every joint compliance loaded by
-    the mass model's weight), 5-fold held out as above. Pins what kincal reaches by this staged route: 7.40 mm
-    held-out mean (fit 7.09), against 10.40 at the geometric level; the issue's target (5.0 mm) and the paper's
-    joint fit (5.64) are not reached (docs/real-data.md). Was: the first trial's 29.61 mm scored a compliant fit
-    with the rigid pose."""
+def test_joint_compliances_loaded_by_the_weight_meet_the_target_held_out():
+    """The compliant level (``realdata.justin_elastic_case``: geometry and every joint compliance loaded by the mass
+    model's weight, in one solve), 5-fold held out as above: at or below the issue's 5.0 mm (4.76 measured; paper's
+    fit 5.64). Was: staged (geometry, then compliances) 7.40 mm, because the joint solve walked the torso's axes
+    metres along gauges only the weight lifts (now held, ``estimation.gauge.rigid_gauges``); the first trial's
+    29.61 mm scored a compliant fit with the rigid pose."""
     robot, sets, options = rd.justin_elastic_case(PATH, "joint compliances")
-    held = ho.cross_validate(robot, sets, None, k=5, **options).position * 1e3
-    assert held.mean() <= 7.45 and held.max() <= 25.5
-    res = calibrate(robot, sets, None, **options)
+    free = options.pop("free")
+    held = ho.cross_validate(robot, sets, free, k=5, **options).position * 1e3
+    assert held.mean() <= 5.0 and held.max() <= 15.0
+    res = calibrate(robot, sets, free, **options)
+    assert res.iterations <= 8 and res.evaluations <= 40
     fit = np.concatenate([ho.prediction_errors(res, d)[0] for d in sets]) * 1e3
-    assert fit.mean() <= 7.15 and fit.mean() <= held.mean()
-    assert res.status == "misfit" and not res.success
+    assert fit.mean() <= 4.65 and fit.mean() <= held.mean()
+    # residuals about 10 times the stated 0.3 mm: at the misfit rule's edge (variance factor 100), said either way
+    assert res.status in ("converged", "misfit") and 50 < res.sigma2 < 150
+    assert any("lifted only by the weight" in m for m in res.messages)
     # the model predicts through the weight what the solver fitted: its errors are the solver's residuals
     assert np.sqrt(np.mean(fit**2) / 3) / 0.3 == pytest.approx(np.sqrt(res.sigma2), rel=0.02)
     est = {e.name: e for e in res.estimates}
@@ -132,14 +136,15 @@ def test_joint_compliances_loaded_by_the_weight_lower_the_held_out_error():
 
 def test_lateral_compliances_loaded_by_the_weight_lower_the_fit_error():
     """The lateral level on kincal's lateral compliance kind (``realdata.justin_lateral``: every joint of the torso
-    and the arms bends about its DH frame's x and y axes), staged as the joint level. Pins what kincal reaches by
-    this route: fit 6.32 mm (held-out 6.72 in docs/real-data.md, by bench/real_data.py: the 5 folds take 40 s),
-    against 7.09 with joint compliances only; the paper's 3.12 (fit) is not reached. Negative lateral compliances
-    are reported and kept."""
+    and the arms bends about its DH frame's x and y axes): the joint level's solve, then every compliance with the
+    geometry held. Pins what kincal reaches by this route: fit 3.73 mm (held-out 3.91 in docs/real-data.md, by
+    bench/real_data.py), against 4.60 with joint compliances only; the paper's 3.12 (fit) is not reached. Was 6.32
+    (geometry rigid first). Negative lateral compliances are reported and kept."""
     robot, sets, options = rd.justin_elastic_case(PATH, "lateral compliances")
-    res = calibrate(robot, sets, None, **options)
+    res = calibrate(robot, sets, **options)
+    assert all(s.status in ("converged", "misfit") for s in res.stages) and len(res.stages) == 2
     fit = np.concatenate([ho.prediction_errors(res, d)[0] for d in sets]) * 1e3
-    assert fit.mean() <= 6.37 and fit.max() <= 19.5
+    assert fit.mean() <= 3.78 and fit.max() <= 14.5
     assert np.sqrt(np.mean(fit**2) / 3) / 0.3 == pytest.approx(np.sqrt(res.sigma2), rel=0.02)
     est = {e.name: e for e in res.estimates}
     lateral = [n for n in est if ".lateral_" in n]

@@ -158,9 +158,9 @@ def _pinned(ana: Identifiability, hold: np.ndarray, pins: list[int]) -> Identifi
 
 
 RIGID_HELD = ("{} direction(s) that the rigid model cannot identify (named above) would be lifted only by the weight: "
-              "held, {} keeping their starting values. The centres of mass are given in the nominal frames, which "
-              "these directions carry along with a choice the geometry cannot see, so what the weight's lever arms "
-              "seem to tell of them rests on that convention and the noise")
+              "held, {} keeping their starting values. The weight sees them through the centres of mass, given in "
+              "the nominal frames that these directions carry along (a convention), or through a tilt relative to "
+              "gravity, bilinearly in the compliances: too weakly to estimate them (docs/calibration.md)")
 
 
 def named(ana: Identifiability, lin: Linearization, layout: Layout, experiments: Sequence,

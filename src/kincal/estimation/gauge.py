@@ -49,8 +49,9 @@ def rigid_gauges(problem, lin) -> np.ndarray | None:
     axes against a free world frame) give the same joint screws in space, so the same torques under a tool
     load, and stay exact gauges. But the centres of mass of a mass model are given in the nominal frames, which
     such a move carries along with a choice the geometry cannot see: the weight's lever arms change, and lift
-    the gauge by that convention and the noise alone. The solver would walk metres along it (Agile Justin: the
-    torso's axes 40 m off after a few hundred steps). ``identify`` holds them (its ``hold``: taken once, at
+    the gauge by that convention and the noise alone; a tilt of the whole arm relative to gravity, against an
+    unknown tracker, changes the sag bilinearly in the compliances. The solver would walk metres along them
+    (Agile Justin: the torso's axes 40 m off after a few hundred steps). ``identify`` holds them (its ``hold``: taken once, at
     the start), pinning one coordinate per direction.
 
     All of the rigid model's gauges, lifted at the start or not: at a start with every compliance at 0 the
