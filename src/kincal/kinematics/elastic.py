@@ -32,12 +32,13 @@ each joint to the load it transmits: ``tau_i = xi_s_i . (W_i + F_s)``, same sign
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 from kincal._validate import as_array
 from kincal.kinematics.fk import Kinematics, chain, forward_kinematics, joint_array
-from kincal.kinematics.gravity import GravityLoad, gravity_load, mass_beyond, weight_wrenches
+from kincal.kinematics.gravity import GravityLoad, _Inserter, gravity_load, mass_beyond, weight_wrenches
 from kincal.kinematics.lateral import expand_load, expand_screws, expand_values, real_columns
 from kincal.kinematics.model import ArmModel
 from kincal.lie import se3
@@ -64,6 +65,11 @@ class LoadedKinematics(Kinematics):
     moments_beyond: np.ndarray | None = None
     wrench_beyond: np.ndarray | None = None
     branches: tuple = ()
+
+    @cached_property
+    def inserter(self) -> _Inserter:
+        """The weights' torque derivatives (``gravity._Inserter``), built once per chain for every part."""
+        return _Inserter(self)
 
 
 def loaded_chain(screws, theta0, base, home, tool, compliance, wrench_tool,

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kincal.kinematics.model import ArmModel
-from kincal.lie import se3
+from kincal.lie import se3, so3
 
 
 @dataclass(frozen=True)
@@ -84,41 +84,56 @@ def _q_rows(axes: np.ndarray, M, S: np.ndarray, g: np.ndarray) -> np.ndarray:
     v, w = axes[..., :3], axes[..., 3:]
     M = np.asarray(M, dtype=float)
     out = np.zeros(axes.shape)
-    out[..., 3:] = np.cross(M[..., None] * v + np.cross(w, S), g)
+    out[..., 3:] = so3.cross(M[..., None] * v + so3.cross(w, S), g)
     return out
 
 
 class _Inserter:
-    """``dtau/dp`` for world twists inserted in the chain (module docstring), on the unloaded pass ``kin``."""
+    """``dtau/dp`` for world twists inserted in the chain (module docstring), on the unloaded pass ``kin``.
+
+    Batched over inserted twists (columns): an unmoved axis' row ``ad(xi_i)^T W_l + Q_{i,l}`` equals (Jacobi
+    identity, ``W_l = (M_l g, S_l x g) + F_s``) ``(M_l u_i, S_l x u_i) + ad(xi_i)^T F_s`` with ``u_i = g x w_i``,
+    so against a twist ``z = (z_v, z_w)`` it is ``[u_i, ad(xi_i)^T F_s] . [M_l z_v + z_w x S_l, z]``: one product
+    of (N, n, 9) rows by (N, 9, columns) for every column at once, whatever its ``l``."""
 
     def __init__(self, kin):
         self.X = kin.axes  # (N, n, 6)
         self.M, self.S, self.g = kin.masses_beyond, kin.moments_beyond, kin.gravity
-        self.W = kin.wrench_beyond  # (N, n + 1, 6): weights plus the tool load
         n = self.X.shape[1]
         self.own = _q_rows(self.X, self.M[:n], self.S[:, :n], self.g)  # Q_{i,i}
-        self.ad = se3.ad(self.X)
+        v, w = self.X[..., :3], self.X[..., 3:]
+        F = kin.wrench_space[:, None, :]  # (N, 1, 6)
+        self.rows = np.concatenate([so3.cross(self.g, w), so3.cross(F[..., :3], w),
+                                    so3.cross(F[..., :3], v) + so3.cross(F[..., 3:], w)], axis=-1)  # (N, n, 9)
+
+    def torques(self, a, l, Z: np.ndarray) -> np.ndarray:
+        """dtau (N, n, c) for the twists Z (N, 6, c), column c moving axes >= a[c] and links >= l[c] (arrays (c,)
+        or scalars)."""
+        l = np.broadcast_to(l, Z.shape[-1:])
+        lever = _lever(self.M[l], self.S[:, l], Z)
+        unmoved = self.rows @ np.concatenate([lever, Z], axis=1)  # (N, n, c)
+        idx = np.arange(self.X.shape[1])[:, None]
+        if np.all(idx < a):
+            return unmoved
+        return np.where(idx < a, unmoved, self.own @ Z)
 
     def __call__(self, a: int, l: int, Z: np.ndarray) -> np.ndarray:
         """dtau (N, n, d) for the twists Z (N, 6, d) moving axes >= a and links >= l."""
-        out = np.empty(self.X.shape[:2] + Z.shape[-1:])
-        out[:, a:] = self.own[:, a:] @ Z
-        if a > 0:
-            H = np.einsum("Nkji,Nj->Nki", self.ad[:, :a], self.W[:, l])
-            H += _q_rows(self.X[:, :a], self.M[l], self.S[:, l, None], self.g)
-            out[:, :a] = H @ Z
-        return out
+        return self.torques(a, l, Z)
 
     def moved_weight(self, m: int, mass: float, moment: np.ndarray, Z: np.ndarray) -> np.ndarray:
         """dtau (N, n, d) from a weight (``mass``, first ``moment`` (N, 3)) beyond the chain moved by the twists
         Z (N, 6, d) while the axes before ``m`` stay (``a > 0`` rule above, with this weight alone)."""
         out = np.zeros(self.X.shape[:2] + Z.shape[-1:])
-        if m > 0:
-            W = np.concatenate([np.broadcast_to(mass * self.g, moment.shape), np.cross(moment, self.g)], axis=-1)
-            H = np.einsum("Nkji,Nj->Nki", self.ad[:, :m], W)
-            H += _q_rows(self.X[:, :m], np.asarray(mass, float), moment[:, None], self.g)
-            out[:, :m] = H @ Z
+        lever = _lever(float(mass), np.asarray(moment)[:, None, :], Z)
+        out[:, :m] = self.rows[:, :m, :3] @ lever
         return out
+
+
+def _lever(mass, moment: np.ndarray, Z: np.ndarray) -> np.ndarray:
+    """``M z_v + z_w x S`` (N, 3, c) for twists Z (N, 6, c) against weights of mass (c,) (or a scalar) and first
+    moments (N, c, 3) (or (N, 1, 3))."""
+    return mass * Z[:, :3] + np.swapaxes(so3.cross(np.swapaxes(Z[:, 3:], -1, -2), moment), -1, -2)
 
 
 def gravity_torque_derivatives(kin, generators, parts) -> dict[str, np.ndarray]:
@@ -126,14 +141,18 @@ def gravity_torque_derivatives(kin, generators, parts) -> dict[str, np.ndarray]:
     ``LoadedKinematics`` with weights (``kin.gravity`` set)."""
     k0 = kin.unloaded
     n = len(generators)
-    ins = _Inserter(kin)
+    ins = kin.inserter
     out = {}
+    j = np.arange(n)
     if "offsets" in parts:
-        out["offsets"] = np.concatenate([ins(j + 1, j, kin.axes[:, j, :, None]) for j in range(n)], axis=-1)
+        out["offsets"] = ins.torques(j + 1, j, np.swapaxes(kin.axes, -1, -2))
     Ad = se3.adjoint(k0.prefixes) if ("twists" in parts or "home" in parts) else None
     if "twists" in parts:
-        out["twists"] = np.concatenate([ins(j, j, Ad[:, j] @ Gj) - ins(j + 1, j, Ad[:, j + 1] @ Gj)
-                                        for j, Gj in enumerate(generators)], axis=-1)
+        G = np.concatenate(generators, axis=1)  # (6, t)
+        col = np.repeat(j, [Gj.shape[1] for Gj in generators])  # each column's joint
+        before = np.einsum("Ncab,bc->Nac", Ad[:, col], G)
+        after = np.einsum("Ncab,bc->Nac", Ad[:, col + 1], G)
+        out["twists"] = ins.torques(col, col, before) - ins.torques(col + 1, col, after)
     if "home" in parts:
         out["home"] = ins(n, n, Ad[:, n])
     if "tool" in parts:

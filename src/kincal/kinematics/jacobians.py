@@ -36,7 +36,7 @@ import numpy as np
 
 from kincal.kinematics.elastic import LoadedKinematics
 from kincal.kinematics.fk import Kinematics
-from kincal.kinematics.gravity import _Inserter, gravity_torque_derivatives
+from kincal.kinematics.gravity import gravity_torque_derivatives
 from kincal.lie import se3
 
 TOOL_PARTS = ("offsets", "twists", "home", "base", "tool", "compliance")
@@ -157,7 +157,7 @@ def insertion_torques(kin: LoadedKinematics, m: int, F: np.ndarray, moved=()) ->
     with weights (``kincal.kinematics.gravity``) the links from m on move too, and the hung weights ``moved``."""
     Z = se3.adjoint(kin.unloaded.prefixes[:, m] @ F)
     if kin.gravity is not None:
-        ins = _Inserter(kin)
+        ins = kin.inserter
         return ins(m, m, Z) + sum((ins.moved_weight(mb, mass, S, Z) for mb, mass, S in moved), 0.0)
     H = np.einsum("Ni,Nkij->Nkj", kin.wrench_space, se3.ad(kin.axes))  # (N, n, 6): h_i
     before = (np.arange(H.shape[1]) < m)[None, :, None]
