@@ -13,8 +13,8 @@ from kincal.kinematics import Kinematics
 from kincal.kinematics.branches import branch_torque_derivatives, loaded_tree
 from kincal.kinematics.elastic import LoadedKinematics
 from kincal.kinematics.jacobians import TOOL_PARTS, insertion_jacobians, joint_jacobian, tool_jacobians
-from kincal.kinematics.lateral import (chain_lateral, collapse_twists, expand_basis, expand_generators, expand_screws,
-                                      expand_values, lateral_columns, real_columns)
+from kincal.kinematics.lateral import (chain_lateral, expand_basis, expand_screws, expand_values, lateral_columns,
+                                      real_columns)
 from kincal.kinematics.tree import composite, insertion_points
 from kincal.lie import se3, so3
 from kincal.params import ArmValues
@@ -78,9 +78,6 @@ class _Chain:
     step: int
     lateral: tuple | None  # (axes, compliances) of the composite, None when no segment has lateral compliance
 
-    def gens(self, gens) -> tuple:
-        return expand_generators(gens) if self.step == 3 else gens
-
 
 def _chain(segs, comp, kin, q) -> _Chain:
     coeffs, basis = _tree_compliance(segs, q)
@@ -94,22 +91,15 @@ def _chain(segs, comp, kin, q) -> _Chain:
     return _Chain(screws, np.concatenate([coeffs, lat[1].ravel()]), expand_basis(basis, n, len(q[0])), 3, lat)
 
 
-def _collapse(ch: _Chain, blocks: dict, gq, widths) -> tuple[dict, np.ndarray | None]:
-    """The expanded chain's blocks as the composite's own: offsets and readings the real joints' columns, twists
-    summed over each joint's three screws, compliance split into the joints' and the lateral ones."""
-    if ch.step == 1:
-        return blocks, gq
-    out = dict(blocks)
-    if "offsets" in blocks:
-        out["offsets"] = real_columns(blocks["offsets"])
-    if "twists" in blocks:
-        out["twists"] = collapse_twists(blocks["twists"], widths)
-    if "compliance" in blocks:
-        J = blocks["compliance"]
-        p = len(ch.coeffs) - 2 * len(ch.lateral[1])
-        joint, lat = (real_columns(J), lateral_columns(J)) if ch.basis is None else (J[..., :p], J[..., p:])
-        out["compliance"], out["lateral"] = joint, lat
-    return out, (None if gq is None else real_columns(gq))
+def _split_compliance(ch: _Chain, blocks: dict) -> None:
+    """The expanded chain's compliance block split into the joints' and the lateral ones (in place; offsets,
+    readings and twists come per joint from ``tool_jacobians``' ``step``)."""
+    if ch.step == 1 or "compliance" not in blocks:
+        return
+    J = blocks["compliance"]
+    p = len(ch.coeffs) - 2 * len(ch.lateral[1])
+    blocks["compliance"], blocks["lateral"] = ((real_columns(J), lateral_columns(J)) if ch.basis is None
+                                               else (J[..., :p], J[..., p:]))
 
 
 def tree_jacobians(state, line, q, kin, G, parts, jq: bool, out: dict, jqs: dict) -> None:
@@ -127,8 +117,8 @@ def tree_jacobians(state, line, q, kin, G, parts, jq: bool, out: dict, jqs: dict
     if not branches:  # else the tip's home and tool are insertions too, which may move weights hung at n
         cparts += [p for p in ("home", "tool") if p in parts[line[-1]]]
     gens = comp.generators([a.generators for a in segs])
-    blocks, gq = tool_jacobians(kin, G, ch.screws, ch.gens(gens), ch.coeffs, cparts, jq, ch.basis)
-    blocks, gq = _collapse(ch, blocks, gq, [g.shape[1] for g in gens])
+    blocks, gq = tool_jacobians(kin, G, ch.screws, gens, ch.coeffs, cparts, jq, ch.basis, ch.step)
+    _split_compliance(ch, blocks)
     _lateral_blocks(ch, segs, line, parts, blocks, G, out)
     widths = {"offsets": None, "twists": [sum(g.shape[1] for g in a.generators) for a in segs],
               "compliance": [len(a.joint_compliance) for a in segs]}

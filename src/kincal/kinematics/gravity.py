@@ -93,40 +93,35 @@ class _Inserter:
 
     Batched over inserted twists (columns): an unmoved axis' row ``ad(xi_i)^T W_l + Q_{i,l}`` equals (Jacobi
     identity, ``W_l = (M_l g, S_l x g) + F_s``) ``(M_l u_i, S_l x u_i) + ad(xi_i)^T F_s`` with ``u_i = g x w_i``,
-    so against a twist ``z = (z_v, z_w)`` it is ``[u_i, ad(xi_i)^T F_s] . [M_l z_v + z_w x S_l, z]``: one product
-    of (N, n, 9) rows by (N, 9, columns) for every column at once, whatever its ``l``."""
+    so against a twist ``z = (z_v, z_w)`` it is ``r_i . [M_l z_v + z_w x S_l, z]`` with ``r_i = [u_i,
+    ad(xi_i)^T F_s]``: one product of (N, n, 9) rows by (N, 9, columns) for every column at once, whatever its
+    ``l``; a moved axis' row is ``Q_{i,i} . z``."""
 
     def __init__(self, kin):
         self.X = kin.axes  # (N, n, 6)
         self.M, self.S, self.g = kin.masses_beyond, kin.moments_beyond, kin.gravity
         n = self.X.shape[1]
-        self.own = _q_rows(self.X, self.M[:n], self.S[:, :n], self.g)  # Q_{i,i}
+        self.own = _q_rows(self.X, self.M[:n], self.S[:, :n], self.g)[..., 3:]  # Q_{i,i}, its non-zero half
         v, w = self.X[..., :3], self.X[..., 3:]
         F = kin.wrench_space[:, None, :]  # (N, 1, 6)
         self.rows = np.concatenate([so3.cross(self.g, w), so3.cross(F[..., :3], w),
                                     so3.cross(F[..., :3], v) + so3.cross(F[..., 3:], w)], axis=-1)  # (N, n, 9)
 
-    def torques(self, a, l, Z: np.ndarray) -> np.ndarray:
+    def __call__(self, a, l, Z: np.ndarray) -> np.ndarray:
         """dtau (N, n, c) for the twists Z (N, 6, c), column c moving axes >= a[c] and links >= l[c] (arrays (c,)
         or scalars)."""
         l = np.broadcast_to(l, Z.shape[-1:])
-        lever = _lever(self.M[l], self.S[:, l], Z)
-        unmoved = self.rows @ np.concatenate([lever, Z], axis=1)  # (N, n, c)
+        unmoved = self.rows @ np.concatenate([_lever(self.M[l], self.S[:, l], Z), Z], axis=1)  # (N, n, c)
         idx = np.arange(self.X.shape[1])[:, None]
         if np.all(idx < a):
             return unmoved
-        return np.where(idx < a, unmoved, self.own @ Z)
-
-    def __call__(self, a: int, l: int, Z: np.ndarray) -> np.ndarray:
-        """dtau (N, n, d) for the twists Z (N, 6, d) moving axes >= a and links >= l."""
-        return self.torques(a, l, Z)
+        return np.where(idx < a, unmoved, self.own @ Z[:, 3:])
 
     def moved_weight(self, m: int, mass: float, moment: np.ndarray, Z: np.ndarray) -> np.ndarray:
         """dtau (N, n, d) from a weight (``mass``, first ``moment`` (N, 3)) beyond the chain moved by the twists
-        Z (N, 6, d) while the axes before ``m`` stay (``a > 0`` rule above, with this weight alone)."""
+        Z (N, 6, d) while the axes before ``m`` stay (the unmoved rows, with this weight alone)."""
         out = np.zeros(self.X.shape[:2] + Z.shape[-1:])
-        lever = _lever(float(mass), np.asarray(moment)[:, None, :], Z)
-        out[:, :m] = self.rows[:, :m, :3] @ lever
+        out[:, :m] = self.rows[:, :m, :3] @ _lever(float(mass), np.asarray(moment)[:, None, :], Z)
         return out
 
 
@@ -136,27 +131,31 @@ def _lever(mass, moment: np.ndarray, Z: np.ndarray) -> np.ndarray:
     return mass * Z[:, :3] + np.swapaxes(so3.cross(np.swapaxes(Z[:, 3:], -1, -2), moment), -1, -2)
 
 
-def gravity_torque_derivatives(kin, generators, parts) -> dict[str, np.ndarray]:
-    """``dtau/dp`` (N, n, d) for the parts in ``parts`` among offsets, twists, home, tool, base, for a
-    ``LoadedKinematics`` with weights (``kin.gravity`` set)."""
+def gravity_torque_derivatives(kin, generators, parts, step: int = 1, C: np.ndarray | None = None
+                               ) -> dict[str, np.ndarray]:
+    """``C @ dtau/dp`` (N, k, d) (``C`` (N, k, n); None: ``dtau/dp`` (N, n, d)) for the parts in ``parts`` among
+    offsets, twists, home, tool, base, for a ``LoadedKinematics`` with weights (``kin.gravity`` set). ``step``: the
+    joints come in groups of ``step`` screws moved by one generator, offsets being the first's
+    (``jacobians.tool_jacobians``); a group's links before its last screw are massless (``lateral.expand_load``),
+    so its twist columns telescope to the insertion before its first screw minus the one after its last."""
     k0 = kin.unloaded
-    n = len(generators)
+    n = kin.axes.shape[1]
     ins = kin.inserter
     out = {}
-    j = np.arange(n)
+    j = np.arange(0, n, step)
     if "offsets" in parts:
-        out["offsets"] = ins.torques(j + 1, j, np.swapaxes(kin.axes, -1, -2))
+        out["offsets"] = ins(j + 1, j, np.swapaxes(kin.axes[:, ::step], -1, -2))
     Ad = se3.adjoint(k0.prefixes) if ("twists" in parts or "home" in parts) else None
     if "twists" in parts:
         G = np.concatenate(generators, axis=1)  # (6, t)
-        col = np.repeat(j, [Gj.shape[1] for Gj in generators])  # each column's joint
-        before = np.einsum("Ncab,bc->Nac", Ad[:, col], G)
-        after = np.einsum("Ncab,bc->Nac", Ad[:, col + 1], G)
-        out["twists"] = ins.torques(col, col, before) - ins.torques(col + 1, col, after)
+        a = np.repeat(j, [Gj.shape[1] for Gj in generators])  # each column's group: screws [a, a + step)
+        before = np.einsum("Ncab,bc->Nac", Ad[:, a], G)
+        after = np.einsum("Ncab,bc->Nac", Ad[:, a + step], G)
+        out["twists"] = ins(a, a, before) - ins(a + step, a + step - 1, after)
     if "home" in parts:
         out["home"] = ins(n, n, Ad[:, n])
     if "tool" in parts:
         out["tool"] = ins(n, n, se3.adjoint(k0.flange))
     if "base" in parts:
         out["base"] = ins(0, 0, np.broadcast_to(np.eye(6), (len(kin.axes), 6, 6)))
-    return out
+    return out if C is None else {p: C @ D for p, D in out.items()}

@@ -45,7 +45,7 @@ _CORRECTED = ("offsets", "twists", "home", "tool")  # the parts whose load torqu
 
 def tool_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, generators: Sequence[np.ndarray],
                    compliance: np.ndarray | None = None, parts: Sequence[str] = TOOL_PARTS,
-                   with_jq: bool = True, basis: tuple[np.ndarray, np.ndarray] | None = None
+                   with_jq: bool = True, basis: tuple[np.ndarray, np.ndarray] | None = None, step: int = 1
                    ) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
     """``G @ d T_world_tool / d param`` per part (N, k, d), and ``G @ J_q`` (N, k, n) if ``with_jq``.
 
@@ -62,6 +62,12 @@ def tool_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, generator
       per-sample weights; it holds for raw, unconformed twists too);
     * home: ``M_n``; base: ``G``; tool: ``G Ad(T_world_flange)``;
     * compliance: see the module docstring; without loads the compliance block is zero.
+
+    ``step``: the chain's joints come in groups of ``step`` consecutive screws (``kincal.kinematics.lateral``'s
+    expanded chain: a joint and its two lateral axes), ``generators`` one per group moving all its screws, and
+    offsets and readings are the groups' first joints': the twist columns are then ``(M_a - M_b) G_j`` over the
+    group ``[a, b)`` (the group's per-screw columns summed) and ``G @ J_q`` (N, k, n / step). Compliance stays
+    per screw.
     """
     N, k = G.shape[:2]
     n = screws.shape[0]
@@ -77,11 +83,11 @@ def tool_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, generator
     if joints or twists:
         jq = np.moveaxis((M[:n] @ screws[:, :, None])[..., 0].reshape(n, N, k), 0, -1)
         if "offsets" in parts:
-            out["offsets"] = jq
+            out["offsets"] = jq[..., ::step]
     if twists:
-        Gen, keep = _padded_bases(generators)  # (n, 6, t)
-        tw = (M[:n] - M[1: n + 1]) @ Gen  # (n, N*k, t): one product per joint
-        out["twists"] = np.moveaxis(tw.reshape(n, N, k, -1), 0, 2).reshape(N, k, -1)[..., keep]
+        Gen, keep = _padded_bases(generators)  # (n / step, 6, t)
+        tw = (M[:n:step] - M[step: n + 1: step]) @ Gen  # (n / step, N*k, t): one product per joint
+        out["twists"] = np.moveaxis(tw.reshape(n // step, N, k, -1), 0, 2).reshape(N, k, -1)[..., keep]
     if "home" in parts:
         out["home"] = M[-1].reshape(N, k, 6)
     if "base" in parts:
@@ -90,31 +96,37 @@ def tool_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, generator
         out["tool"] = G @ se3.adjoint(kin.flange)
     k_c = np.zeros(n) if compliance is None else np.asarray(compliance, float)
     if loaded:
-        jq = _add_compliance(kin, generators, k_c, basis, jq, out, parts)
-    elif "compliance" in parts:
+        jq = _add_compliance(kin, generators, k_c, basis, jq, out, parts, step)
+        return out, (jq if with_jq else None)
+    if "compliance" in parts:
         out["compliance"] = np.zeros((N, k, len(k_c)))
-    return out, (jq if with_jq else None)
+    return out, (jq[..., ::step] if with_jq else None)
 
 
-def torque_derivatives(kin: LoadedKinematics, generators: Sequence[np.ndarray], parts) -> dict[str, np.ndarray]:
+def torque_derivatives(kin: LoadedKinematics, generators: Sequence[np.ndarray], parts, step: int = 1,
+                       C: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """``dtau/dp`` (N, n, d) for the parts in ``parts`` among offsets, twists, home, tool (unloaded chain); with
-    weights (``kincal.kinematics.gravity``) also base."""
+    weights (``kincal.kinematics.gravity``) also base. ``step``: joints in groups (``tool_jacobians``); ``C``
+    (N, k, n): ``C @ dtau/dp`` instead."""
     if kin.gravity is not None:
-        return gravity_torque_derivatives(kin, generators, parts)
+        return gravity_torque_derivatives(kin, generators, parts, step, C)
+    if C is not None:
+        return {p: C @ D for p, D in torque_derivatives(kin, generators, parts, step).items()}
     k0 = kin.unloaded
-    n = len(generators)
+    n = kin.axes.shape[1]
     H = np.einsum("Ni,Nkij->Nkj", kin.wrench_space, se3.ad(kin.axes))  # (N, n, 6): h_i
     out = {}
     rows = np.arange(n)
     if "offsets" in parts:
-        out["offsets"] = np.einsum("Nik,Njk->Nij", H, kin.axes) * (rows[:, None] < rows[None, :])
+        out["offsets"] = np.einsum("Nik,Njk->Nij", H, kin.axes[:, ::step]) * (rows[:, None] < rows[None, ::step])
     Ad = se3.adjoint(k0.prefixes) if ("twists" in parts or "home" in parts) else None
     if "twists" in parts:
         cols = []
         for j, Gj in enumerate(generators):  # loop over joints, batched over samples
-            before = H * (rows < j)[None, :, None]
-            upto = H * (rows <= j)[None, :, None]
-            cols.append(before @ (Ad[:, j] @ Gj) - upto @ (Ad[:, j + 1] @ Gj))
+            a, b = step * j, step * (j + 1)  # the group's screws
+            before = H * (rows < a)[None, :, None]
+            upto = H * (rows < b)[None, :, None]
+            cols.append(before @ (Ad[:, a] @ Gj) - upto @ (Ad[:, b] @ Gj))
         out["twists"] = np.concatenate(cols, axis=-1)
     if "home" in parts:
         out["home"] = H @ Ad[:, n]
@@ -140,7 +152,7 @@ def insertion_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, at, 
         return out
     cjq = joint_jacobian(kin, G, screws) * np.asarray(c)[..., None, :]
     moved = moved or [()] * len(at)
-    return [J + cjq @ insertion_torques(kin, m, F, w) for J, (m, F), w in zip(out, at, moved)]
+    return [J + insertion_torques(kin, m, F, w, cjq) for J, (m, F), w in zip(out, at, moved)]
 
 
 def joint_jacobian(kin: Kinematics, G: np.ndarray, screws: np.ndarray) -> np.ndarray:
@@ -151,23 +163,27 @@ def joint_jacobian(kin: Kinematics, G: np.ndarray, screws: np.ndarray) -> np.nda
                        0, -1)
 
 
-def insertion_torques(kin: LoadedKinematics, m: int, F: np.ndarray, moved=()) -> np.ndarray:
+def insertion_torques(kin: LoadedKinematics, m: int, F: np.ndarray, moved=(), C: np.ndarray | None = None
+                      ) -> np.ndarray:
     """``dtau/dd`` (N, n, 6) for a rigid transform at ``P_m F`` of the unloaded chain moved by ``exp(d)``: the
     joints after it move with the tool (no change), those before it see the load turn (``h_i Ad(P_m F)``);
-    with weights (``kincal.kinematics.gravity``) the links from m on move too, and the hung weights ``moved``."""
+    with weights (``kincal.kinematics.gravity``) the links from m on move too, and the hung weights ``moved``.
+    ``C`` (N, k, n): ``C @ dtau/dd`` (N, k, 6) instead."""
     Z = se3.adjoint(kin.unloaded.prefixes[:, m] @ F)
     if kin.gravity is not None:
         ins = kin.inserter
-        return ins(m, m, Z) + sum((ins.moved_weight(mb, mass, S, Z) for mb, mass, S in moved), 0.0)
-    H = np.einsum("Ni,Nkij->Nkj", kin.wrench_space, se3.ad(kin.axes))  # (N, n, 6): h_i
-    before = (np.arange(H.shape[1]) < m)[None, :, None]
-    return (H * before) @ Z
+        D = ins(m, m, Z) + sum((ins.moved_weight(mb, mass, S, Z) for mb, mass, S in moved), 0.0)
+    else:
+        H = np.einsum("Ni,Nkij->Nkj", kin.wrench_space, se3.ad(kin.axes))  # (N, n, 6): h_i
+        D = (H * (np.arange(H.shape[1]) < m)[None, :, None]) @ Z
+    return D if C is None else C @ D
 
 
 def _add_compliance(kin: LoadedKinematics, generators, k_c: np.ndarray, basis, jq: np.ndarray, out: dict,
-                    parts) -> np.ndarray:
+                    parts, step: int = 1) -> np.ndarray:
     """Add the compliance block and the ``c * dtau/dp`` terms to ``out`` (in place); returns the corrected
-    derivative w.r.t. the joint readings. ``jq`` (N, k, n): ``G dT/dtheta`` at the deflected theta."""
+    derivative w.r.t. the joint readings (the groups' first joints, ``tool_jacobians``). ``jq`` (N, k, n):
+    ``G dT/dtheta`` at the deflected theta."""
     jt = jq * kin.tau[:, None, :]
     if "compliance" in parts:
         out["compliance"] = jt if basis is None else jt @ basis[0]
@@ -175,14 +191,14 @@ def _add_compliance(kin: LoadedKinematics, generators, k_c: np.ndarray, basis, j
     want = [p for p in corrected if p in parts] + ([] if "offsets" in parts else ["offsets"])
     c = k_c if basis is None else basis[0] @ k_c  # (n,) or per sample (N, n)
     if not np.any(c):
-        return jq
+        return jq[..., ::step]
     cjq = jq * c[..., None, :]
-    D = torque_derivatives(kin, generators, want)
+    D = torque_derivatives(kin, generators, want, step, cjq)
     for p in corrected:
         if p in parts:
-            out[p] = out[p] + cjq @ D[p]
-    own = 0.0 if basis is None else jt * (basis[1] @ k_c)[:, None, :]  # a reading moves its own compliance
-    return jq + cjq @ D["offsets"] + own
+            out[p] = out[p] + D[p]
+    own = 0.0 if basis is None else (jt * (basis[1] @ k_c)[:, None, :])[..., ::step]  # a reading moves its compliance
+    return jq[..., ::step] + D["offsets"] + own
 
 
 def _project_prefixes(G: np.ndarray, P: np.ndarray) -> np.ndarray:
