@@ -12,7 +12,8 @@ import numpy as np
 from kincal.kinematics import Kinematics
 from kincal.kinematics.branches import branch_torque_derivatives, loaded_tree
 from kincal.kinematics.elastic import LoadedKinematics
-from kincal.kinematics.jacobians import TOOL_PARTS, insertion_jacobians, joint_jacobian, tool_jacobians
+from kincal.kinematics.jacobians import (TOOL_PARTS, insertion_jacobians, joint_jacobian, prefix_projections,
+                                         tool_jacobians)
 from kincal.kinematics.lateral import (chain_lateral, expand_basis, expand_screws, expand_values, lateral_columns,
                                       real_columns)
 from kincal.kinematics.tree import composite, insertion_points
@@ -117,7 +118,8 @@ def tree_jacobians(state, line, q, kin, G, parts, jq: bool, out: dict, jqs: dict
     if not branches:  # else the tip's home and tool are insertions too, which may move weights hung at n
         cparts += [p for p in ("home", "tool") if p in parts[line[-1]]]
     gens = comp.generators([a.generators for a in segs])
-    blocks, gq = tool_jacobians(kin, G, ch.screws, gens, ch.coeffs, cparts, jq, ch.basis, ch.step)
+    M = prefix_projections(kin, G)  # shared by the chain's blocks, its insertions and branches
+    blocks, gq = tool_jacobians(kin, G, ch.screws, gens, ch.coeffs, cparts, jq, ch.basis, ch.step, M)
     _split_compliance(ch, blocks)
     _lateral_blocks(ch, segs, line, parts, blocks, G, out)
     widths = {"offsets": None, "twists": [sum(g.shape[1] for g in a.generators) for a in segs],
@@ -133,12 +135,12 @@ def tree_jacobians(state, line, q, kin, G, parts, jq: bool, out: dict, jqs: dict
         _add(out, f"{line[-1]}.tool", blocks["tool"])
     if "home" in blocks:
         _add(out, f"{line[-1]}.home", blocks["home"] @ se3.adjoint(comp.frames[-1]))
-    _insertions(kin, G, comp, segs, line, parts, ch, branches, out)
+    _insertions(kin, G, comp, segs, line, parts, ch, branches, M, out)
     if jq:
         for s, a, J in zip(line, segs, comp.split(gq)):
             _add(jqs, s, coupled(a, J))
     if branches:
-        _branch_blocks(state, kin, G, ch, branches, parts, jq, out, jqs)
+        _branch_blocks(state, ch, branches, parts, jq, joint_jacobian(kin, G, ch.screws, M), kin, out, jqs)
 
 
 def _lateral_blocks(ch: _Chain, segs, line, parts, blocks, G, out) -> None:
@@ -153,7 +155,7 @@ def _lateral_blocks(ch: _Chain, segs, line, parts, blocks, G, out) -> None:
             _add(out, f"{s}.lateral", Js)
 
 
-def _insertions(kin, G, comp, segs, line, parts, ch, branches, out) -> None:
+def _insertions(kin, G, comp, segs, line, parts, ch, branches, projected, out) -> None:
     """The blocks of the rigid transforms inside the composite chain (``tree.insertion_points``; with branches
     the tip's home and tool too), each with the hung weights it carries (segment index <= the branch's)."""
     pts = insertion_points(comp, segs)
@@ -165,16 +167,17 @@ def _insertions(kin, G, comp, segs, line, parts, ch, branches, out) -> None:
         return
     x = ch.step
     moved = [[(x * b.m, *b.hung[1:]) for b in branches if b.m == m and k <= b.k] for k, _, m, _ in pts]
-    Js = insertion_jacobians(kin, G, ch.screws, [(x * m, X) for _, _, m, X in pts], ch.coeffs, ch.basis, moved)
+    Js = insertion_jacobians(kin, G, ch.screws, [(x * m, X) for _, _, m, X in pts], ch.coeffs, ch.basis, moved,
+                             projected)
     for (k, p, _, _), J in zip(pts, Js):
         _add(out, f"{line[k]}.{p}", J)
 
 
-def _branch_blocks(state, kin, G, ch, branches, parts, jq, out, jqs) -> None:
+def _branch_blocks(state, ch, branches, parts, jq, dtheta, kin, out, jqs) -> None:
     """The blocks and readings of the other arms whose weight loads the lineage (through the carriers'
-    deflection; ``kincal.kinematics.branches``)."""
+    deflection; ``kincal.kinematics.branches``); ``dtheta``: ``G dT/dtheta`` of the chain."""
     c = ch.coeffs if ch.basis is None else ch.basis[0] @ ch.coeffs
-    cjq = joint_jacobian(kin, G, ch.screws) * np.asarray(c)[..., None, :]
+    cjq = dtheta * np.asarray(c)[..., None, :]
     for b in branches:
         a = state.arms[b.arm]
         want = [p for p in parts.get(b.arm, ()) if p in BRANCH_PARTS] + ["readings"] * jq

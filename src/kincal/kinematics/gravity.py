@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kincal.kinematics.model import ArmModel
+from kincal.kinematics.twists import padded_bases
 from kincal.lie import se3, so3
 
 
@@ -91,11 +92,12 @@ def _q_rows(axes: np.ndarray, M, S: np.ndarray, g: np.ndarray) -> np.ndarray:
 class _Inserter:
     """``dtau/dp`` for world twists inserted in the chain (module docstring), on the unloaded pass ``kin``.
 
-    Batched over inserted twists (columns): an unmoved axis' row ``ad(xi_i)^T W_l + Q_{i,l}`` equals (Jacobi
-    identity, ``W_l = (M_l g, S_l x g) + F_s``) ``(M_l u_i, S_l x u_i) + ad(xi_i)^T F_s`` with ``u_i = g x w_i``,
-    so against a twist ``z = (z_v, z_w)`` it is ``r_i . [M_l z_v + z_w x S_l, z]`` with ``r_i = [u_i,
-    ad(xi_i)^T F_s]``: one product of (N, n, 9) rows by (N, 9, columns) for every column at once, whatever its
-    ``l``; a moved axis' row is ``Q_{i,i} . z``."""
+    An unmoved axis' row ``ad(xi_i)^T W_l + Q_{i,l}`` equals (Jacobi identity, ``W_l = (M_l g, S_l x g) + F_s``)
+    ``(M_l u_i, S_l x u_i) + ad(xi_i)^T F_s`` with ``u_i = g x w_i``: against a twist ``z = (z_v, z_w)`` it is
+    ``r_i . y_l(z)`` with ``r_i = [u_i, ad(xi_i)^T F_s]`` and ``y_l(z) = [M_l z_v + z_w x S_l, z]``, and a moved
+    axis' row is ``Q_{i,i} . z``. The Jacobians use the derivatives projected, ``C @ dtau`` (``C`` (N, k, n): the
+    compliance-weighted ``G dT/dtheta``), so ``project(C)`` sums ``C_i r_i`` over the axes before each insertion
+    and ``C_i Q_{i,i}`` over those after it once: an inserted twist then costs (N, k, 9) numbers, not (N, n, 9)."""
 
     def __init__(self, kin):
         self.X = kin.axes  # (N, n, 6)
@@ -107,28 +109,40 @@ class _Inserter:
         self.rows = np.concatenate([so3.cross(self.g, w), so3.cross(F[..., :3], w),
                                     so3.cross(F[..., :3], v) + so3.cross(F[..., 3:], w)], axis=-1)  # (N, n, 9)
 
+    def project(self, C: np.ndarray | None = None) -> "_Projected":
+        """``C @ dtau`` for C (N, k, n); None: ``dtau`` itself (C the identity)."""
+        N, n = self.X.shape[:2]
+        Ct = np.broadcast_to(np.eye(n), (N, n, n)) if C is None else np.swapaxes(C, -1, -2)  # (N, n, k)
+        before = np.zeros((N, n + 1) + Ct.shape[2:] + (9,))  # at a: the sum over the axes i < a
+        np.cumsum(Ct[..., None] * self.rows[:, :, None], axis=1, out=before[:, 1:])
+        after = np.zeros((N, n + 1) + Ct.shape[2:] + (3,))  # at a: the sum over the axes i >= a
+        after[:, :n] = np.flip(np.cumsum(np.flip(Ct[..., None] * self.own[:, :, None], 1), axis=1), 1)
+        return _Projected(self.M, self.S, before, after)
+
+
+class _Projected:
+    """``C @ dtau`` of an ``_Inserter`` (``_Inserter.project``)."""
+
+    def __init__(self, M: np.ndarray, S: np.ndarray, before: np.ndarray, after: np.ndarray):
+        self.M, self.S, self.before, self.after = M, S, before, after
+
     def __call__(self, a, l, Z: np.ndarray) -> np.ndarray:
-        """dtau (N, n, c) for the twists Z (N, 6, c), column c moving axes >= a[c] and links >= l[c] (arrays (c,)
-        or scalars)."""
-        l = np.broadcast_to(l, Z.shape[-1:])
-        unmoved = self.rows @ np.concatenate([_lever(self.M[l], self.S[:, l], Z), Z], axis=1)  # (N, n, c)
-        idx = np.arange(self.X.shape[1])[:, None]
-        if np.all(idx < a):
-            return unmoved
-        return np.where(idx < a, unmoved, self.own @ Z[:, 3:])
+        """(N, k, g, d) for groups of twists Z (N, g, 6, d), group j moving the axes >= a[j] and the links >= l[j]
+        (int arrays (g,))."""
+        zw = np.swapaxes(Z[:, :, 3:], -1, -2)  # (N, g, d, 3)
+        lever = self.M[l][:, None, None] * Z[:, :, :3] + np.swapaxes(so3.cross(zw, self.S[:, l, None]), -1, -2)
+        out = self.before[:, a] @ np.concatenate([lever, Z], axis=2) + self.after[:, a] @ Z[:, :, 3:]
+        return np.moveaxis(out, 1, 2)
+
+    def columns(self, a: int, l: int, Z: np.ndarray) -> np.ndarray:
+        """(N, k, d) for one group of twists Z (N, 6, d)."""
+        return self(np.array([a]), np.array([l]), Z[:, None])[:, :, 0]
 
     def moved_weight(self, m: int, mass: float, moment: np.ndarray, Z: np.ndarray) -> np.ndarray:
-        """dtau (N, n, d) from a weight (``mass``, first ``moment`` (N, 3)) beyond the chain moved by the twists
-        Z (N, 6, d) while the axes before ``m`` stay (the unmoved rows, with this weight alone)."""
-        out = np.zeros(self.X.shape[:2] + Z.shape[-1:])
-        out[:, :m] = self.rows[:, :m, :3] @ _lever(float(mass), np.asarray(moment)[:, None, :], Z)
-        return out
-
-
-def _lever(mass, moment: np.ndarray, Z: np.ndarray) -> np.ndarray:
-    """``M z_v + z_w x S`` (N, 3, c) for twists Z (N, 6, c) against weights of mass (c,) (or a scalar) and first
-    moments (N, c, 3) (or (N, 1, 3))."""
-    return mass * Z[:, :3] + np.swapaxes(so3.cross(np.swapaxes(Z[:, 3:], -1, -2), moment), -1, -2)
+        """(N, k, d) from a weight (``mass``, first ``moment`` (N, 3)) beyond the chain moved by the twists Z
+        (N, 6, d) while the axes before ``m`` stay (the unmoved rows, with this weight alone)."""
+        lever = float(mass) * Z[:, :3] + np.swapaxes(so3.cross(np.swapaxes(Z[:, 3:], -1, -2), moment[:, None]), -1, -2)
+        return self.before[:, m, :, :3] @ lever
 
 
 def gravity_torque_derivatives(kin, generators, parts, step: int = 1, C: np.ndarray | None = None
@@ -140,22 +154,20 @@ def gravity_torque_derivatives(kin, generators, parts, step: int = 1, C: np.ndar
     so its twist columns telescope to the insertion before its first screw minus the one after its last."""
     k0 = kin.unloaded
     n = kin.axes.shape[1]
-    ins = kin.inserter
+    ins = kin.inserter.project(C)
     out = {}
     j = np.arange(0, n, step)
     if "offsets" in parts:
-        out["offsets"] = ins(j + 1, j, np.swapaxes(kin.axes[:, ::step], -1, -2))
-    Ad = se3.adjoint(k0.prefixes) if ("twists" in parts or "home" in parts) else None
+        out["offsets"] = ins(j + 1, j, kin.axes[:, ::step, :, None])[..., 0]
+    Ad = se3.adjoint(k0.prefixes[:, ::step]) if ("twists" in parts or "home" in parts) else None  # groups' bounds
     if "twists" in parts:
-        G = np.concatenate(generators, axis=1)  # (6, t)
-        a = np.repeat(j, [Gj.shape[1] for Gj in generators])  # each column's group: screws [a, a + step)
-        before = np.einsum("Ncab,bc->Nac", Ad[:, a], G)
-        after = np.einsum("Ncab,bc->Nac", Ad[:, a + step], G)
-        out["twists"] = ins(a, a, before) - ins(a + step, a + step - 1, after)
+        Gen, keep = padded_bases(generators)  # (groups, 6, d)
+        tw = ins(j, j, Ad[:, :-1] @ Gen) - ins(j + step, j + step - 1, Ad[:, 1:] @ Gen)  # (N, k, groups, d)
+        out["twists"] = tw.reshape(tw.shape[:2] + (-1,))[..., keep]
     if "home" in parts:
-        out["home"] = ins(n, n, Ad[:, n])
+        out["home"] = ins.columns(n, n, Ad[:, -1])
     if "tool" in parts:
-        out["tool"] = ins(n, n, se3.adjoint(k0.flange))
+        out["tool"] = ins.columns(n, n, se3.adjoint(k0.flange))
     if "base" in parts:
-        out["base"] = ins(0, 0, np.broadcast_to(np.eye(6), (len(kin.axes), 6, 6)))
-    return out if C is None else {p: C @ D for p, D in out.items()}
+        out["base"] = ins.columns(0, 0, np.broadcast_to(np.eye(6), (len(kin.axes), 6, 6)))
+    return out

@@ -36,7 +36,8 @@ import numpy as np
 
 from kincal.kinematics.elastic import LoadedKinematics
 from kincal.kinematics.fk import Kinematics
-from kincal.kinematics.gravity import gravity_torque_derivatives
+from kincal.kinematics.gravity import _Projected, gravity_torque_derivatives
+from kincal.kinematics.twists import padded_bases
 from kincal.lie import se3
 
 TOOL_PARTS = ("offsets", "twists", "home", "base", "tool", "compliance")
@@ -45,8 +46,8 @@ _CORRECTED = ("offsets", "twists", "home", "tool")  # the parts whose load torqu
 
 def tool_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, generators: Sequence[np.ndarray],
                    compliance: np.ndarray | None = None, parts: Sequence[str] = TOOL_PARTS,
-                   with_jq: bool = True, basis: tuple[np.ndarray, np.ndarray] | None = None, step: int = 1
-                   ) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
+                   with_jq: bool = True, basis: tuple[np.ndarray, np.ndarray] | None = None, step: int = 1,
+                   projected: np.ndarray | None = None) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
     """``G @ d T_world_tool / d param`` per part (N, k, d), and ``G @ J_q`` (N, k, n) if ``with_jq``.
 
     ``kin``: the chain at the data's joint values (``chain`` or ``loaded_chain``); ``G`` (N, k, 6): the residual's
@@ -67,7 +68,7 @@ def tool_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, generator
     expanded chain: a joint and its two lateral axes), ``generators`` one per group moving all its screws, and
     offsets and readings are the groups' first joints': the twist columns are then ``(M_a - M_b) G_j`` over the
     group ``[a, b)`` (the group's per-screw columns summed) and ``G @ J_q`` (N, k, n / step). Compliance stays
-    per screw.
+    per screw. ``projected``: ``prefix_projections(kin, G)`` when the caller has them.
     """
     N, k = G.shape[:2]
     n = screws.shape[0]
@@ -75,18 +76,20 @@ def tool_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, generator
                                                      or kin.gravity is not None)  # weights: the base matters
     joints = with_jq or "offsets" in parts or loaded
     twists = "twists" in parts
-    idx = [*range(n + 1)] if twists else ([*range(n)] if joints else []) + ([n] if "home" in parts else [])
     out: dict[str, np.ndarray] = {}
-    jq = None
-    if idx:
-        M = _project_prefixes(G, kin.prefixes[:, idx])  # (len(idx), N*k, 6)
-    if joints or twists:
-        jq = np.moveaxis((M[:n] @ screws[:, :, None])[..., 0].reshape(n, N, k), 0, -1)
-        if "offsets" in parts:
-            out["offsets"] = jq[..., ::step]
+    jq, bounds = None, [*range(0, n + 1, step)] if twists else []  # the groups' first prefixes, and n
+    if projected is None and (joints or twists):
+        projected = prefix_projections(kin, G)  # readings, twists and home at once
+    if projected is not None:
+        jq = _along_screws(projected[:n], screws, N, k)
+        M = projected[bounds + [n]]
+    elif "home" in parts:
+        M = _project_prefixes(G, kin.prefixes[:, [n]])
+    if "offsets" in parts:
+        out["offsets"] = jq[..., ::step]
     if twists:
-        Gen, keep = _padded_bases(generators)  # (n / step, 6, t)
-        tw = (M[:n:step] - M[step: n + 1: step]) @ Gen  # (n / step, N*k, t): one product per joint
+        Gen, keep = padded_bases(generators)  # (n / step, 6, t)
+        tw = (M[: len(bounds) - 1] - M[1: len(bounds)]) @ Gen  # (n / step, N*k, t): one product per joint
         out["twists"] = np.moveaxis(tw.reshape(n // step, N, k, -1), 0, 2).reshape(N, k, -1)[..., keep]
     if "home" in parts:
         out["home"] = M[-1].reshape(N, k, 6)
@@ -136,12 +139,13 @@ def torque_derivatives(kin: LoadedKinematics, generators: Sequence[np.ndarray], 
 
 
 def insertion_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, at, compliance=None,
-                        basis=None, moved=None) -> list[np.ndarray]:
+                        basis=None, moved=None, projected=None) -> list[np.ndarray]:
     """``G @ d T_world_tool / d X_i`` (N, k, 6) per rigid transform ``X_i`` inserted in the chain: ``at`` lists
     (m, F) with the transform at ``P_m F`` (prefix after m joints, F a constant), perturbed on the left there
     (``F -> exp(d) F``, as ``home`` is at m = n). Under a load the torques of the joints before the insertion
     change too (``insertion_torques``); ``compliance``/``basis`` as in ``tool_jacobians``; ``moved`` (per
-    insertion, a sequence of hung weights ``(m, mass, moment)`` it moves, ``kincal.kinematics.branches``)."""
+    insertion, a sequence of hung weights ``(m, mass, moment)`` it moves, ``kincal.kinematics.branches``);
+    ``projected``: ``prefix_projections(kin, G)`` when the caller has them."""
     N, k = G.shape[:2]
     P = np.stack([kin.prefixes[:, m] @ F for m, F in at], axis=1)
     out = list(_project_prefixes(G, P).reshape(len(at), N, k, 6))
@@ -150,17 +154,30 @@ def insertion_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, at, 
     c = compliance if basis is None else basis[0] @ compliance
     if not np.any(c):
         return out
-    cjq = joint_jacobian(kin, G, screws) * np.asarray(c)[..., None, :]
+    cjq = joint_jacobian(kin, G, screws, projected) * np.asarray(c)[..., None, :]
     moved = moved or [()] * len(at)
+    if kin.gravity is not None:  # the weights' projection once for every insertion
+        cjq = kin.inserter.project(cjq)
     return [J + insertion_torques(kin, m, F, w, cjq) for J, (m, F), w in zip(out, at, moved)]
 
 
-def joint_jacobian(kin: Kinematics, G: np.ndarray, screws: np.ndarray) -> np.ndarray:
-    """``G dT/dtheta`` (N, k, n) at the chain's joint values (deflected ones for a loaded chain)."""
-    N, k = G.shape[:2]
+def joint_jacobian(kin: Kinematics, G: np.ndarray, screws: np.ndarray, projected: np.ndarray | None = None
+                   ) -> np.ndarray:
+    """``G dT/dtheta`` (N, k, n) at the chain's joint values (deflected ones for a loaded chain); ``projected``:
+    ``prefix_projections(kin, G)`` when the caller has them."""
     n = screws.shape[0]
-    return np.moveaxis((_project_prefixes(G, kin.prefixes[:, :n]) @ screws[:, :, None])[..., 0].reshape(n, N, k),
-                       0, -1)
+    M = _project_prefixes(G, kin.prefixes[:, :n]) if projected is None else projected[:n]
+    return _along_screws(M, screws, *G.shape[:2])
+
+
+def prefix_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
+    """``G Ad(P_j)`` (n + 1, N*k, 6) for every prefix of the chain: what its Jacobians share."""
+    return _project_prefixes(G, kin.prefixes)
+
+
+def _along_screws(M: np.ndarray, screws: np.ndarray, N: int, k: int) -> np.ndarray:
+    """``M_j xi_j`` (N, k, n) for projected prefixes M (n, N*k, 6) (``_project_prefixes``)."""
+    return np.moveaxis((M @ screws[:, :, None])[..., 0].reshape(len(screws), N, k), 0, -1)
 
 
 def insertion_torques(kin: LoadedKinematics, m: int, F: np.ndarray, moved=(), C: np.ndarray | None = None
@@ -168,11 +185,11 @@ def insertion_torques(kin: LoadedKinematics, m: int, F: np.ndarray, moved=(), C:
     """``dtau/dd`` (N, n, 6) for a rigid transform at ``P_m F`` of the unloaded chain moved by ``exp(d)``: the
     joints after it move with the tool (no change), those before it see the load turn (``h_i Ad(P_m F)``);
     with weights (``kincal.kinematics.gravity``) the links from m on move too, and the hung weights ``moved``.
-    ``C`` (N, k, n): ``C @ dtau/dd`` (N, k, 6) instead."""
+    ``C`` (N, k, n): ``C @ dtau/dd`` (N, k, 6) instead (with weights, C may be ``kin.inserter.project(C)``)."""
     Z = se3.adjoint(kin.unloaded.prefixes[:, m] @ F)
     if kin.gravity is not None:
-        ins = kin.inserter
-        D = ins(m, m, Z) + sum((ins.moved_weight(mb, mass, S, Z) for mb, mass, S in moved), 0.0)
+        ins = C if isinstance(C, _Projected) else kin.inserter.project(C)
+        return ins.columns(m, m, Z) + sum((ins.moved_weight(mb, mass, S, Z) for mb, mass, S in moved), 0.0)
     else:
         H = np.einsum("Ni,Nkij->Nkj", kin.wrench_space, se3.ad(kin.axes))  # (N, n, 6): h_i
         D = (H * (np.arange(H.shape[1]) < m)[None, :, None]) @ Z
@@ -218,14 +235,3 @@ def _project_prefixes(G: np.ndarray, P: np.ndarray) -> np.ndarray:
     M[..., :3] = gv @ R
     M[..., 3:] = H @ R
     return M.reshape(P.shape[1], N * k, 6)
-
-
-def _padded_bases(bases) -> tuple[np.ndarray, np.ndarray]:
-    """Per-joint matrices (6, k_j) zero-padded to (n, 6, k_max), and the flat indices of real columns."""
-    k_max = max(b.shape[1] for b in bases)
-    B = np.zeros((len(bases), 6, k_max))
-    keep = []
-    for j, b in enumerate(bases):
-        B[j, :, : b.shape[1]] = b
-        keep += [j * k_max + c for c in range(b.shape[1])]
-    return B, np.array(keep)
