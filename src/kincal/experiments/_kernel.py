@@ -184,9 +184,10 @@ def _branch_blocks(state, ch, branches, parts, jq, dtheta, kin, out, jqs) -> Non
         if not want:
             continue
         m = ch.step * b.m
-        D = branch_torque_derivatives(kin.axes[:, :m], kin.gravity, b, a.generators, a.base, want)
-        for p in want:
-            J = cjq[..., :m] @ D[p]
+        D = branch_torque_derivatives(kin.axes[:, :m], kin.gravity, b, a.generators, a.base, want, cjq[..., :m])
+        for p, J in D.items():
+            if p not in want:
+                continue
             if p == "readings":
                 _add(jqs, b.arm, coupled(a, J))
             else:

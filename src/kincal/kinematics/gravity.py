@@ -62,7 +62,7 @@ def mass_beyond(load: GravityLoad, prefixes: np.ndarray, tool: np.ndarray, hung=
     and ``T_world_tool`` (..., 4, 4); index n holds the payload alone. ``hung``: (m, mass, first moment (..., 3)
     world) of weights carried by link m - 1 beyond the chain (other branches of a tree), m > 0."""
     P = prefixes[..., 1:, :, :]
-    c = np.einsum("...kij,kj->...ki", P[..., :3, :3], load.coms) + P[..., :3, 3]  # (..., n, 3) link centres
+    c = (P[..., :3, :3] @ load.coms[:, :, None])[..., 0] + P[..., :3, 3]  # (..., n, 3) link centres
     cp = tool[..., :3, :3] @ load.payload_com + tool[..., :3, 3]  # (..., 3) payload centre
     moments = np.concatenate([c * load.masses[:, None], (load.payload_mass * cp)[..., None, :]], axis=-2)
     masses = np.append(load.masses, load.payload_mass)
@@ -141,8 +141,13 @@ class _Projected:
     def moved_weight(self, m: int, mass: float, moment: np.ndarray, Z: np.ndarray) -> np.ndarray:
         """(N, k, d) from a weight (``mass``, first ``moment`` (N, 3)) beyond the chain moved by the twists Z
         (N, 6, d) while the axes before ``m`` stay (the unmoved rows, with this weight alone)."""
-        lever = float(mass) * Z[:, :3] + np.swapaxes(so3.cross(np.swapaxes(Z[:, 3:], -1, -2), moment[:, None]), -1, -2)
-        return self.before[:, m, :, :3] @ lever
+        return self.before[:, m, :, :3] @ weight_levers(float(mass), moment[:, None], Z)
+
+
+def weight_levers(mass, moment: np.ndarray, Z: np.ndarray) -> np.ndarray:
+    """``M z_v + z_w x S`` (N, 3, c) for twists Z (N, 6, c) moving weights of mass (c,) (or a scalar) and first
+    moment (N, c, 3) (or (N, 1, 3)): a fixed axis' torque changes by ``(g x w) .`` that (``_Inserter``)."""
+    return mass * Z[:, :3] + np.swapaxes(so3.cross(np.swapaxes(Z[:, 3:], -1, -2), moment), -1, -2)
 
 
 def gravity_torque_derivatives(kin, generators, parts, step: int = 1, C: np.ndarray | None = None
