@@ -116,11 +116,10 @@ class _Inserter:
             return self._last[1]
         N, n = self.X.shape[:2]
         Ct = np.broadcast_to(np.eye(n), (N, n, n)) if C is None else np.swapaxes(C, -1, -2)  # (N, n, k)
-        before = np.zeros((N, n + 1) + Ct.shape[2:] + (9,))  # at a: the sum over the axes i < a
-        np.cumsum(Ct[..., None] * self.rows[:, :, None], axis=1, out=before[:, 1:])
-        after = np.zeros((N, n + 1) + Ct.shape[2:] + (3,))  # at a: the sum over the axes i >= a
-        after[:, :n] = np.flip(np.cumsum(np.flip(Ct[..., None] * self.own[:, :, None], 1), axis=1), 1)
-        out = _Projected(self.M, self.S, before, after)
+        sums = np.zeros((N, n + 1) + Ct.shape[2:] + (12,))  # at a: over the axes i < a (9), i >= a (3)
+        np.cumsum(Ct[..., None] * self.rows[:, :, None], axis=1, out=sums[:, 1:, :, :9])
+        sums[:, :n, :, 9:] = np.flip(np.cumsum(np.flip(Ct[..., None] * self.own[:, :, None], 1), axis=1), 1)
+        out = _Projected(self.M, self.S, sums)
         if C is not None:
             self._last = (C, out)
         return out
@@ -129,16 +128,15 @@ class _Inserter:
 class _Projected:
     """``C @ dtau`` of an ``_Inserter`` (``_Inserter.project``)."""
 
-    def __init__(self, M: np.ndarray, S: np.ndarray, before: np.ndarray, after: np.ndarray):
-        self.M, self.S, self.before, self.after = M, S, before, after
+    def __init__(self, M: np.ndarray, S: np.ndarray, sums: np.ndarray):
+        self.M, self.S, self.sums = M, S, sums  # sums (N, n + 1, k, 12): [C_i r_i over i < a, C_i Q_ii over i >= a]
 
     def __call__(self, a, l, Z: np.ndarray) -> np.ndarray:
         """(N, k, g, d) for groups of twists Z (N, g, 6, d), group j moving the axes >= a[j] and the links >= l[j]
         (int arrays (g,))."""
         zw = np.swapaxes(Z[:, :, 3:], -1, -2)  # (N, g, d, 3)
         lever = self.M[l][:, None, None] * Z[:, :, :3] + np.swapaxes(so3.cross(zw, self.S[:, l, None]), -1, -2)
-        out = self.before[:, a] @ np.concatenate([lever, Z], axis=2) + self.after[:, a] @ Z[:, :, 3:]
-        return np.moveaxis(out, 1, 2)
+        return np.moveaxis(self.sums[:, a] @ np.concatenate([lever, Z, Z[:, :, 3:]], axis=2), 1, 2)
 
     def columns(self, a: int, l: int, Z: np.ndarray) -> np.ndarray:
         """(N, k, d) for one group of twists Z (N, 6, d)."""
@@ -147,7 +145,7 @@ class _Projected:
     def moved_weight(self, m: int, mass: float, moment: np.ndarray, Z: np.ndarray) -> np.ndarray:
         """(N, k, d) from a weight (``mass``, first ``moment`` (N, 3)) beyond the chain moved by the twists Z
         (N, 6, d) while the axes before ``m`` stay (the unmoved rows, with this weight alone)."""
-        return self.before[:, m, :, :3] @ weight_levers(float(mass), moment[:, None], Z)
+        return self.sums[:, m, :, :3] @ weight_levers(float(mass), moment[:, None], Z)
 
 
 def weight_levers(mass, moment: np.ndarray, Z: np.ndarray) -> np.ndarray:
@@ -173,7 +171,8 @@ def gravity_torque_derivatives(kin, generators, parts, step: int = 1, C: np.ndar
     Ad = se3.adjoint(k0.prefixes[:, ::step]) if ("twists" in parts or "home" in parts) else None  # groups' bounds
     if "twists" in parts:
         Gen, keep = padded_bases(generators)  # (groups, 6, d)
-        tw = ins(j, j, Ad[:, :-1] @ Gen) - ins(j + step, j + step - 1, Ad[:, 1:] @ Gen)  # (N, k, groups, d)
+        ends = ins(np.r_[j, j + step], np.r_[j, j + step - 1], np.concatenate([Ad[:, :-1], Ad[:, 1:]], 1) @ np.concatenate([Gen, Gen]))
+        tw = ends[:, :, : len(j)] - ends[:, :, len(j):]  # (N, k, groups, d): before the group minus after it
         out["twists"] = tw.reshape(tw.shape[:2] + (-1,))[..., keep]
     if "home" in parts:
         out["home"] = ins.columns(n, n, Ad[:, -1])
