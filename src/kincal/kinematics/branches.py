@@ -12,7 +12,7 @@ Derivatives of those torques:
 
 * a parameter of the lineage moves the hung weight with link ``m - 1`` (``gravity._Inserter`` on the folded
   masses), except a rigid transform inserted exactly at ``m`` that still carries the branch (the carrier's home
-  and tool, i.e. segment index <= k): then ``_Inserter.moved_weight`` adds it;
+  and tool, i.e. segment index <= k): then ``gravity._Projected.moved_weight`` adds it;
 * a parameter of ``o`` itself (offsets, twists, home, tool, base) or one of its readings moves its own links
   ``>= l`` and its payload by a world twist ``zeta = (v, w)`` of its chain: ``dS_o = M'_l v + w x S'_l`` (mass
   beyond l of ``o``'s own links), hence ``dtau_i = (M'_l u_i, S'_l x u_i) . zeta`` with ``u_i = g x w_i``.
