@@ -12,9 +12,10 @@ import numpy as np
 from kincal.kinematics import Kinematics
 from kincal.kinematics.branches import branch_torque_derivatives, loaded_tree
 from kincal.kinematics.elastic import LoadedKinematics
-from kincal.kinematics.jacobians import TOOL_PARTS, insertion_jacobians, joint_jacobian, tool_jacobians
-from kincal.kinematics.lateral import (chain_lateral, collapse_twists, expand_basis, expand_generators, expand_screws,
-                                      expand_values, lateral_columns, real_columns)
+from kincal.kinematics.jacobians import (TOOL_PARTS, insertion_jacobians, joint_jacobian, prefix_projections,
+                                         tool_jacobians)
+from kincal.kinematics.lateral import (chain_lateral, expand_basis, expand_screws, expand_values, lateral_columns,
+                                      real_columns)
 from kincal.kinematics.tree import composite, insertion_points
 from kincal.lie import se3, so3
 from kincal.params import ArmValues
@@ -78,9 +79,6 @@ class _Chain:
     step: int
     lateral: tuple | None  # (axes, compliances) of the composite, None when no segment has lateral compliance
 
-    def gens(self, gens) -> tuple:
-        return expand_generators(gens) if self.step == 3 else gens
-
 
 def _chain(segs, comp, kin, q) -> _Chain:
     coeffs, basis = _tree_compliance(segs, q)
@@ -94,22 +92,15 @@ def _chain(segs, comp, kin, q) -> _Chain:
     return _Chain(screws, np.concatenate([coeffs, lat[1].ravel()]), expand_basis(basis, n, len(q[0])), 3, lat)
 
 
-def _collapse(ch: _Chain, blocks: dict, gq, widths) -> tuple[dict, np.ndarray | None]:
-    """The expanded chain's blocks as the composite's own: offsets and readings the real joints' columns, twists
-    summed over each joint's three screws, compliance split into the joints' and the lateral ones."""
-    if ch.step == 1:
-        return blocks, gq
-    out = dict(blocks)
-    if "offsets" in blocks:
-        out["offsets"] = real_columns(blocks["offsets"])
-    if "twists" in blocks:
-        out["twists"] = collapse_twists(blocks["twists"], widths)
-    if "compliance" in blocks:
-        J = blocks["compliance"]
-        p = len(ch.coeffs) - 2 * len(ch.lateral[1])
-        joint, lat = (real_columns(J), lateral_columns(J)) if ch.basis is None else (J[..., :p], J[..., p:])
-        out["compliance"], out["lateral"] = joint, lat
-    return out, (None if gq is None else real_columns(gq))
+def _split_compliance(ch: _Chain, blocks: dict) -> None:
+    """The expanded chain's compliance block split into the joints' and the lateral ones (in place; offsets,
+    readings and twists come per joint from ``tool_jacobians``' ``step``)."""
+    if ch.step == 1 or "compliance" not in blocks:
+        return
+    J = blocks["compliance"]
+    p = len(ch.coeffs) - 2 * len(ch.lateral[1])
+    blocks["compliance"], blocks["lateral"] = ((real_columns(J), lateral_columns(J)) if ch.basis is None
+                                               else (J[..., :p], J[..., p:]))
 
 
 def tree_jacobians(state, line, q, kin, G, parts, jq: bool, out: dict, jqs: dict) -> None:
@@ -127,8 +118,9 @@ def tree_jacobians(state, line, q, kin, G, parts, jq: bool, out: dict, jqs: dict
     if not branches:  # else the tip's home and tool are insertions too, which may move weights hung at n
         cparts += [p for p in ("home", "tool") if p in parts[line[-1]]]
     gens = comp.generators([a.generators for a in segs])
-    blocks, gq = tool_jacobians(kin, G, ch.screws, ch.gens(gens), ch.coeffs, cparts, jq, ch.basis)
-    blocks, gq = _collapse(ch, blocks, gq, [g.shape[1] for g in gens])
+    M = prefix_projections(kin, G)  # shared by the chain's blocks, its insertions and branches
+    blocks, gq = tool_jacobians(kin, G, ch.screws, gens, ch.coeffs, cparts, jq, ch.basis, ch.step, M)
+    _split_compliance(ch, blocks)
     _lateral_blocks(ch, segs, line, parts, blocks, G, out)
     widths = {"offsets": None, "twists": [sum(g.shape[1] for g in a.generators) for a in segs],
               "compliance": [len(a.joint_compliance) for a in segs]}
@@ -143,12 +135,12 @@ def tree_jacobians(state, line, q, kin, G, parts, jq: bool, out: dict, jqs: dict
         _add(out, f"{line[-1]}.tool", blocks["tool"])
     if "home" in blocks:
         _add(out, f"{line[-1]}.home", blocks["home"] @ se3.adjoint(comp.frames[-1]))
-    _insertions(kin, G, comp, segs, line, parts, ch, branches, out)
+    _insertions(kin, G, comp, segs, line, parts, ch, branches, M, out)
     if jq:
         for s, a, J in zip(line, segs, comp.split(gq)):
             _add(jqs, s, coupled(a, J))
     if branches:
-        _branch_blocks(state, kin, G, ch, branches, parts, jq, out, jqs)
+        _branch_blocks(state, ch, branches, parts, jq, joint_jacobian(kin, G, ch.screws, M), kin, out, jqs)
 
 
 def _lateral_blocks(ch: _Chain, segs, line, parts, blocks, G, out) -> None:
@@ -163,7 +155,7 @@ def _lateral_blocks(ch: _Chain, segs, line, parts, blocks, G, out) -> None:
             _add(out, f"{s}.lateral", Js)
 
 
-def _insertions(kin, G, comp, segs, line, parts, ch, branches, out) -> None:
+def _insertions(kin, G, comp, segs, line, parts, ch, branches, projected, out) -> None:
     """The blocks of the rigid transforms inside the composite chain (``tree.insertion_points``; with branches
     the tip's home and tool too), each with the hung weights it carries (segment index <= the branch's)."""
     pts = insertion_points(comp, segs)
@@ -175,25 +167,27 @@ def _insertions(kin, G, comp, segs, line, parts, ch, branches, out) -> None:
         return
     x = ch.step
     moved = [[(x * b.m, *b.hung[1:]) for b in branches if b.m == m and k <= b.k] for k, _, m, _ in pts]
-    Js = insertion_jacobians(kin, G, ch.screws, [(x * m, X) for _, _, m, X in pts], ch.coeffs, ch.basis, moved)
+    Js = insertion_jacobians(kin, G, ch.screws, [(x * m, X) for _, _, m, X in pts], ch.coeffs, ch.basis, moved,
+                             projected)
     for (k, p, _, _), J in zip(pts, Js):
         _add(out, f"{line[k]}.{p}", J)
 
 
-def _branch_blocks(state, kin, G, ch, branches, parts, jq, out, jqs) -> None:
+def _branch_blocks(state, ch, branches, parts, jq, dtheta, kin, out, jqs) -> None:
     """The blocks and readings of the other arms whose weight loads the lineage (through the carriers'
-    deflection; ``kincal.kinematics.branches``)."""
+    deflection; ``kincal.kinematics.branches``); ``dtheta``: ``G dT/dtheta`` of the chain."""
     c = ch.coeffs if ch.basis is None else ch.basis[0] @ ch.coeffs
-    cjq = joint_jacobian(kin, G, ch.screws) * np.asarray(c)[..., None, :]
+    cjq = dtheta * np.asarray(c)[..., None, :]
     for b in branches:
         a = state.arms[b.arm]
         want = [p for p in parts.get(b.arm, ()) if p in BRANCH_PARTS] + ["readings"] * jq
         if not want:
             continue
         m = ch.step * b.m
-        D = branch_torque_derivatives(kin.axes[:, :m], kin.gravity, b, a.generators, a.base, want)
-        for p in want:
-            J = cjq[..., :m] @ D[p]
+        D = branch_torque_derivatives(kin.axes[:, :m], kin.gravity, b, a.generators, a.base, want, cjq[..., :m])
+        for p, J in D.items():
+            if p not in want:
+                continue
             if p == "readings":
                 _add(jqs, b.arm, coupled(a, J))
             else:

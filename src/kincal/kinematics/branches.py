@@ -12,7 +12,7 @@ Derivatives of those torques:
 
 * a parameter of the lineage moves the hung weight with link ``m - 1`` (``gravity._Inserter`` on the folded
   masses), except a rigid transform inserted exactly at ``m`` that still carries the branch (the carrier's home
-  and tool, i.e. segment index <= k): then ``_Inserter.moved_weight`` adds it;
+  and tool, i.e. segment index <= k): then ``gravity._Projected.moved_weight`` adds it;
 * a parameter of ``o`` itself (offsets, twists, home, tool, base) or one of its readings moves its own links
   ``>= l`` and its payload by a world twist ``zeta = (v, w)`` of its chain: ``dS_o = M'_l v + w x S'_l`` (mass
   beyond l of ``o``'s own links), hence ``dtau_i = (M'_l u_i, S'_l x u_i) . zeta`` with ``u_i = g x w_i``.
@@ -26,13 +26,14 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from kincal.errors import DataFormatError, ModelError
-from kincal.kinematics.fk import Kinematics, chain
+from kincal.kinematics.fk import Kinematics, chain, space_axes
 from kincal.kinematics.elastic import joint_compliance, loaded_chain
 from kincal.kinematics.lateral import chain_lateral
-from kincal.kinematics.gravity import GravityLoad, gravity_load, mass_beyond
+from kincal.kinematics.gravity import GravityLoad, gravity_load, mass_beyond, weight_levers
 from kincal.kinematics.model import Robot, lineage
 from kincal.kinematics.tree import Composite, composite
-from kincal.lie import se3
+from kincal.kinematics.twists import padded_bases
+from kincal.lie import se3, so3
 
 
 @dataclass(frozen=True)
@@ -129,29 +130,32 @@ def _branch(arms, loads, mounts, line, o, q, offsets, g) -> Branch:
 
 
 def branch_torque_derivatives(axes: np.ndarray, g: np.ndarray, b: Branch, generators: Sequence[np.ndarray],
-                              base: np.ndarray, parts) -> dict[str, np.ndarray]:
-    """``dtau/dp`` (N, m, d) of the tip chain's joints before the branch (``axes`` (N, m, 6) their space axes
-    at the unloaded readings; m = b.m, or 3 b.m on a chain expanded for lateral compliance) for the branch arm's own parts (offsets, twists, home, tool, base; ``readings``
-    too: as offsets); ``generators`` and ``base``: the branch segment's own (its composite chain's are ``Ad(M_K) G``)."""
-    u = np.cross(g, axes[..., 3:])  # (N, m, 3)
-    rows = lambda l: np.concatenate([b.M[l] * u, np.cross(b.S[:, l, None], u)], axis=-1)  # noqa: E731
+                              base: np.ndarray, parts, C: np.ndarray) -> dict[str, np.ndarray]:
+    """``C @ dtau/dp`` (N, k, d) for ``C`` (N, k, m) and the tip chain's joints before the branch (``axes`` (N, m, 6)
+    their space axes at the unloaded readings; m = b.m, or 3 b.m on a chain expanded for lateral compliance) for
+    the branch arm's own parts (offsets, twists, home, tool, base; ``readings`` too: as offsets); ``generators``
+    and ``base``: the branch segment's own (its composite chain's are ``Ad(M_K) G``). A twist z moving the
+    branch's weight beyond its joint l changes joint i's torque by ``(g x w_i) . (M'_l z_v + z_w x S'_l)``."""
+    Cu = C @ so3.cross(g, axes[..., 3:])  # (N, k, 3)
     n, m, kin, MK = len(b.M) - 1, b.m, b.kin, b.comp.frames[-1]
+    at = lambda l, Z: Cu @ weight_levers(b.M[l], b.S[:, l], Z)  # noqa: E731  (l (c,), Z (N, 6, c))
     out = {}
     if "offsets" in parts or "readings" in parts:
-        ax = np.einsum("Njab,jb->Nja", se3.adjoint(kin.prefixes[:, m:n]), b.comp.screws[m:])
-        out["offsets"] = np.concatenate([rows(m + j) @ ax[:, j, :, None] for j in range(n - m)], axis=-1)
-        out["readings"] = out["offsets"]
+        j = np.arange(m, n)
+        out["offsets"] = out["readings"] = at(j, np.swapaxes(space_axes(kin.prefixes[:, m:], b.comp.screws[m:]), -1, -2))
     if "twists" in parts:
         Ad = se3.adjoint(kin.prefixes[:, m:])
-        GM = se3.adjoint(MK)
-        out["twists"] = np.concatenate([rows(m + j) @ ((Ad[:, j] - Ad[:, j + 1]) @ (GM @ Gj))
-                                        for j, Gj in enumerate(generators)], axis=-1)
+        Gen, keep = padded_bases([se3.adjoint(MK) @ Gj for Gj in generators])  # (n - m, 6, d)
+        Z = np.moveaxis((Ad[:, :-1] - Ad[:, 1:]) @ Gen, 1, -1)  # (N, 6, d, n - m)
+        Z = np.swapaxes(Z, -1, -2).reshape(Z.shape[:2] + (-1,))[..., keep]
+        out["twists"] = at(m + keep // Gen.shape[-1], Z)
+    one = lambda l, Z: at(np.full(Z.shape[-1], l), Z)  # noqa: E731
     if "home" in parts:
-        out["home"] = rows(n) @ se3.adjoint(kin.prefixes[:, n] @ MK)
+        out["home"] = one(n, se3.adjoint(kin.prefixes[:, n] @ MK))
     if "tool" in parts:
-        out["tool"] = rows(n) @ se3.adjoint(kin.flange)
+        out["tool"] = one(n, se3.adjoint(kin.flange))
     if "base" in parts:  # inserted left of its base: at P_m M_K base^-1
-        out["base"] = rows(m) @ se3.adjoint(kin.prefixes[:, m] @ MK @ se3.inverse(base))
+        out["base"] = one(m, se3.adjoint(kin.prefixes[:, m] @ MK @ se3.inverse(base)))
     return out
 
 

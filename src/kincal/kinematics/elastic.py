@@ -32,12 +32,13 @@ each joint to the load it transmits: ``tau_i = xi_s_i . (W_i + F_s)``, same sign
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 from kincal._validate import as_array
-from kincal.kinematics.fk import Kinematics, chain, forward_kinematics, joint_array
-from kincal.kinematics.gravity import GravityLoad, gravity_load, mass_beyond, weight_wrenches
+from kincal.kinematics.fk import Kinematics, chain, expanded_chain, forward_kinematics, joint_array
+from kincal.kinematics.gravity import GravityLoad, _Inserter, gravity_load, mass_beyond, weight_wrenches
 from kincal.kinematics.lateral import expand_load, expand_screws, expand_values, real_columns
 from kincal.kinematics.model import ArmModel
 from kincal.lie import se3
@@ -65,6 +66,11 @@ class LoadedKinematics(Kinematics):
     wrench_beyond: np.ndarray | None = None
     branches: tuple = ()
 
+    @cached_property
+    def inserter(self) -> _Inserter:
+        """The weights' torque derivatives (``gravity._Inserter``), built once per chain for every part."""
+        return _Inserter(self)
+
 
 def loaded_chain(screws, theta0, base, home, tool, compliance, wrench_tool,
                  weights: GravityLoad | None = None, hung=(), lateral=None) -> LoadedKinematics:
@@ -73,11 +79,13 @@ def loaded_chain(screws, theta0, base, home, tool, compliance, wrench_tool,
     ``hung``: weights beyond the chain (``gravity.mass_beyond``; other branches of a tree); ``lateral``: None or
     (lateral axes (n, 2, 6), lateral compliances (n, 2)): then the result is the *expanded* chain of 3n joints
     (``kincal.kinematics.lateral``)."""
-    if lateral is not None:
-        screws, theta0 = expand_screws(screws, lateral[0]), expand_values(theta0, 0.0)
+    if lateral is None:
+        kin0 = chain(screws, theta0, base, home, tool)
+    else:  # the virtual joints are at zero before the load
+        kin0 = expanded_chain(screws, theta0, base, home, tool)
+        screws = expand_screws(screws, lateral[0])
         compliance, weights = expand_values(compliance, lateral[1]), expand_load(weights)
         hung = [(3 * m, mass, moment) for m, mass, moment in hung]
-    kin0 = chain(screws, theta0, base, home, tool)
     if wrench_tool is None:
         F_s = np.zeros(kin0.theta.shape[:-1] + (6,))
     else:

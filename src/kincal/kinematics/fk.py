@@ -13,7 +13,7 @@ import numpy as np
 from kincal._validate import as_array
 from kincal.errors import ShapeError
 from kincal.kinematics.model import ArmModel
-from kincal.lie import se3
+from kincal.lie import se3, so3
 
 
 def joint_array(model: ArmModel, q, name: str = "q") -> np.ndarray:
@@ -67,6 +67,31 @@ def chain(screws, theta, base, home, tool) -> Kinematics:
         prefixes[..., i + 1, :, :] = prefixes[..., i, :, :] @ exps[..., i, :, :]
     flange = prefixes[..., -1, :, :] @ home
     return Kinematics(theta, exps, prefixes, flange, flange @ tool)
+
+
+def expanded_chain(screws, theta, base, home, tool) -> Kinematics:
+    """``chain`` of the joints ``screws`` (n, 6) at ``theta`` (..., n) seen as a chain of 3n joints whose every
+    second and third joint stays at zero (``kincal.kinematics.lateral``'s expanded chain at its unloaded values):
+    the same numbers as that chain's ``chain``, without multiplying by its identities."""
+    compact = chain(screws, theta, base, home, tool)
+    n = compact.theta.shape[-1]
+    prefixes = compact.prefixes[..., np.repeat(np.arange(n + 1), [1] + [3] * n), :, :]
+    exps = np.empty(compact.exps.shape[:-3] + (n, 3, 4, 4))
+    exps[..., 0, :, :], exps[..., 1:, :, :] = compact.exps, np.eye(4)
+    theta3 = np.zeros(compact.theta.shape[:-1] + (3 * n,))
+    theta3[..., 0::3] = compact.theta
+    return Kinematics(theta3, exps.reshape(exps.shape[:-4] + (3 * n, 4, 4)), prefixes, compact.flange, compact.tool)
+
+
+def space_axes(prefixes: np.ndarray, screws: np.ndarray) -> np.ndarray:
+    """The joint axes in the world, ``Ad(P_{i-1}) xi_i`` (..., n, 6), for prefixes (..., n + 1, 4, 4) and screws
+    (n, 6): ``(R v + p x R w, R w)`` without forming the adjoints."""
+    R, p = prefixes[..., :-1, :3, :3], prefixes[..., :-1, :3, 3]
+    vw = R @ np.stack([screws[:, :3], screws[:, 3:]], axis=-1)  # (..., n, 3, 2): R v, R w
+    out = np.empty(vw.shape[:-2] + (6,))
+    out[..., 3:] = vw[..., 1]
+    out[..., :3] = vw[..., 0] + so3.cross(p, out[..., 3:])
+    return out
 
 
 def forward_kinematics(model: ArmModel, q) -> np.ndarray:

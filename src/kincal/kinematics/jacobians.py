@@ -36,7 +36,8 @@ import numpy as np
 
 from kincal.kinematics.elastic import LoadedKinematics
 from kincal.kinematics.fk import Kinematics
-from kincal.kinematics.gravity import _Inserter, gravity_torque_derivatives
+from kincal.kinematics.gravity import _Projected, gravity_torque_derivatives
+from kincal.kinematics.twists import padded_bases
 from kincal.lie import se3
 
 TOOL_PARTS = ("offsets", "twists", "home", "base", "tool", "compliance")
@@ -45,8 +46,8 @@ _CORRECTED = ("offsets", "twists", "home", "tool")  # the parts whose load torqu
 
 def tool_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, generators: Sequence[np.ndarray],
                    compliance: np.ndarray | None = None, parts: Sequence[str] = TOOL_PARTS,
-                   with_jq: bool = True, basis: tuple[np.ndarray, np.ndarray] | None = None
-                   ) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
+                   with_jq: bool = True, basis: tuple[np.ndarray, np.ndarray] | None = None, step: int = 1,
+                   projected: np.ndarray | None = None) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
     """``G @ d T_world_tool / d param`` per part (N, k, d), and ``G @ J_q`` (N, k, n) if ``with_jq``.
 
     ``kin``: the chain at the data's joint values (``chain`` or ``loaded_chain``); ``G`` (N, k, 6): the residual's
@@ -62,6 +63,12 @@ def tool_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, generator
       per-sample weights; it holds for raw, unconformed twists too);
     * home: ``M_n``; base: ``G``; tool: ``G Ad(T_world_flange)``;
     * compliance: see the module docstring; without loads the compliance block is zero.
+
+    ``step``: the chain's joints come in groups of ``step`` consecutive screws (``kincal.kinematics.lateral``'s
+    expanded chain: a joint and its two lateral axes), ``generators`` one per group moving all its screws, and
+    offsets and readings are the groups' first joints': the twist columns are then ``(M_a - M_b) G_j`` over the
+    group ``[a, b)`` (the group's per-screw columns summed) and ``G @ J_q`` (N, k, n / step). Compliance stays
+    per screw. ``projected``: ``prefix_projections(kin, G)`` when the caller has them.
     """
     N, k = G.shape[:2]
     n = screws.shape[0]
@@ -69,19 +76,21 @@ def tool_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, generator
                                                      or kin.gravity is not None)  # weights: the base matters
     joints = with_jq or "offsets" in parts or loaded
     twists = "twists" in parts
-    idx = [*range(n + 1)] if twists else ([*range(n)] if joints else []) + ([n] if "home" in parts else [])
     out: dict[str, np.ndarray] = {}
-    jq = None
-    if idx:
-        M = _project_prefixes(G, kin.prefixes[:, idx])  # (len(idx), N*k, 6)
-    if joints or twists:
-        jq = np.moveaxis((M[:n] @ screws[:, :, None])[..., 0].reshape(n, N, k), 0, -1)
-        if "offsets" in parts:
-            out["offsets"] = jq
+    jq, bounds = None, [*range(0, n + 1, step)] if twists else []  # the groups' first prefixes, and n
+    if projected is None and (joints or twists):
+        projected = prefix_projections(kin, G)  # readings, twists and home at once
+    if projected is not None:
+        jq = _along_screws(projected[:n], screws, N, k)
+        M = projected[bounds + [n]]
+    elif "home" in parts:
+        M = _project_prefixes(G, kin.prefixes[:, [n]])
+    if "offsets" in parts:
+        out["offsets"] = jq[..., ::step]
     if twists:
-        Gen, keep = _padded_bases(generators)  # (n, 6, t)
-        tw = (M[:n] - M[1: n + 1]) @ Gen  # (n, N*k, t): one product per joint
-        out["twists"] = np.moveaxis(tw.reshape(n, N, k, -1), 0, 2).reshape(N, k, -1)[..., keep]
+        Gen, keep = padded_bases(generators)  # (n / step, 6, t)
+        tw = (M[: len(bounds) - 1] - M[1: len(bounds)]) @ Gen  # (n / step, N*k, t): one product per joint
+        out["twists"] = np.moveaxis(tw.reshape(n // step, N, k, -1), 0, 2).reshape(N, k, -1)[..., keep]
     if "home" in parts:
         out["home"] = M[-1].reshape(N, k, 6)
     if "base" in parts:
@@ -90,31 +99,37 @@ def tool_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, generator
         out["tool"] = G @ se3.adjoint(kin.flange)
     k_c = np.zeros(n) if compliance is None else np.asarray(compliance, float)
     if loaded:
-        jq = _add_compliance(kin, generators, k_c, basis, jq, out, parts)
-    elif "compliance" in parts:
+        jq = _add_compliance(kin, generators, k_c, basis, jq, out, parts, step)
+        return out, (jq if with_jq else None)
+    if "compliance" in parts:
         out["compliance"] = np.zeros((N, k, len(k_c)))
-    return out, (jq if with_jq else None)
+    return out, (jq[..., ::step] if with_jq else None)
 
 
-def torque_derivatives(kin: LoadedKinematics, generators: Sequence[np.ndarray], parts) -> dict[str, np.ndarray]:
+def torque_derivatives(kin: LoadedKinematics, generators: Sequence[np.ndarray], parts, step: int = 1,
+                       C: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """``dtau/dp`` (N, n, d) for the parts in ``parts`` among offsets, twists, home, tool (unloaded chain); with
-    weights (``kincal.kinematics.gravity``) also base."""
+    weights (``kincal.kinematics.gravity``) also base. ``step``: joints in groups (``tool_jacobians``); ``C``
+    (N, k, n): ``C @ dtau/dp`` instead."""
     if kin.gravity is not None:
-        return gravity_torque_derivatives(kin, generators, parts)
+        return gravity_torque_derivatives(kin, generators, parts, step, C)
+    if C is not None:
+        return {p: C @ D for p, D in torque_derivatives(kin, generators, parts, step).items()}
     k0 = kin.unloaded
-    n = len(generators)
+    n = kin.axes.shape[1]
     H = np.einsum("Ni,Nkij->Nkj", kin.wrench_space, se3.ad(kin.axes))  # (N, n, 6): h_i
     out = {}
     rows = np.arange(n)
     if "offsets" in parts:
-        out["offsets"] = np.einsum("Nik,Njk->Nij", H, kin.axes) * (rows[:, None] < rows[None, :])
+        out["offsets"] = np.einsum("Nik,Njk->Nij", H, kin.axes[:, ::step]) * (rows[:, None] < rows[None, ::step])
     Ad = se3.adjoint(k0.prefixes) if ("twists" in parts or "home" in parts) else None
     if "twists" in parts:
         cols = []
         for j, Gj in enumerate(generators):  # loop over joints, batched over samples
-            before = H * (rows < j)[None, :, None]
-            upto = H * (rows <= j)[None, :, None]
-            cols.append(before @ (Ad[:, j] @ Gj) - upto @ (Ad[:, j + 1] @ Gj))
+            a, b = step * j, step * (j + 1)  # the group's screws
+            before = H * (rows < a)[None, :, None]
+            upto = H * (rows < b)[None, :, None]
+            cols.append(before @ (Ad[:, a] @ Gj) - upto @ (Ad[:, b] @ Gj))
         out["twists"] = np.concatenate(cols, axis=-1)
     if "home" in parts:
         out["home"] = H @ Ad[:, n]
@@ -124,12 +139,13 @@ def torque_derivatives(kin: LoadedKinematics, generators: Sequence[np.ndarray], 
 
 
 def insertion_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, at, compliance=None,
-                        basis=None, moved=None) -> list[np.ndarray]:
+                        basis=None, moved=None, projected=None) -> list[np.ndarray]:
     """``G @ d T_world_tool / d X_i`` (N, k, 6) per rigid transform ``X_i`` inserted in the chain: ``at`` lists
     (m, F) with the transform at ``P_m F`` (prefix after m joints, F a constant), perturbed on the left there
     (``F -> exp(d) F``, as ``home`` is at m = n). Under a load the torques of the joints before the insertion
     change too (``insertion_torques``); ``compliance``/``basis`` as in ``tool_jacobians``; ``moved`` (per
-    insertion, a sequence of hung weights ``(m, mass, moment)`` it moves, ``kincal.kinematics.branches``)."""
+    insertion, a sequence of hung weights ``(m, mass, moment)`` it moves, ``kincal.kinematics.branches``);
+    ``projected``: ``prefix_projections(kin, G)`` when the caller has them."""
     N, k = G.shape[:2]
     P = np.stack([kin.prefixes[:, m] @ F for m, F in at], axis=1)
     out = list(_project_prefixes(G, P).reshape(len(at), N, k, 6))
@@ -138,36 +154,53 @@ def insertion_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, at, 
     c = compliance if basis is None else basis[0] @ compliance
     if not np.any(c):
         return out
-    cjq = joint_jacobian(kin, G, screws) * np.asarray(c)[..., None, :]
+    cjq = joint_jacobian(kin, G, screws, projected) * np.asarray(c)[..., None, :]
     moved = moved or [()] * len(at)
-    return [J + cjq @ insertion_torques(kin, m, F, w) for J, (m, F), w in zip(out, at, moved)]
+    if kin.gravity is not None:  # the weights' projection once for every insertion
+        cjq = kin.inserter.project(cjq)
+    return [J + insertion_torques(kin, m, F, w, cjq) for J, (m, F), w in zip(out, at, moved)]
 
 
-def joint_jacobian(kin: Kinematics, G: np.ndarray, screws: np.ndarray) -> np.ndarray:
-    """``G dT/dtheta`` (N, k, n) at the chain's joint values (deflected ones for a loaded chain)."""
-    N, k = G.shape[:2]
+def joint_jacobian(kin: Kinematics, G: np.ndarray, screws: np.ndarray, projected: np.ndarray | None = None
+                   ) -> np.ndarray:
+    """``G dT/dtheta`` (N, k, n) at the chain's joint values (deflected ones for a loaded chain); ``projected``:
+    ``prefix_projections(kin, G)`` when the caller has them."""
     n = screws.shape[0]
-    return np.moveaxis((_project_prefixes(G, kin.prefixes[:, :n]) @ screws[:, :, None])[..., 0].reshape(n, N, k),
-                       0, -1)
+    M = _project_prefixes(G, kin.prefixes[:, :n]) if projected is None else projected[:n]
+    return _along_screws(M, screws, *G.shape[:2])
 
 
-def insertion_torques(kin: LoadedKinematics, m: int, F: np.ndarray, moved=()) -> np.ndarray:
+def prefix_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
+    """``G Ad(P_j)`` (n + 1, N*k, 6) for every prefix of the chain: what its Jacobians share."""
+    return _project_prefixes(G, kin.prefixes)
+
+
+def _along_screws(M: np.ndarray, screws: np.ndarray, N: int, k: int) -> np.ndarray:
+    """``M_j xi_j`` (N, k, n) for projected prefixes M (n, N*k, 6) (``_project_prefixes``)."""
+    return np.moveaxis((M @ screws[:, :, None])[..., 0].reshape(len(screws), N, k), 0, -1)
+
+
+def insertion_torques(kin: LoadedKinematics, m: int, F: np.ndarray, moved=(), C: np.ndarray | None = None
+                      ) -> np.ndarray:
     """``dtau/dd`` (N, n, 6) for a rigid transform at ``P_m F`` of the unloaded chain moved by ``exp(d)``: the
     joints after it move with the tool (no change), those before it see the load turn (``h_i Ad(P_m F)``);
-    with weights (``kincal.kinematics.gravity``) the links from m on move too, and the hung weights ``moved``."""
+    with weights (``kincal.kinematics.gravity``) the links from m on move too, and the hung weights ``moved``.
+    ``C`` (N, k, n): ``C @ dtau/dd`` (N, k, 6) instead (with weights, C may be ``kin.inserter.project(C)``)."""
     Z = se3.adjoint(kin.unloaded.prefixes[:, m] @ F)
     if kin.gravity is not None:
-        ins = _Inserter(kin)
-        return ins(m, m, Z) + sum((ins.moved_weight(mb, mass, S, Z) for mb, mass, S in moved), 0.0)
-    H = np.einsum("Ni,Nkij->Nkj", kin.wrench_space, se3.ad(kin.axes))  # (N, n, 6): h_i
-    before = (np.arange(H.shape[1]) < m)[None, :, None]
-    return (H * before) @ Z
+        ins = C if isinstance(C, _Projected) else kin.inserter.project(C)
+        return ins.columns(m, m, Z) + sum((ins.moved_weight(mb, mass, S, Z) for mb, mass, S in moved), 0.0)
+    else:
+        H = np.einsum("Ni,Nkij->Nkj", kin.wrench_space, se3.ad(kin.axes))  # (N, n, 6): h_i
+        D = (H * (np.arange(H.shape[1]) < m)[None, :, None]) @ Z
+    return D if C is None else C @ D
 
 
 def _add_compliance(kin: LoadedKinematics, generators, k_c: np.ndarray, basis, jq: np.ndarray, out: dict,
-                    parts) -> np.ndarray:
+                    parts, step: int = 1) -> np.ndarray:
     """Add the compliance block and the ``c * dtau/dp`` terms to ``out`` (in place); returns the corrected
-    derivative w.r.t. the joint readings. ``jq`` (N, k, n): ``G dT/dtheta`` at the deflected theta."""
+    derivative w.r.t. the joint readings (the groups' first joints, ``tool_jacobians``). ``jq`` (N, k, n):
+    ``G dT/dtheta`` at the deflected theta."""
     jt = jq * kin.tau[:, None, :]
     if "compliance" in parts:
         out["compliance"] = jt if basis is None else jt @ basis[0]
@@ -175,14 +208,14 @@ def _add_compliance(kin: LoadedKinematics, generators, k_c: np.ndarray, basis, j
     want = [p for p in corrected if p in parts] + ([] if "offsets" in parts else ["offsets"])
     c = k_c if basis is None else basis[0] @ k_c  # (n,) or per sample (N, n)
     if not np.any(c):
-        return jq
+        return jq[..., ::step]
     cjq = jq * c[..., None, :]
-    D = torque_derivatives(kin, generators, want)
+    D = torque_derivatives(kin, generators, want, step, cjq)
     for p in corrected:
         if p in parts:
-            out[p] = out[p] + cjq @ D[p]
-    own = 0.0 if basis is None else jt * (basis[1] @ k_c)[:, None, :]  # a reading moves its own compliance
-    return jq + cjq @ D["offsets"] + own
+            out[p] = out[p] + D[p]
+    own = 0.0 if basis is None else (jt * (basis[1] @ k_c)[:, None, :])[..., ::step]  # a reading moves its compliance
+    return jq[..., ::step] + D["offsets"] + own
 
 
 def _project_prefixes(G: np.ndarray, P: np.ndarray) -> np.ndarray:
@@ -202,14 +235,3 @@ def _project_prefixes(G: np.ndarray, P: np.ndarray) -> np.ndarray:
     M[..., :3] = gv @ R
     M[..., 3:] = H @ R
     return M.reshape(P.shape[1], N * k, 6)
-
-
-def _padded_bases(bases) -> tuple[np.ndarray, np.ndarray]:
-    """Per-joint matrices (6, k_j) zero-padded to (n, 6, k_max), and the flat indices of real columns."""
-    k_max = max(b.shape[1] for b in bases)
-    B = np.zeros((len(bases), 6, k_max))
-    keep = []
-    for j, b in enumerate(bases):
-        B[j, :, : b.shape[1]] = b
-        keep += [j * k_max + c for c in range(b.shape[1])]
-    return B, np.array(keep)

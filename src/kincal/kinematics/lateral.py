@@ -71,20 +71,6 @@ def expand_load(load):
     return replace(load, masses=masses, coms=coms)
 
 
-def expand_generators(generators) -> tuple:
-    """Each joint's twist generators for its three expanded joints (the lateral axes move with it)."""
-    return tuple(G for G in generators for _ in range(3))
-
-
-def collapse_twists(J: np.ndarray, widths) -> np.ndarray:
-    """Twist columns of the expanded chain (..., 3 * sum widths) to the joints' own (..., sum widths)."""
-    out, c = [], 0
-    for w in widths:
-        out.append(J[..., c: c + w] + J[..., c + w: c + 2 * w] + J[..., c + 2 * w: c + 3 * w])
-        c += 3 * w
-    return np.concatenate(out, axis=-1) if out else J[..., :0]
-
-
 def real_columns(J: np.ndarray) -> np.ndarray:
     """The real joints' columns of an expanded (..., 3n) array."""
     return J[..., 0::3]

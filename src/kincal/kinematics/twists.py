@@ -101,3 +101,14 @@ def _prismatic_frames(v: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndar
     B = np.stack([se3.join(u, zero) for u in us], axis=-1)
     G = np.stack([se3.join(zero, so3.cross(v, u)) for u in us], axis=-1)
     return B, G
+
+
+def padded_bases(bases) -> tuple[np.ndarray, np.ndarray]:
+    """Per-joint matrices (6, k_j) zero-padded to (n, 6, k_max), and the flat indices of real columns."""
+    k_max = max(b.shape[1] for b in bases)
+    B = np.zeros((len(bases), 6, k_max))
+    keep = []
+    for j, b in enumerate(bases):
+        B[j, :, : b.shape[1]] = b
+        keep += [j * k_max + c for c in range(b.shape[1])]
+    return B, np.array(keep)
