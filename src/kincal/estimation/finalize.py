@@ -46,7 +46,9 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
         lin = steps.linearize(problem, run.state, None if problem.joint_noise else run.whiteners,
                               scale_test_needed(problem))
     structural = coupling_gauges(run.state, run.first)
-    if run.analysis is not None and run.linearization is not None:  # the loop analysed this linearization
+    if run.first is not None and run.analysis is run.first.analysis:  # the loop stopped at its start
+        ana = run.first.report
+    elif run.analysis is not None and run.linearization is not None:  # the loop analysed this linearization
         ana = named(run.analysis, lin, problem.layout, problem.experiments, list(run.order), structural)
     else:
         ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=list(run.order),
@@ -76,7 +78,7 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
         robot=run.state.to_robot(problem.robot), nominal_robot=problem.robot, state=run.state,
         layout=problem.layout, estimates=estimates, covariance=cov,
         correlated=tuple(correlated_pairs(cov, names, options.correlation_threshold, ok)),
-        identifiability=ana, identifiability_before=run.first, before=run.before,
+        identifiability=ana, start_identifiability=run.first, before=run.before,
         after=tuple(problem.statistics(run.state, lin.W)), sigma2=sigma2, status=status,
         iterations=run.iterations, evaluations=run.evaluations, messages=tuple(messages),
         extras=dict(run.state.extras), problem=problem, linearization=lin,
