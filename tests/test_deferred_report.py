@@ -10,20 +10,7 @@ from kincal.analysis import identify
 from kincal.estimation import Problem, calibrate, steps
 from kincal.estimation.gauge import priority
 from kincal.estimation.iterate import scale_test_needed
-from kincal.noise import Noise
-from kincal.simulate import generate_markers, perturb_robot
-
-NOISE = Noise(position=1e-5, orientation=1e-5, joint=0.0, backlash=0.0)
-
-
-@pytest.fixture(scope="module")
-def ur10_markers():
-    from kincal.robots import load
-
-    nominal = load("ur10")
-    true = perturb_robot(nominal, "fine", rng=np.random.default_rng(5))
-    return nominal, generate_markers(true, n=14, rng=6, noise=NOISE)[0]
-
+from test_structure_cache import NOISE, ur10_sets  # noqa: F401  (the UR10 data sets, a fixture)
 
 def _eager(nominal, ds, free):
     """The start's report named at once, as the solver named it before it was deferred."""
@@ -33,8 +20,8 @@ def _eager(nominal, ds, free):
 
 
 @pytest.mark.parametrize("free", ["kinematic", "offsets"])
-def test_start_report_is_named_on_first_read_and_equals_the_eager_one(ur10_markers, free):
-    nominal, ds = ur10_markers
+def test_start_report_is_named_on_first_read_and_equals_the_eager_one(ur10_sets, free):
+    nominal, ds, _ = ur10_sets
     res = calibrate(nominal, [ds], free, noise=NOISE)
     deferred = res.start_identifiability
     assert "report" not in vars(deferred)  # the solve never asked for its words

@@ -30,6 +30,9 @@ from kincal.noise import Noise, effective
 from kincal.params import Layout, Prior, State, build_layout, displacement, pose_retraction_jacobians, retract
 
 VARIANCE_FLOOR = 1e-18
+# The collapse test (``finalize``) reads the joint sensitivity of at most this many evenly spread configurations
+# per experiment: a collapse is global.
+SENSITIVITY_SAMPLES = 200
 
 
 class ResidualCache:
@@ -42,6 +45,22 @@ class ResidualCache:
         self.parts: list | None = None  # the row blocks of a large problem (``Problem.parts``)
         self.tail: tuple | None = None
         self.wants: dict[bytes, frozenset] = {}  # the blocks a set of Jacobian columns needs (``linearize``)
+        # (state, experiments, their residuals with Jacobian blocks) of a small problem's linearizations at the
+        # nominal state and the last one (``kept``): the collapse test reads their offset columns (``finalize``)
+        self.at_nominal: tuple | None = None
+        self.linearized: tuple | None = None
+
+    def keep(self, state: State, experiments: tuple, residuals: list, nominal: bool) -> None:
+        self.linearized = (state, experiments, residuals)
+        if nominal:
+            self.at_nominal = self.linearized
+
+    def kept(self, state: State, experiments: tuple) -> list | None:
+        """The residuals (with Jacobian blocks) of ``experiments`` linearized at ``state`` if kept, else None."""
+        for entry in (self.linearized, self.at_nominal):
+            if entry is not None and entry[0] is state and entry[1] is experiments:
+                return entry[2]
+        return None
 
     def get(self, state: State):
         return self.residuals if self.state is state else None
@@ -198,6 +217,8 @@ class Problem:
         W = self._whiteners_of(res) if fresh else whiteners
         if fresh or not self.joint_noise:  # statistics at this state need no second evaluation
             self.cache.put(state, res)
+        if all(e.size <= SENSITIVITY_SAMPLES for e in self.experiments):  # small: keeping them costs nothing
+            self.cache.keep(state, self.experiments, res, state is self.nominal)
         r, J = self._stack(state, res, W, cols, {})
         return r, J, W, [x.r for x in res]
 
