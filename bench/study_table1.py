@@ -5,7 +5,7 @@ standard deviations next to the paper's and, with --profile, one klimchik3r cali
 structure caches emptied before each call and remembered (docs/partial-pose.md "Speed").
 
 With --cpu N, first the CPU time of N repeats run in this process (no Dask, both variants): the per-repeat cost
-without the cluster, steadier than the wall time on a shared machine.
+without the cluster, steadier than the wall time on a shared machine (--repeats 0: that alone, no study).
 
 Run: python bench/study_table1.py [--workers 2] [--repeats 1000] [--variants approach2,approach1] [--profile]
      [--cpu 200]
@@ -58,7 +58,7 @@ def cpu_per_repeat(study: S.Study, n: int) -> None:
     S.run_chunk(short, fixed, range(5, n + 5))
     spent = (time.process_time() - c) / n
     print(f"in this process: {spent * 1e3:.1f} ms CPU per repeat ({len(study.variants)} variants), "
-          f"{spent * study.repeats:.1f} s for {study.repeats} repeats; load average {os.getloadavg()[0]:.1f}")
+          f"{spent * 1000:.1f} s for Table I's 1000 repeats; load average {os.getloadavg()[0]:.1f}")
 
 
 def forget_structures() -> None:
@@ -83,6 +83,8 @@ def main() -> None:
         profile_one(study)
     if args.cpu:
         cpu_per_repeat(study, args.cpu)
+    if not study.repeats:  # --repeats 0: the timings above only
+        return
     t = time.perf_counter()
     result = S.run_study(study, workers=args.workers)
     wall = time.perf_counter() - t
