@@ -98,6 +98,8 @@ PHASES = (
     ("gauge basis, Gauss-Newton step", "kincal.estimation.gauge:gauge_basis"),
     ("gauge basis, Gauss-Newton step", "kincal.estimation.steps:gauss_newton"),
     ("covariance, estimates, result (finalize rest)", "kincal.estimation.finalize:finalize"),
+    ("collapse test (joint sensitivity)", "kincal.estimation.finalize:_lost_joint_sensitivity"),
+    ("unit plausibility check", "kincal.estimation.plausibility:implausible_units"),
     ("outlier check", "kincal.estimation.outliers:any_beyond"),
     ("LAPACK QR", "numpy.linalg:qr"),
     ("LAPACK SVD", "numpy.linalg:svd"),

@@ -4,7 +4,11 @@ a local Dask cluster, timed from the call to the table (the cluster's start incl
 standard deviations next to the paper's and, with --profile, one klimchik3r calibration's cost with the
 structure caches emptied before each call and remembered (docs/partial-pose.md "Speed").
 
+With --cpu N, first the CPU time of N repeats run in this process (no Dask, both variants): the per-repeat cost
+without the cluster, steadier than the wall time on a shared machine (--repeats 0: that alone, no study).
+
 Run: python bench/study_table1.py [--workers 2] [--repeats 1000] [--variants approach2,approach1] [--profile]
+     [--cpu 200]
 The target (issue #13): under 10 s on a 2-core machine for 1000 repeats and two variants.
 """
 
@@ -45,6 +49,18 @@ def profile_one(study: S.Study, n: int = 50) -> None:
         print(f"one klimchik3r calibration ({v.name}), {label}: {spent / n * 1e3:.1f} ms")
 
 
+def cpu_per_repeat(study: S.Study, n: int) -> None:
+    """CPU time per repeat (every variant) of ``n`` repeats in this process, after 5 warm-up repeats."""
+    short = replace(study, repeats=n + 5)
+    fixed = S.fixed_parts(short)
+    S.run_chunk(short, fixed, range(5))
+    c = time.process_time()
+    S.run_chunk(short, fixed, range(5, n + 5))
+    spent = (time.process_time() - c) / n
+    print(f"in this process: {spent * 1e3:.1f} ms CPU per repeat ({len(study.variants)} variants), "
+          f"{spent * 1000:.1f} s for Table I's 1000 repeats; load average {os.getloadavg()[0]:.1f}")
+
+
 def forget_structures() -> None:
     """Empty what calibrations remember per structure (an older kincal on PYTHONPATH may lack some caches)."""
     for module in (params, se3):
@@ -58,16 +74,22 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=1000)
     ap.add_argument("--variants", default="approach2,approach1")
     ap.add_argument("--profile", action="store_true")
+    ap.add_argument("--cpu", type=int, default=0, help="CPU time of this many repeats in this process first")
     args = ap.parse_args()
     study = S.load("table1")
     wanted = args.variants.split(",")
     study = replace(study, repeats=args.repeats, variants=tuple(v for v in study.variants if v.name in wanted))
     if args.profile:
         profile_one(study)
+    if args.cpu:
+        cpu_per_repeat(study, args.cpu)
+    if not study.repeats:  # --repeats 0: the timings above only
+        return
     t = time.perf_counter()
     result = S.run_study(study, workers=args.workers)
     wall = time.perf_counter() - t
-    print(f"table1: {study.repeats} repeats x {len(study.variants)} variants on {args.workers} workers: {wall:.2f} s")
+    print(f"table1: {study.repeats} repeats x {len(study.variants)} variants on {args.workers} workers: {wall:.2f} s "
+          f"(load average {os.getloadavg()[0]:.1f})")
     print(f"{'variant':22s} {'param':6s} {'kincal std':>11s} {'paper std':>10s} {'reported/MC':>12s} {'bias':>10s}")
     for r in result.rows:
         f, unit = (1e3, "mm") if r.unit == "m" else (np.degrees(1.0) * 1e3, "mdeg")

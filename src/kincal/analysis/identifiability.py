@@ -19,7 +19,7 @@ together, thesis Sec. 2.11) is tested explicitly and reported as scale.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from functools import partial
+from functools import cached_property, partial
 from typing import Callable, Sequence
 
 import numpy as np
@@ -170,23 +170,61 @@ def named(ana: Identifiability, lin: Linearization, layout: Layout, experiments:
     message, before the weak ones) and the degenerate judgement; ``structural`` as in ``identify``. ``ana`` itself when it is named already."""
     if ana.degenerate is not None:
         return ana
-    order = list(range(len(ana.names))) if priority is None else list(priority)
-    basis = ana.naming_basis
-    describe = describer(lin, layout, experiments) if basis.shape[1] else None  # it evaluates FK: only if needed
-    directions = tuple(_directions(basis, order, ana.names, describe, context(layout, experiments)))
-    k = int(ana.scale_unidentifiable)  # the scale message comes first
-    messages = ana.messages[:k] + tuple(d.words for d in directions) + ana.messages[k:]
-    ana = replace(ana, directions=directions, messages=messages,
-                  degenerate=degenerate(lin.Rf, ana.rank, ana.rtol, layout, lin.free, ana.singular_values))
+    ana = _named(replace(ana, degenerate=judge(ana, lin, layout)), lin.state, lin.free, layout, experiments, priority)
     if structural is not None and structural.shape[1]:
         ana = _with_lifted_gauges(ana, near_gauges(lin.Rf, structural))
     return ana
 
 
-def coupling_gauges(state, first: "Identifiability | None") -> np.ndarray | None:
+def judge(ana: Identifiability, lin: Linearization, layout: Layout) -> bool:
+    """Whether the data of ``lin`` are degenerate (``naming.degenerate``), from ``ana``'s spectrum."""
+    return degenerate(lin.Rf, ana.rank, ana.rtol, layout, lin.free, ana.singular_values)
+
+
+def _named(ana: Identifiability, state, free: np.ndarray, layout: Layout, experiments: Sequence,
+           priority: Sequence[int] | None) -> Identifiability:
+    """``ana`` with its null directions named in words at ``state`` (``free``: layout indices of its columns)."""
+    order = list(range(len(ana.names))) if priority is None else list(priority)
+    basis = ana.naming_basis
+    describe = describer(state, free, layout, experiments) if basis.shape[1] else None  # FK: only if needed
+    directions = tuple(_directions(basis, order, ana.names, describe, context(layout, experiments)))
+    k = int(ana.scale_unidentifiable)  # the scale message comes first
+    messages = ana.messages[:k] + tuple(d.words for d in directions) + ana.messages[k:]
+    return replace(ana, directions=directions, messages=messages)
+
+
+@dataclass(frozen=True, eq=False)
+class DeferredReport:
+    """The report ``identify(lin, ..., report=True)`` gives, named only when first asked for (``report``):
+    the solver's report at the start, which no step of the solve reads in words. ``analysis``: the
+    ``report=False`` analysis of the linearization; ``degenerate``: judged at once (the solver stops on it).
+    It keeps the linearization's state and free columns, not its Jacobian."""
+
+    analysis: Identifiability
+    degenerate: bool
+    state: object
+    free: np.ndarray
+    layout: Layout
+    experiments: tuple
+    priority: tuple[int, ...] | None
+
+    @classmethod
+    def of(cls, ana: Identifiability, lin: Linearization, layout: Layout, experiments: Sequence,
+           priority: Sequence[int] | None = None) -> "DeferredReport":
+        return cls(ana, judge(ana, lin, layout), lin.state, lin.free, layout, tuple(experiments),
+                   None if priority is None else tuple(priority))
+
+    @cached_property
+    def report(self) -> Identifiability:
+        """``named``'s report (without ``structural``), computed once."""
+        return _named(replace(self.analysis, degenerate=self.degenerate), self.state, self.free, self.layout,
+                      self.experiments, self.priority)
+
+
+def coupling_gauges(state, first: "DeferredReport | None") -> np.ndarray | None:
     """The start's null basis when an arm has joint couplings (the ``structural`` of ``identify``), else None."""
     coupled = any(getattr(a, "coupling", None) is not None for a in state.arms.values())
-    return first.null_space if coupled and first is not None else None
+    return first.analysis.null_space if coupled and first is not None else None
 
 
 NEAR_GAUGE_RTOL = 1e-2  # a start's exact gauge lifted to below this (relative singular value) is reported weak

@@ -9,7 +9,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from kincal.analysis.covariance import right_svd
-from kincal.analysis.linearization import Linearization, unit_columns
+from kincal.analysis.linearization import unit_columns
 from kincal.kinematics import chain
 from kincal.kinematics.model import lineage
 from kincal.kinematics.tree import composite
@@ -58,14 +58,15 @@ def context(layout: Layout, experiments: Sequence) -> str:
     return "; ".join(parts)
 
 
-def describer(lin: Linearization, layout: Layout, experiments: Sequence) -> Callable[[np.ndarray], str]:
-    """Words for a null direction (p,) over the free coordinates of ``lin``: what the frames do (a translation,
-    a rotation about a named joint axis, a screw motion), and the known trade-offs of the arm parameters."""
-    axes, frames = _joint_axes_and_frames(lin.state, experiments)
-    loads = any("wrench_tool" in e.dataset.measured or any(lin.state.arms[a].weights is not None for a in e.arms)
+def describer(state, free: np.ndarray, layout: Layout, experiments: Sequence) -> Callable[[np.ndarray], str]:
+    """Words for a null direction (p,) over the free coordinates ``free`` (layout indices) at ``state``: what the
+    frames do (a translation, a rotation about a named joint axis, a screw motion), and the known trade-offs of
+    the arm parameters."""
+    axes, frames = _joint_axes_and_frames(state, experiments)
+    loads = any("wrench_tool" in e.dataset.measured or any(state.arms[a].weights is not None for a in e.arms)
                 for e in experiments)  # tool loads, or the arm's own weight (kincal.kinematics.gravity)
-    col = {int(i): k for k, i in enumerate(lin.free)}
-    part = np.array([b.part if b.arm is not None else "" for b in blocks_of(layout, lin.free)])
+    col = {int(i): k for k, i in enumerate(free)}
+    part = np.array([b.part if b.arm is not None else "" for b in blocks_of(layout, free)])
     poses = []  # (name, columns, adjoint of its increment frame) of each pose frame with every coordinate free
     for b in layout.blocks:
         idx = [col.get(i) for i in range(b.start, b.stop)]

@@ -12,9 +12,11 @@ from kincal.estimation.gauge import gauge_basis
 from kincal.estimation.iterate import Iteration, scale_test_needed
 from kincal.estimation.options import SolverOptions
 from kincal.estimation.plausibility import negative_compliance_notes, negative_compliances
-from kincal.estimation.problem import Problem
+from kincal.estimation.problem import SENSITIVITY_SAMPLES, Problem
 from kincal.estimation.result import Estimate, Result, TwistEstimate, low_redundancy
 from kincal.estimation.sandwich import Sandwich
+from kincal.experiments.markers import MarkersExperiment
+from kincal.experiments.pose import PoseExperiment
 from kincal.params import HOME, TWISTS, displacement, twist_coordinates
 
 # Residual variance factor above which the fit is reported as not explaining the data (RMS 10x the noise).
@@ -46,7 +48,9 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
         lin = steps.linearize(problem, run.state, None if problem.joint_noise else run.whiteners,
                               scale_test_needed(problem))
     structural = coupling_gauges(run.state, run.first)
-    if run.analysis is not None and run.linearization is not None:  # the loop analysed this linearization
+    if run.first is not None and run.analysis is run.first.analysis:  # the loop stopped at its start
+        ana = run.first.report
+    elif run.analysis is not None and run.linearization is not None:  # the loop analysed this linearization
         ana = named(run.analysis, lin, problem.layout, problem.experiments, list(run.order), structural)
     else:
         ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=list(run.order),
@@ -76,7 +80,7 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
         robot=run.state.to_robot(problem.robot), nominal_robot=problem.robot, state=run.state,
         layout=problem.layout, estimates=estimates, covariance=cov,
         correlated=tuple(correlated_pairs(cov, names, options.correlation_threshold, ok)),
-        identifiability=ana, identifiability_before=run.first, before=run.before,
+        identifiability=ana, start_identifiability=run.first, before=run.before,
         after=tuple(problem.statistics(run.state, lin.W)), sigma2=sigma2, status=status,
         iterations=run.iterations, evaluations=run.evaluations, messages=tuple(messages),
         extras=dict(run.state.extras), problem=problem, linearization=lin,
@@ -205,11 +209,14 @@ def _lost_joint_sensitivity(problem: Problem, state) -> list[tuple[str, float, f
     the nominal state, at ``state``). The data are then explained by an arm out of scale with the robot (a
     collapsed arm that hardly moves, a unit mix-up): a degenerate model."""
     out = []
-    for exp in problem.experiments:
-        if exp.size > 200:  # a collapse is global: an evenly spread subset shows it as well
-            exp = type(exp)(exp.dataset.subset(np.linspace(0, exp.size - 1, 200).astype(int)), exp.frames)
+    kept = [problem.cache.kept(st, problem.experiments) for st in (problem.nominal, state)]
+    for i, exp in enumerate(problem.experiments):
+        if exp.size > SENSITIVITY_SAMPLES:  # a collapse is global: an evenly spread subset shows it as well
+            idx = np.linspace(0, exp.size - 1, SENSITIVITY_SAMPLES).astype(int)
+            exp = type(exp)(exp.dataset.subset(idx), exp.frames)
         comps = exp.components()
-        sens = [_joint_sensitivity(exp, st, comps) for st in (problem.nominal, state)]
+        sens = [_joint_sensitivity(exp, st, comps, None if res is None else res[i])
+                for st, res in zip((problem.nominal, state), kept)]
         for q in dict.fromkeys(comps):
             before, after = sens[0][q], sens[1][q]
             if before > 0 and not COLLAPSE_RATIO * before <= after <= before / COLLAPSE_RATIO:
@@ -218,14 +225,36 @@ def _lost_joint_sensitivity(problem: Problem, state) -> list[tuple[str, float, f
     return out
 
 
-def _joint_sensitivity(exp, state, comps) -> dict:
-    """RMS of |dr/dq| over samples, arms and joints, per residual quantity of ``exp`` at ``state``."""
-    jq = exp.residual(state, want=set(), jq=True).jq
+def _joint_sensitivity(exp, state, comps, res=None) -> dict:
+    """RMS of |dr/dq| over samples, arms and joints, per residual quantity of ``exp`` at ``state``; ``res``: its
+    residual there with Jacobian blocks, if kept (``offset_columns``)."""
+    jq = offset_columns(exp, state, res)
+    if jq is None:
+        jq = exp.residual(state, want=set(), jq=True).jq
     out = {}
     for q in dict.fromkeys(comps):
         rows = np.array([c == q for c in comps], bool)
         out[q] = float(np.sqrt(np.mean([np.mean(j[:, rows] ** 2) for j in jq.values()]))) if jq else 0.0
     return out
+
+
+# Kinds whose ``dr/dq`` is exactly their arm's offset columns (readings enter only as ``q + offset`` of one
+# plain chain), computed by the same kernel call (``experiments._kernel.arm_jacobians``).
+_OFFSET_KINDS = (MarkersExperiment, PoseExperiment)
+
+
+def offset_columns(exp, state, res) -> dict | None:
+    """``{arm: dr/dq}`` of ``exp`` at ``state`` read off the offset columns of its residual ``res`` (a
+    linearization's, with Jacobian blocks), bit for bit what ``exp.residual(state, jq=True).jq`` gives; None
+    where that does not hold or the offsets are not among the blocks: a chain carried by another arm, loaded
+    (tool loads, its own weight), with lateral compliance or coupled joints."""
+    if res is None or type(exp) not in _OFFSET_KINDS or len(exp.arms) != 1 or "wrench_tool" in exp.dataset.measured:
+        return None
+    arm = exp.arms[0]
+    a = state.arms[arm]
+    plain = not state.mounts and a.weights is None and a.lateral is None and a.coupling is None
+    J = res.jac.get(f"{arm}.offsets")
+    return {arm: J} if plain and J is not None else None
 
 
 def _twists(problem: Problem, state, cov: np.ndarray) -> tuple[TwistEstimate, ...]:

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kincal.analysis import Identifiability, Linearization, identify
+from kincal.analysis.identifiability import DeferredReport
 from kincal.analysis.covariance import right_svd
 from kincal.errors import DegenerateExperimentError
 from kincal.estimation import steps
@@ -28,8 +29,9 @@ class Iteration:
     """Where the outer loop stopped. ``status``: converged | not converged | degenerate; ``iterations``: outer
     iterations (linearizations, the one that confirmed convergence included); ``evaluations``: residual
     evaluations spent on steps; ``linearization``: at ``state`` when the loop stopped without moving (else None);
-    ``whiteners``: the ones held at the end; ``first``: the identifiability report at the start, with
-    ``before`` the residual statistics there; ``analysis``: the identifiability at ``linearization``."""
+    ``whiteners``: the ones held at the end; ``first``: the identifiability report at the start (named when
+    first read), with ``before`` the residual statistics there; ``analysis``: the identifiability at
+    ``linearization`` (not named)."""
 
     state: State
     status: str
@@ -37,10 +39,10 @@ class Iteration:
     evaluations: int
     linearization: Linearization | None
     whiteners: tuple | None
-    first: Identifiability | None
+    first: DeferredReport | None
     before: tuple[ResidualStats, ...]
     order: tuple[int, ...]  # the free coordinates' pivot order (``gauge.priority``)
-    analysis: Identifiability | None = None  # at ``linearization`` (``identify``, named or not), when it is kept
+    analysis: Identifiability | None = None  # at ``linearization`` (``identify(report=False)``), when it is kept
     held: np.ndarray | None = None  # the rigid model's gauges the solve holds (``gauge.rigid_gauges``, at the start)
 
 
@@ -66,10 +68,11 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
         W = lin.W
         hold = rigid_gauges(problem, lin) if it == 1 else hold
         ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=order,
-                       report=first is None, hold=hold)
-        if first is None:
-            first, before = ana, tuple(problem.statistics(state, W))
-            if ana.degenerate:
+                       report=False, hold=hold)
+        if first is None:  # named only if a report asks for it (``Result.identifiability_before``)
+            first = DeferredReport.of(ana, lin, problem.layout, problem.experiments, order)
+            before = tuple(problem.statistics(state, W))
+            if first.degenerate:
                 status = "degenerate"
                 break
             _require_redundancy(problem, lin, ana.rank)

@@ -30,18 +30,43 @@ from kincal.noise import Noise, effective
 from kincal.params import Layout, Prior, State, build_layout, displacement, pose_retraction_jacobians, retract
 
 VARIANCE_FLOOR = 1e-18
+# The collapse test (``finalize``) reads the joint sensitivity of at most this many evenly spread configurations
+# per experiment: a collapse is global.
+SENSITIVITY_SAMPLES = 200
+# Configurations in all up to which a problem keeps the Jacobian blocks of its linearizations at the nominal
+# state and the last one for the collapse test (two copies of a Jacobian: a few MiB here).
+KEPT_SAMPLES = 1000
 
 
 class ResidualCache:
     """The last state's residuals without parameter Jacobians (with ``jq`` when encoder noise is stated):
     whitening, statistics and the scale test ask for the same state in turn (states are immutable)."""
 
-    def __init__(self) -> None:
+    def __init__(self, keeps: bool = True) -> None:
+        self.keeps = keeps  # False in a large problem's blocks: they would keep every block's Jacobians
         self.state: State | None = None
         self.residuals: list | None = None
         self.parts: list | None = None  # the row blocks of a large problem (``Problem.parts``)
         self.tail: tuple | None = None
         self.wants: dict[bytes, frozenset] = {}  # the blocks a set of Jacobian columns needs (``linearize``)
+        # (state, experiments, their residuals with Jacobian blocks) of a small problem's linearizations at the
+        # nominal state and the last one (``kept``): the collapse test reads their offset columns (``finalize``)
+        self.at_nominal: tuple | None = None
+        self.linearized: tuple | None = None
+
+    def keep(self, state: State, experiments: tuple, residuals: list, nominal: bool) -> None:
+        if not self.keeps:
+            return
+        self.linearized = (state, experiments, residuals)
+        if nominal:
+            self.at_nominal = self.linearized
+
+    def kept(self, state: State, experiments: tuple) -> list | None:
+        """The residuals (with Jacobian blocks) of ``experiments`` linearized at ``state`` if kept, else None."""
+        for entry in (self.linearized, self.at_nominal):
+            if entry is not None and entry[0] is state and entry[1] is experiments:
+                return entry[2]
+        return None
 
     def get(self, state: State):
         return self.residuals if self.state is state else None
@@ -137,20 +162,26 @@ class Problem:
         if self.cache.parts is None:
             rows = sum(e.size * len(e.components()) for e in self.experiments)
             per = chunk_rows(len(self.free_idx)) if by_blocks(rows, len(self.free_idx)) else rows
-            self.cache.parts = [(i, rows, blocks.part_problem(self, i, rows, ResidualCache()))
+            self.cache.parts = [(i, rows, blocks.part_problem(self, i, rows, ResidualCache(keeps=False)))
                                 for i, rows in blocks.split(self.experiments, lambda e: max(per // len(e.components()), 1))]
         return self.cache.parts
 
     def tail(self) -> "Problem | None":
         """The prior and constraint rows as a problem without experiments (None without any)."""
         if self.cache.tail is None:
-            self.cache.tail = (blocks.tail_problem(self, ResidualCache()),)
+            self.cache.tail = (blocks.tail_problem(self, ResidualCache(keeps=False)),)
         return self.cache.tail[0]
 
     @property
     def blocked(self) -> bool:
         """Whether the problem is evaluated by blocks (``memory.by_blocks``; decided once, with ``parts``)."""
         return len(self.parts()) > len(self.experiments)
+
+    @property
+    def _small(self) -> bool:
+        """Small enough to keep a linearization's Jacobian blocks for the report (``ResidualCache.keep``)."""
+        sizes = [e.size for e in self.experiments]
+        return max(sizes, default=0) <= SENSITIVITY_SAMPLES and sum(sizes) <= KEPT_SAMPLES
 
     @property
     def free_names(self) -> list[str]:
@@ -198,6 +229,8 @@ class Problem:
         W = self._whiteners_of(res) if fresh else whiteners
         if fresh or not self.joint_noise:  # statistics at this state need no second evaluation
             self.cache.put(state, res)
+        if self._small:  # keeping them costs little
+            self.cache.keep(state, self.experiments, res, state is self.nominal)
         r, J = self._stack(state, res, W, cols, {})
         return r, J, W, [x.r for x in res]
 

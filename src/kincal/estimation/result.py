@@ -11,6 +11,7 @@ import numpy as np
 from kincal.analysis import Identifiability, Linearization, covariance, identify
 from kincal.analysis.derived import Derived, derived
 from kincal.analysis.gauge import GaugeView, min_change, representative, weights
+from kincal.analysis.identifiability import DeferredReport
 from kincal.analysis.prediction import Prediction, predicted_accuracy
 from kincal.estimation.crossval import CrossValidation
 from kincal.estimation import steps
@@ -91,7 +92,7 @@ class Result:
     covariance: np.ndarray  # (p_free, p_free) in local coordinates, gauge-fixed
     correlated: tuple[tuple[str, str, float], ...]
     identifiability: Identifiability  # after solving
-    identifiability_before: Identifiability
+    start_identifiability: DeferredReport | None  # at the start; read as ``identifiability_before``
     before: tuple[ResidualStats, ...]  # per experiment at the start (the nominal values)
     after: tuple[ResidualStats, ...]
     sigma2: float  # residual variance factor (chi^2 / (m - rank)) that scales the covariance
@@ -114,6 +115,12 @@ class Result:
     stages: tuple[StageRecord, ...] = ()  # a staged solve's stages, the last one's being this result
     negative_compliances: tuple[NegativeCompliance, ...] = ()  # compliances estimated below 0 (``physical``)
     held: np.ndarray | None = None  # the rigid model's gauges the solve held (``estimation.gauge.rigid_gauges``)
+
+    @property
+    def identifiability_before(self) -> Identifiability | None:
+        """The identifiability report at the start (the nominal values), its null directions named on first
+        access (``analysis.identifiability.DeferredReport``)."""
+        return None if self.start_identifiability is None else self.start_identifiability.report
 
     @property
     def scale(self) -> float:

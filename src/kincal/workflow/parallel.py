@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+from multiprocessing import forkserver
 import os
 from typing import Callable, Sequence
 
@@ -52,6 +53,7 @@ def run_tasks(fn: Callable, tasks: Sequence[tuple], *, workers: int | None = Non
 
 def _connect(workers: int | None, scheduler: str | None):
     """(client, the local cluster it owns or None)."""
+    method = None if scheduler is not None else _start_forkserver()
     try:
         import dask  # optional heavy dependency: only here
         from dask.distributed import Client, LocalCluster
@@ -63,16 +65,28 @@ def _connect(workers: int | None, scheduler: str | None):
         except (OSError, TimeoutError) as exc:
             raise KincalError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there ({exc})") from None
     n = default_workers() if workers is None else workers
-    # Workers forked from a clean server process start fast with kincal imported once, where forking this
-    # process itself (threads of its own, the caller's, BLAS pools) can deadlock a child on a held lock;
-    # spawned workers would import numpy, scipy and kincal again, seconds each.
-    method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
-    if method == "forkserver":
-        multiprocessing.set_forkserver_preload(["distributed", "kincal.workflow.study", "kincal.workflow.batch"])
     with dask.config.set({"distributed.worker.multiprocessing-method": method}):
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
                                silence_logs=logging.ERROR)
     return Client(cluster), cluster
+
+
+# What the forkserver imports once for every local worker it forks.
+PRELOAD = ["distributed", "kincal.workflow.study", "kincal.workflow.batch"]
+
+
+def _start_forkserver() -> str:
+    """The start method of local workers, with the forkserver started at once where there is one: it imports
+    ``PRELOAD`` while this process imports Dask (on two cores, at the same time instead of one after the other).
+
+    Workers forked from a clean server process start fast with kincal imported once, where forking this
+    process itself (threads of its own, the caller's, BLAS pools) can deadlock a child on a held lock;
+    spawned workers would import numpy, scipy and kincal again, seconds each."""
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return "spawn"
+    multiprocessing.set_forkserver_preload(PRELOAD)
+    forkserver.ensure_running()
+    return "forkserver"
 
 
 def _gather(client, fn: Callable, tasks: Sequence[tuple], progress) -> list:

@@ -121,7 +121,7 @@ class Fixed:
     true: Robot | None
     experiment_seed: np.random.SeedSequence
     q_validation: Mapping[str, np.ndarray]
-    memo: dict = field(default_factory=dict, repr=False)  # per process: what a fixed truth makes once
+    memo: dict = field(default_factory=dict, repr=False)  # per task: what a fixed truth, a structure makes once
 
 
 def fixed_parts(study: Study) -> Fixed:
@@ -233,7 +233,10 @@ def run_chunk(study: Study, fixed: Fixed, repeats: range) -> list[list[Outcome]]
 
 def _outcome(study: Study, result, true: Robot, fixed: Fixed) -> Outcome:
     layout = result.layout
-    names, C = quantity_matrix(study, layout)
+    key = ("quantities", layout.names, layout.free.tobytes())  # per structure: the same rows for every repeat
+    if key not in fixed.memo:
+        fixed.memo[key] = quantity_matrix(study, layout)
+    names, C = fixed.memo[key]
     est = np.zeros(layout.size)  # coordinates not free stay nominal: no displacement
     est[layout.free] = [e.value - e.nominal for e in result.estimates]
     key = ("truth", layout.names)
@@ -268,10 +271,21 @@ def quantity_matrix(study: Study, layout) -> tuple[tuple[str, ...], np.ndarray]:
 def validation_error(calibrated: Robot, true: Robot, fixed: Fixed) -> float:
     """RMS distance between the calibrated and the true tool positions at the validation configurations (every
     arm), in the world frame."""
-    sq = [np.sum((forward_kinematics(calibrated.arms[a], q)[:, :3, 3]
-                  - forward_kinematics(true.arms[a], q)[:, :3, 3]) ** 2, axis=1)
+    sq = [np.sum((forward_kinematics(calibrated.arms[a], q)[:, :3, 3] - _true_tools(true, fixed, a)) ** 2, axis=1)
           for a, q in fixed.q_validation.items() if len(q)]
     return float(np.sqrt(np.mean(np.concatenate(sq)))) if sq else float("nan")
+
+
+def _true_tools(true: Robot, fixed: Fixed, arm: str) -> np.ndarray:
+    """The true robot's tool positions at ``arm``'s validation configurations; once per process for a fixed
+    truth (``Fixed.memo``), at every repeat for a redrawn one."""
+    key = ("validation tools", arm)
+    if true is not fixed.true or key not in fixed.memo:
+        tools = forward_kinematics(true.arms[arm], fixed.q_validation[arm])[:, :3, 3]
+        if true is not fixed.true:
+            return tools
+        fixed.memo[key] = tools
+    return fixed.memo[key]
 
 
 # --------------------------------------------------------------------------------------------- the study
@@ -316,14 +330,19 @@ class StudyResult:
     outcomes: tuple[tuple[Outcome, ...], ...]  # per repeat, per variant
 
 
+# Repeats per Dask task by default: short tasks keep both workers busy to the end (the last task of a worker
+# runs alone), long enough that a task's set-up (its arguments, the noise-free data) stays small beside it.
+REPEATS_PER_TASK = 25
+
+
 def run_study(study: Study, *, workers: int | None = None, scheduler: str | None = None, chunks: int | None = None,
               progress: Callable[[int, int], None] | None = None) -> StudyResult:
     """Run ``study``'s repeats on the Dask back end (``kincal.workflow.parallel``: ``workers`` local processes,
-    0 for this process, or the cluster at ``scheduler``), in ``chunks`` tasks (default: 8 per worker);
-    ``progress(done, total)`` counts repeats."""
+    0 for this process, or the cluster at ``scheduler``), in ``chunks`` tasks (default: 8 per worker, and at
+    most ``REPEATS_PER_TASK`` repeats each); ``progress(done, total)`` counts repeats."""
     fixed = fixed_parts(study)
     w = workers if workers is not None else (default_workers() if scheduler is None else 4)
-    n = chunks or 8 * max(1, w)
+    n = chunks or max(8 * max(1, w), -(-study.repeats // REPEATS_PER_TASK))
     bounds = np.linspace(0, study.repeats, min(n, study.repeats) + 1).astype(int)
     tasks = [(study, fixed, range(a, b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
     done = [0]
