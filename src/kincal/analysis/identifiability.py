@@ -25,7 +25,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from kincal.analysis.covariance import right_svd
-from kincal.analysis.linalg import svd
+from kincal.analysis.linalg import lstsq, svd
 from kincal.analysis.linearization import Linearization, unit_columns
 from kincal.analysis.naming import context, degenerate, describer
 from kincal.analysis.symmetries import consistent_nulls, rotation_nulls, scale_null
@@ -132,7 +132,7 @@ def _unpinned(hold: np.ndarray, pins: list[int], scale, held, gauges):
         u = v / np.linalg.norm(v)
         if np.linalg.norm(u - hold @ (hold.T @ u)) < 0.5:
             return None
-        return v - hold @ np.linalg.lstsq(hold[pins], v[pins], rcond=None)[0]
+        return v - hold @ lstsq(hold[pins], v[pins])
 
     def moved_gauges(plain: int):
         G = gauges(plain - len(pins))
