@@ -17,14 +17,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from kincal.data import Dataset
-from kincal.kinematics import PRISMATIC, Robot, forward_kinematics
+from kincal.kinematics import PRISMATIC, Robot
+from kincal.kinematics.tree import tip_pose
 from kincal.params import COMPLIANCE, LATERAL, Layout
 from kincal.schema import LENGTH, SCHEMAS
 
 # A reading of a revolute joint with limits beyond this (rad) is not an angle in radians (a continuous joint,
 # without limits, may turn any number of times); measured points whose spread differs from the nominal tool's
-# at the same readings by more than SPREAD_FACTOR (either way) are not in the stated length unit, judged only
-# where the tool moves at least MIN_TOOL_SPREAD (m) and on at most SPREAD_ROWS rows spread over the data.
+# at the same readings (a mounted arm's through its carriers) by more than SPREAD_FACTOR (either way) are not in
+# the stated length unit, judged on data sets of one arm, only where the tool moves at least MIN_TOOL_SPREAD (m)
+# and on at most SPREAD_ROWS rows spread over the data.
 MAX_JOINT_RAD = 4 * math.pi
 SPREAD_FACTOR = 30.0
 MIN_TOOL_SPREAD = 0.01
@@ -75,10 +77,8 @@ def implausible_units(robot: Robot, ds: Dataset) -> Implausible | None:
         if big.any():
             i, j = np.argwhere(big)[0]
             return Implausible("q", a, float(q[i, j]), int(i), int(j))
-    tool, a = 0.0, next(iter(ds.q))
-    if len(ds.q) == 1:
-        rows = _spread_rows(ds.size)
-        tool = spread(forward_kinematics(robot[a], ds.q[a][rows])[:, :3, 3])
+    a = ds.arms[0]
+    tool = _tool_spread(robot, ds) if len(ds.arms) == 1 else 0.0
     lengths = _measured_lengths(ds)
     for key, x in lengths.items():
         bad = _absurd_cell(key, a, x, tool)
@@ -106,6 +106,17 @@ def past_limits(robot: Robot, q_by_arm: dict) -> list[tuple[str, int, np.ndarray
                 first = q[rows[0], j]
                 out.append((a, j, rows, float(arm.lower[j] if first < arm.lower[j] else arm.upper[j])))
     return out
+
+
+def _tool_spread(robot: Robot, ds: Dataset) -> float:
+    """RMS spread (m) of the nominal tool of the data set's one arm at its readings: through its carriers (the
+    composite chain) when mounted; 0 (not judged) when the data lack a carrier's readings."""
+    a = ds.arms[0]
+    line = robot.lineage(a)
+    if not all(s in ds.q for s in line):
+        return 0.0
+    rows = _spread_rows(ds.size)
+    return spread(tip_pose(robot, a, {s: ds.q[s][rows] for s in line})[:, :3, 3])
 
 
 def _spread_rows(n: int) -> np.ndarray:
