@@ -68,7 +68,7 @@ def check_gravity_tree(rng, robot, ds):
     measured = {k: np.repeat(v[:1], n, axis=0) for k, v in ds.measured.items()}
     make = lambda qq: type(exp)(Dataset(ds.kind, "tree", ds.arms, qq, measured, dict(ds.known)), exp.frames)  # noqa
     res = make(q).residual(state)
-    num = numerical_jacobian(lambda d: make(q).residual(retract(state, layout, d)).r, np.zeros(layout.size))
+    num = numerical_jacobian(lambda d: make(q).residual(retract(state, layout, d)).r, np.zeros(layout.size), order=4)
     J = _assemble(res, layout, n)
     np.testing.assert_allclose(J, num, atol=1e-7, rtol=1e-6)
     a_cols = [i for b in layout.blocks if b.name.startswith("a.") for i in range(b.start, b.stop)]
@@ -80,7 +80,7 @@ def check_gravity_tree(rng, robot, ds):
         def f(x, arm=arm, m=m):
             return make({**q, arm: derive_readings(m.couplings, m.joint_names, x.reshape(q[arm].shape))}).residual(
                 state).r
-        num_q = numerical_jacobian(f, q[arm].ravel()).reshape(res.r.shape + q[arm].shape)
+        num_q = numerical_jacobian(f, q[arm].ravel(), order=4).reshape(res.r.shape + q[arm].shape)
         num_q = np.stack([num_q[i, :, i, :] for i in range(n)])
         np.testing.assert_allclose(res.jq[arm], num_q, atol=1e-7, rtol=1e-6)
 

@@ -130,7 +130,8 @@ def tool_jacobian(result, q, arm: str, with_jq: bool = False, wrench: np.ndarray
         kin = chain(a.screws, q + a.offsets, a.base, a.home, a.tool)
     else:
         wrench = _loads(wrench, len(q), arm)
-        kin = loaded_chain(a.screws, q + a.offsets, a.base, a.home, a.tool, a.compliance_at(q), wrench)
+        kin = loaded_chain(a.screws, q + a.offsets, a.base, a.home, a.tool, a.compliance_at(q), wrench,
+                           coupling=a.coupling)
     blocks, jq = tool_jacobians(kin, np.broadcast_to(np.eye(6), (len(q), 6, 6)), a.screws, a.generators,
                                 a.joint_compliance, with_jq=with_jq, basis=a.compliance_basis(q))
     layout = result.layout

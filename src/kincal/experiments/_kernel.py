@@ -11,7 +11,7 @@ import numpy as np
 
 from kincal.kinematics import Kinematics
 from kincal.kinematics.branches import branch_torque_derivatives, loaded_tree
-from kincal.kinematics.elastic import LoadedKinematics
+from kincal.kinematics.elastic import LoadedKinematics, deflection_map
 from kincal.kinematics.jacobians import (TOOL_PARTS, insertion_jacobians, joint_jacobian, prefix_projections,
                                          tool_jacobians)
 from kincal.kinematics.lateral import (chain_lateral, expand_basis, expand_screws, expand_values, lateral_columns,
@@ -177,7 +177,7 @@ def _branch_blocks(state, ch, branches, parts, jq, dtheta, kin, out, jqs) -> Non
     """The blocks and readings of the other arms whose weight loads the lineage (through the carriers'
     deflection; ``kincal.kinematics.branches``); ``dtheta``: ``G dT/dtheta`` of the chain."""
     c = ch.coeffs if ch.basis is None else ch.basis[0] @ ch.coeffs
-    cjq = dtheta * np.asarray(c)[..., None, :]
+    cjq = deflection_map(dtheta, c, kin.coupling)
     for b in branches:
         a = state.arms[b.arm]
         want = [p for p in parts.get(b.arm, ()) if p in BRANCH_PARTS] + ["readings"] * jq

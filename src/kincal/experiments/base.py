@@ -152,7 +152,7 @@ class Experiment:
         if w is None and a.weights is None:
             return chain(a.screws, theta0, a.base, a.home, a.tool)
         c = a.compliance_at(self.dataset.q[arm])  # (n,), or (N, n) when a joint's compliance depends on its angle
-        return loaded_chain(a.screws, theta0, a.base, a.home, a.tool, c, w, a.weights)
+        return loaded_chain(a.screws, theta0, a.base, a.home, a.tool, c, w, a.weights, coupling=a.coupling)
 
     def _fk(self, state: State, arm: str) -> np.ndarray:
         return self._kin(state, arm).tool

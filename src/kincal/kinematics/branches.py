@@ -27,7 +27,7 @@ import numpy as np
 
 from kincal.errors import DataFormatError, ModelError
 from kincal.kinematics.fk import Kinematics, chain, space_axes
-from kincal.kinematics.elastic import joint_compliance, loaded_chain
+from kincal.kinematics.elastic import chain_coupling, joint_compliance, loaded_chain
 from kincal.kinematics.lateral import chain_lateral
 from kincal.kinematics.gravity import GravityLoad, gravity_load, mass_beyond, weight_levers
 from kincal.kinematics.model import Robot, lineage
@@ -175,8 +175,9 @@ def loaded_tree(arms: Mapping, loads: Mapping[str, GravityLoad | None], complian
     if any(x.ndim == 2 for x in cs):  # a joint's compliance depends on its angle: every segment per sample
         cs = [np.broadcast_to(x, theta0.shape[:-1] + x.shape[-1:]) for x in cs]
     c = np.concatenate(cs, axis=-1)
+    segs = [arms[s] for s in line]
     kin = loaded_chain(comp.screws, theta0, comp.base, comp.home, comp.tool, c, wrench_tool, load,
-                       [b.hung for b in branches], chain_lateral([arms[s] for s in line], comp.frames))
+                       [b.hung for b in branches], chain_lateral(segs, comp.frames), chain_coupling(segs))
     return replace(kin, branches=branches)
 
 

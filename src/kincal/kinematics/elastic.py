@@ -37,9 +37,10 @@ from functools import cached_property
 import numpy as np
 
 from kincal._validate import as_array
+from kincal.kinematics.couplings import coupling_map
 from kincal.kinematics.fk import Kinematics, chain, expanded_chain, forward_kinematics, joint_array
 from kincal.kinematics.gravity import GravityLoad, _Inserter, gravity_load, mass_beyond, weight_wrenches
-from kincal.kinematics.lateral import expand_load, expand_screws, expand_values, real_columns
+from kincal.kinematics.lateral import expand_coupling, expand_load, expand_screws, expand_values, real_columns
 from kincal.kinematics.model import ArmModel
 from kincal.lie import se3
 
@@ -48,8 +49,8 @@ from kincal.lie import se3
 class LoadedKinematics(Kinematics):
     """Kinematics at the deflected joint values, with the unloaded pass that gave the load torques.
 
-    ``unloaded``: the chain at ``theta0``; ``wrench_space`` (..., 6): ``F_s``; ``axes`` (..., n, 6): ``xi_s_i`` at
-    ``theta0``; ``tau`` (..., n): load torques (N m; N for prismatic joints). With weights
+    ``unloaded``: the chain at ``theta0``; ``coupling``: as ``deflection``'s; ``wrench_space`` (..., 6): ``F_s``;
+    ``axes`` (..., n, 6): ``xi_s_i`` at ``theta0``; ``tau`` (..., n): load torques (N m; N for prismatic joints). With weights
     (``kincal.kinematics.gravity``): ``gravity`` (3,), the mass beyond each joint ``masses_beyond`` (n + 1,), its
     first moment ``moments_beyond`` (..., n + 1, 3) and ``wrench_beyond`` (..., n + 1, 6), weights plus ``F_s``;
     on a tree, ``branches``: the other arms hung on the chain (``kincal.kinematics.branches.Branch``), kept so
@@ -57,6 +58,7 @@ class LoadedKinematics(Kinematics):
     """
 
     unloaded: Kinematics | None = None
+    coupling: np.ndarray | None = None  # (n, n) the chain's couplings (``deflection``); None: none
     wrench_space: np.ndarray | None = None
     axes: np.ndarray | None = None
     tau: np.ndarray | None = None
@@ -73,12 +75,12 @@ class LoadedKinematics(Kinematics):
 
 
 def loaded_chain(screws, theta0, base, home, tool, compliance, wrench_tool,
-                 weights: GravityLoad | None = None, hung=(), lateral=None) -> LoadedKinematics:
+                 weights: GravityLoad | None = None, hung=(), lateral=None, coupling=None) -> LoadedKinematics:
     """Unvalidated kernel on raw arrays: ``theta0`` (..., n) unloaded joint values, ``wrench_tool`` (..., 6) or
     None (no tool load), ``compliance`` (n,) or per sample (..., n), ``weights`` the arm's mass model or None;
     ``hung``: weights beyond the chain (``gravity.mass_beyond``; other branches of a tree); ``lateral``: None or
     (lateral axes (n, 2, 6), lateral compliances (n, 2)): then the result is the *expanded* chain of 3n joints
-    (``kincal.kinematics.lateral``)."""
+    (``kincal.kinematics.lateral``); ``coupling``: the chain's coupling map (n, n) or None (``deflection``)."""
     if lateral is None:
         kin0 = chain(screws, theta0, base, home, tool)
     else:  # the virtual joints are at zero before the load
@@ -86,6 +88,7 @@ def loaded_chain(screws, theta0, base, home, tool, compliance, wrench_tool,
         screws = expand_screws(screws, lateral[0])
         compliance, weights = expand_values(compliance, lateral[1]), expand_load(weights)
         hung = [(3 * m, mass, moment) for m, mass, moment in hung]
+        coupling = expand_coupling(coupling)
     if wrench_tool is None:
         F_s = np.zeros(kin0.theta.shape[:-1] + (6,))
     else:
@@ -99,8 +102,61 @@ def loaded_chain(screws, theta0, base, home, tool, compliance, wrench_tool,
         W = weight_wrenches(M, S, weights.g) + F_s[..., None, :]
         tau = np.einsum("...ki,...ki->...k", axes, W[..., :-1, :])
         extra = (weights.g, M, S, W)
-    kin = chain(screws, kin0.theta + compliance * tau, base, home, tool)
-    return LoadedKinematics(kin.theta, kin.exps, kin.prefixes, kin.flange, kin.tool, kin0, F_s, axes, tau, *extra)
+    kin = chain(screws, kin0.theta + deflection(compliance, tau, coupling), base, home, tool)
+    return LoadedKinematics(kin.theta, kin.exps, kin.prefixes, kin.flange, kin.tool, kin0, coupling, F_s, axes, tau,
+                            *extra)
+
+
+def deflection(c, tau, coupling):
+    """Joint deflections (..., n) of compliances ``c`` under joint torques ``tau`` (..., n): ``c * tau``, or on a
+    chain with couplings ``coupling`` = A (n, n) (``kinematics.couplings``: readings = A free readings, zero
+    columns at coupled joints) ``A (c * A^T tau) + c_k tau_k`` at each coupled joint k. A coupled joint has no
+    drive of its own: by virtual work the drives of the joints it follows hold its torque too (Agile Justin's
+    passive t4 = -t2 - t3: the t2 and t3 drives hold ``tau_2 - tau_4`` and ``tau_3 - tau_4``), their deflections
+    move it through the coupling, and its own compliance is the mechanism's."""
+    if coupling is None:
+        return c * tau
+    own = ~coupling.any(axis=0)
+    return (c * (tau @ coupling)) @ coupling.T + own * c * tau
+
+
+def deflection_map(jq, c, coupling):
+    """``jq @ d deflection / d tau``: ``jq * c`` per column, or through the coupling (``deflection``); ``jq``
+    (N, k, n), ``c`` (n,) or (N, n)."""
+    c = np.asarray(c)[..., None, :]
+    if coupling is None:
+        return jq * c
+    own = ~coupling.any(axis=0)
+    return ((jq @ coupling) * c) @ coupling.T + jq * (own * c)
+
+
+def compliance_columns(jq, tau, coupling):
+    """``jq @ d deflection / d c`` (N, k, n): ``jq * tau`` per column, or through the coupling (``deflection``)."""
+    if coupling is None:
+        return jq * tau[:, None, :]
+    own = ~coupling.any(axis=0)
+    return (jq @ coupling) * (tau @ coupling)[:, None, :] + jq * (own * tau)[:, None, :]
+
+
+def chain_coupling(arms) -> np.ndarray | None:
+    """The coupling map of a chain of segments (``ArmModel`` or ``ArmValues``, root first): block diagonal of
+    theirs, None when no segment has couplings."""
+    maps = [_coupling(a) for a in arms]
+    if all(m is None for m in maps):
+        return None
+    blocks = [np.eye(a.dof) if m is None else m for a, m in zip(arms, maps)]
+    n = sum(len(b) for b in blocks)
+    out, at = np.zeros((n, n)), 0
+    for b in blocks:
+        out[at: at + len(b), at: at + len(b)] = b
+        at += len(b)
+    return out
+
+
+def _coupling(a) -> np.ndarray | None:
+    if isinstance(a, ArmModel):
+        return coupling_map(a.couplings, a.joint_names)[0] if a.couplings else None
+    return a.coupling
 
 
 def compliance_coefficients(model: ArmModel) -> np.ndarray:
@@ -162,7 +218,7 @@ def loaded_kinematics(model: ArmModel, q, wrench_tool=None) -> LoadedKinematics:
     w = None if wrench_tool is None else _wrench(wrench_tool, q.shape[:-1])
     c = joint_compliance(model, q)
     return loaded_chain(model.screws, q + model.offsets, model.base, model.home, model.tool, c, w, gravity_load(model),
-                        lateral=model_lateral(model))
+                        lateral=model_lateral(model), coupling=chain_coupling([model]))
 
 
 def model_lateral(model) -> tuple[np.ndarray, np.ndarray] | None:

@@ -34,7 +34,7 @@ from typing import Sequence
 
 import numpy as np
 
-from kincal.kinematics.elastic import LoadedKinematics
+from kincal.kinematics.elastic import LoadedKinematics, compliance_columns, deflection_map
 from kincal.kinematics.fk import Kinematics
 from kincal.kinematics.gravity import _Projected, gravity_torque_derivatives
 from kincal.kinematics.twists import padded_bases
@@ -154,7 +154,7 @@ def insertion_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, at, 
     c = compliance if basis is None else basis[0] @ compliance
     if not np.any(c):
         return out
-    cjq = joint_jacobian(kin, G, screws, projected) * np.asarray(c)[..., None, :]
+    cjq = deflection_map(joint_jacobian(kin, G, screws, projected), c, kin.coupling)
     moved = moved or [()] * len(at)
     if kin.gravity is not None:  # the weights' projection once for every insertion
         cjq = kin.inserter.project(cjq)
@@ -201,7 +201,7 @@ def _add_compliance(kin: LoadedKinematics, generators, k_c: np.ndarray, basis, j
     """Add the compliance block and the ``c * dtau/dp`` terms to ``out`` (in place); returns the corrected
     derivative w.r.t. the joint readings (the groups' first joints, ``tool_jacobians``). ``jq`` (N, k, n):
     ``G dT/dtheta`` at the deflected theta."""
-    jt = jq * kin.tau[:, None, :]
+    jt = compliance_columns(jq, kin.tau, kin.coupling)
     if "compliance" in parts:
         out["compliance"] = jt if basis is None else jt @ basis[0]
     corrected = _CORRECTED + (("base",) if kin.gravity is not None else ())
@@ -209,7 +209,7 @@ def _add_compliance(kin: LoadedKinematics, generators, k_c: np.ndarray, basis, j
     c = k_c if basis is None else basis[0] @ k_c  # (n,) or per sample (N, n)
     if not np.any(c):
         return jq[..., ::step]
-    cjq = jq * c[..., None, :]
+    cjq = deflection_map(jq, c, kin.coupling)
     D = torque_derivatives(kin, generators, want, step, cjq)
     for p in corrected:
         if p in parts:

@@ -60,6 +60,17 @@ def expand_values(real: np.ndarray, lateral: np.ndarray | float) -> np.ndarray:
     return out.reshape(shape[:-1] + (3 * shape[-1],))
 
 
+def expand_coupling(A: np.ndarray | None) -> np.ndarray | None:
+    """A chain's coupling map (n, n) on the expanded chain (3n, 3n): the real joints' entries, the lateral joints
+    free (no lateral joint is coupled)."""
+    if A is None:
+        return None
+    n = len(A)
+    out = np.eye(3 * n)
+    out[0::3, 0::3] = A
+    return out
+
+
 def expand_load(load):
     """The weights (``gravity.GravityLoad`` or None) on the expanded chain: link i's on the last of its three
     joints."""
