@@ -15,7 +15,6 @@ import numpy as np
 from scipy.io import loadmat
 
 from kincal.data import Dataset
-from kincal.estimation import Stage
 from kincal.estimation.problem import Noise
 from kincal.kinematics import ArmModel, Robot
 from kincal.kinematics.couplings import derive_readings
@@ -431,23 +430,19 @@ JUSTIN_ELASTIC = {"joint compliances": (5.64, 2.57, 12.83), "lateral compliances
 
 def justin_elastic_case(path: Path, level: str) -> tuple[Robot, list[Dataset], dict]:
     """Robot (masses; lateral compliance for ``lateral compliances``, ``justin_lateral``), both hands' data sets
-    (with the other arm's readings) and ``calibrate`` options (``free`` among them) of a compliant level, from the
-    nominal model with every compliance at 0. Joint compliances: the geometry and the compliances in one solve,
-    as the paper estimates them; the rigid model's gauges, which only the weight lifts, are held
-    (``estimation.gauge.rigid_gauges``). Lateral compliances: that solve, then every compliance with the geometry
-    held (``free`` None, ``stages``): freed together with the geometry, the wrists' joint and lateral compliances
-    (loaded by the hands' few N m) walk a long, flat valley to tenths of a rad/(N m) for a whitened cost 4 %
-    lower, and do not finish. The pan joint's compliance is fixed at 0: its axis is vertical, so the weight does
-    not load it."""
+    (with the other arm's readings) and ``calibrate`` options (``free`` among them) of a compliant level: the
+    geometry and the compliances in one solve, as the paper estimates them, from the nominal model with every
+    compliance at 0. The rigid model's gauges, which only the weight lifts, are held
+    (``estimation.gauge.rigid_gauges``); the coupled t4's torque is held by the t2 and t3 drives
+    (``kinematics.elastic.deflection``). The pan joint's compliance is fixed at 0: its axis is vertical, so the
+    weight does not load it."""
     robot, sets = justin_robot(path, masses=True), list(justin_markers(path, both_arms=True))
-    fixed, options = ("torso.t1.compliance",), {"noise": JUSTIN_NOISE, "outliers": "keep"}
-    if level == "joint compliances":
-        return robot, sets, {"free": ["kinematic", "elastic"], "fixed": list(fixed), **options}
-    if level != "lateral compliances":
+    free = ["kinematic", "elastic"]
+    if level == "lateral compliances":
+        robot, free = justin_lateral(robot, path), free + ["lateral"]
+    elif level != "joint compliances":
         raise ValueError(f"unknown compliant level {level!r}; levels: {', '.join(JUSTIN_ELASTIC)}")
-    stages = [Stage(("kinematic", "elastic"), fixed, "geometry and joint compliances"),
-              Stage(("elastic", "lateral"), fixed, "joint and lateral compliances")]
-    return justin_lateral(robot, path), sets, {"free": None, "stages": stages, **options}
+    return robot, sets, {"free": free, "fixed": ["torso.t1.compliance"], "noise": JUSTIN_NOISE, "outliers": "keep"}
 
 
 def motoman_tree_data(path: Path) -> tuple[Dataset, Dataset]:
