@@ -107,10 +107,11 @@ def test_gravity_torques_equal_a_hand_computation():
 
 def test_joint_compliances_loaded_by_the_weight_meet_the_target_held_out():
     """The compliant level (``realdata.justin_elastic_case``: geometry and every joint compliance loaded by the mass
-    model's weight, in one solve), 5-fold held out as above: at or below the issue's 5.0 mm (4.76 measured; paper's
-    fit 5.64). Was: staged (geometry, then compliances) 7.40 mm, because the joint solve walked the torso's axes
-    metres along gauges only the weight lifts (now held, ``estimation.gauge.rigid_gauges``); the first trial's
-    29.61 mm scored a compliant fit with the rigid pose."""
+    model's weight, in one solve; the coupled t4's torque held by the t2 and t3 drives), 5-fold held out as above:
+    at or below the issue's 5.0 mm (4.47 measured; paper's fit 5.64). Was: staged (geometry, then compliances)
+    7.40 mm, because the joint solve walked the torso's axes metres along gauges only the weight lifts (now held,
+    ``estimation.gauge.rigid_gauges``); 4.76 with t4's compliance on its own torque only; the first trial's 29.61
+    mm scored a compliant fit with the rigid pose."""
     robot, sets, options = rd.justin_elastic_case(PATH, "joint compliances")
     free = options.pop("free")
     held = ho.cross_validate(robot, sets, free, k=5, **options).position * 1e3
@@ -118,12 +119,14 @@ def test_joint_compliances_loaded_by_the_weight_meet_the_target_held_out():
     res = calibrate(robot, sets, free, **options)
     assert res.iterations <= 8 and res.evaluations <= 40
     fit = np.concatenate([ho.prediction_errors(res, d)[0] for d in sets]) * 1e3
-    assert fit.mean() <= 4.65 and fit.mean() <= held.mean()
+    assert fit.mean() <= 4.40 and fit.mean() <= held.mean()
     # residuals about 10 times the stated 0.3 mm: at the misfit rule's edge (variance factor 100), said either way
     assert res.status in ("converged", "misfit") and 50 < res.sigma2 < 150
     assert any("lifted only by the weight" in m for m in res.messages)
     # the model predicts through the weight what the solver fitted: its errors are the solver's residuals
-    assert np.sqrt(np.mean(fit**2) / 3) / 0.3 == pytest.approx(np.sqrt(res.sigma2), rel=0.02)
+    m = 3 * len(fit)  # whitened components: chi^2 / (m - rank) is the variance factor
+    assert np.sqrt(np.mean(fit**2) / 3 * m / (m - res.identifiability.rank)) / 0.3 == pytest.approx(
+        np.sqrt(res.sigma2), rel=1e-3)
     est = {e.name: e for e in res.estimates}
     assert est["torso.t2.compliance"].value > 5 * est["torso.t2.compliance"].std  # the tilts carry the upper body
     negative = [n for n, e in est.items() if n.endswith(".compliance") and e.value < -1e-9]
@@ -134,18 +137,22 @@ def test_joint_compliances_loaded_by_the_weight_meet_the_target_held_out():
         assert model.compliance[model.joint_names.index(joint)] == pytest.approx(est[name].value, rel=1e-9)
 
 
-def test_lateral_compliances_loaded_by_the_weight_lower_the_fit_error():
+def test_lateral_compliances_loaded_by_the_weight_fit_below_the_paper():
     """The lateral level on kincal's lateral compliance kind (``realdata.justin_lateral``: every joint of the torso
-    and the arms bends about its DH frame's x and y axes): the joint level's solve, then every compliance with the
-    geometry held. Pins what kincal reaches by this route: fit 3.73 mm (held-out 3.91 in docs/real-data.md, by
-    bench/real_data.py), against 4.60 with joint compliances only; the paper's 3.12 (fit) is not reached. Was 6.32
-    (geometry rigid first). Negative lateral compliances are reported and kept."""
+    and the arms bends about its DH frame's x and y axes), geometry and every compliance in one solve: fit 2.86 mm
+    on all 500 poses, below the paper's 3.12 (held-out 3.00 in docs/real-data.md, by bench/real_data.py). Was 6.32
+    (rigid geometry first, then the compliances), 3.73 (the joint level, then the compliances: freed together with
+    the geometry the wrists' compliances walked a valley until t4's torque went to the t2 and t3 drives).
+    Negative lateral compliances are reported and kept."""
     robot, sets, options = rd.justin_elastic_case(PATH, "lateral compliances")
-    res = calibrate(robot, sets, **options)
-    assert all(s.status in ("converged", "misfit") for s in res.stages) and len(res.stages) == 2
+    free = options.pop("free")
+    res = calibrate(robot, sets, free, **options)
+    assert res.status in ("converged", "misfit") and res.iterations <= 6
     fit = np.concatenate([ho.prediction_errors(res, d)[0] for d in sets]) * 1e3
-    assert fit.mean() <= 3.78 and fit.max() <= 14.5
-    assert np.sqrt(np.mean(fit**2) / 3) / 0.3 == pytest.approx(np.sqrt(res.sigma2), rel=0.02)
+    assert fit.mean() <= 2.92 and fit.max() <= 14.0
+    m = 3 * len(fit)  # whitened components: chi^2 / (m - rank) is the variance factor
+    assert np.sqrt(np.mean(fit**2) / 3 * m / (m - res.identifiability.rank)) / 0.3 == pytest.approx(
+        np.sqrt(res.sigma2), rel=1e-3)
     est = {e.name: e for e in res.estimates}
     lateral = [n for n in est if ".lateral_" in n]
     assert len(lateral) == 2 * (4 + 7 + 7)
