@@ -11,7 +11,12 @@ import yaml
 from kincal.cli import main
 from kincal.errors import DataFormatError, ModelError
 from kincal.estimation import Stage, calibrate, evaluate
-from kincal.estimation.plausibility import NEGATIVE_SIGMAS, ROUND_OFF_COMPLIANCE
+from kincal.estimation.plausibility import (
+    NEGATIVE_SIGMAS,
+    ROUND_OFF_COMPLIANCE,
+    NegativeCompliance,
+    negative_compliance_notes,
+)
 from kincal.io.datasets import write_dataset
 from kincal.io.models import dump_robot, load_robot, parse_robot, save_robot
 from kincal.kinematics import Robot
@@ -209,3 +214,15 @@ def test_a_staged_solve_returns_its_last_stages_fit():
                                                       Stage(["kinematic", "elastic"], name="all")])
     assert len(res.stages) == 2
     assert_model_is_the_fit(res)
+
+
+def test_an_undetermined_negative_compliance_is_significant_and_said_to_be_undetermined():
+    """A compliance below 0 that the data cannot determine (std nan) is not noise around 0: it makes the result
+    untrusted, and its line says it is undetermined rather than printing 'std nan'."""
+    found = (NegativeCompliance("torso.t1.lateral_x", -8.5e-5, float("nan"), "rad/Nm"),
+             NegativeCompliance("arm.j2.compliance", -1e-4, 1e-3, "rad/Nm"))
+    assert found[0].significant and not found[1].significant
+    far, near = negative_compliance_notes(found)
+    assert far.startswith("not trusted: compliance estimated below 0 by more than 3 std: torso.t1.lateral_x = ")
+    assert "(undetermined by the data: no std)" in far and "nan" not in far
+    assert "arm.j2.compliance = -0.0001 rad/Nm (std 0.001)" in near

@@ -177,7 +177,8 @@ class NegativeCompliance:
         return not self.value >= -NEGATIVE_SIGMAS * self.std
 
     def describe(self) -> str:
-        return f"{self.name} = {self.value:.3g} {self.unit} (std {self.std:.2g})"
+        spread = f"std {self.std:.2g}" if np.isfinite(self.std) else "undetermined by the data: no std"
+        return f"{self.name} = {self.value:.3g} {self.unit} ({spread})"
 
 
 def negative_compliances(layout: Layout, estimates) -> tuple[NegativeCompliance, ...]:
