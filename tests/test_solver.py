@@ -161,3 +161,26 @@ def test_spine_build_solve_equals_calibrate(rng):
     assert isinstance(res.twists[0], TwistEstimate) and res.twists[0].name == "arm.j1.xi.v_x"
     with pytest.raises(ModelError, match="gauge must be"):
         SolverOptions(gauge="smallest")
+
+
+def test_residuals_well_above_the_stated_noise_are_said_below_the_misfit_rule():
+    """Joint noise three times what is stated (the clamp's other noise as stated): the fit's variance factor is
+    between 4 and the misfit rule's 100, so the status stays 'converged' and a message says how many times the
+    stated noise the residuals are. Stated right, the same data get no such message."""
+    from kincal.estimation.finalize import MISFIT_VARIANCE_FACTOR, NOISE_NOTE_FACTOR
+    from kincal.robots import load
+    from kincal.simulate.generators import generate_clamp
+    from kincal.simulate.perturb import perturb_robot
+
+    frida = load("frida")
+    sigma = 1e-4
+    for seed in (2, 3):
+        ds, _, _ = generate_clamp(perturb_robot(frida, "thesis", seed), "right", n=40, rng=seed,
+                                  noise=Noise(joint=sigma), known_fixture=False)
+        right = calibrate(frida, [ds], "kinematic", noise=Noise(joint=sigma))
+        low = calibrate(frida, [ds], "kinematic", noise=Noise(joint=sigma / 3))
+        assert right.status == low.status == "converged"
+        assert right.sigma2 < NOISE_NOTE_FACTOR < low.sigma2 < MISFIT_VARIANCE_FACTOR
+        notes = [m for m in low.messages if "times the stated noise" in m]
+        assert len(notes) == 1 and notes[0].startswith(f"residuals are {np.sqrt(low.sigma2):.3g} times")
+        assert not any("times the stated noise" in m for m in right.messages)

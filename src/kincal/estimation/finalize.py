@@ -21,6 +21,9 @@ from kincal.params import HOME, TWISTS, displacement, twist_coordinates
 
 # Residual variance factor above which the fit is reported as not explaining the data (RMS 10x the noise).
 MISFIT_VARIANCE_FACTOR = 100.0
+# Below it, a factor above this (residuals twice the noise) on at least NOISE_NOTE_DOF degrees of freedom is no
+# chance (chi^2 with 10 dof exceeds 4 x 10 one time in 60,000): the result says so, its status unchanged.
+NOISE_NOTE_FACTOR, NOISE_NOTE_DOF = 4.0, 10
 # A model whose residuals depend this much less (or 1/this more) on the joint readings than the nominal's has
 # collapsed (or blown up): calibration corrects a geometry, it does not rescale the arm's motion 10 times.
 COLLAPSE_RATIO = 0.1
@@ -72,6 +75,8 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
             f"the model does not explain the data: residuals are {np.sqrt(sigma2):.3g} times the stated noise "
             f"(residual variance factor {sigma2:.3g}); the estimates absorb what the free parameters cannot model "
             f"and their standard deviations assume a model that fits. {_misfit_advice(problem)}"))
+    elif sigma2 > NOISE_NOTE_FACTOR and dof >= NOISE_NOTE_DOF:
+        messages.append(_noise_note(sigma2))
     names = [problem.layout.names[i] for i in problem.free_idx]
     estimates = tuple(_estimates(problem, run.state, std, ok, cov))
     negative = negative_compliances(problem.layout, estimates)
@@ -187,6 +192,12 @@ def _uncertainty(lin: Linearization, ana: Identifiability, options: SolverOption
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
     ok = ana.identifiable & (status != "degenerate")
     return cov, np.where(ok, std, np.nan), ok
+
+
+def _noise_note(sigma2: float) -> str:
+    return (f"residuals are {np.sqrt(sigma2):.3g} times the stated noise (residual variance factor {sigma2:.3g}, "
+            f"below the misfit rule's {MISFIT_VARIANCE_FACTOR:g}): the stated noise is too small or the model misses "
+            "an effect of that size; the standard deviations are scaled by the factor")
 
 
 def _misfit_advice(problem: Problem) -> str:
