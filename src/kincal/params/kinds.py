@@ -157,7 +157,7 @@ class _Twists(ParamKind):
         v = np.zeros_like(a.screws)
         rev = np.array(a.joint_types) == REVOLUTE
         v[rev, :3] = a.screws[rev, :3]
-        return a.basis_pinv @ v.ravel()
+        return a.tangent_coordinates(v)
 
 
 class _ArmPose(ParamKind):
