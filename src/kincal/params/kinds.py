@@ -53,6 +53,11 @@ class ParamKind:
         """The local displacement from ``nominal`` alone (``displacement`` without its derivative)."""
         return self.displacement(value, nominal)[0]
 
+    def pose_of(self, value) -> np.ndarray | None:
+        """The 4 x 4 pose a pose kind's displacement is taken of (``log(T T0^-1)``, batched over blocks by
+        ``ops.displacement``); None for the other kinds."""
+        return None
+
     def scale(self, value) -> np.ndarray:
         """Local direction scaling every length of the value (zeros: nothing to scale)."""
         raise NotImplementedError
@@ -177,6 +182,9 @@ class _ArmPose(ParamKind):
     def displacement(self, a, a0):
         return _pose_disp(getattr(a, self.field), getattr(a0, self.field))
 
+    def pose_of(self, a):
+        return getattr(a, self.field)
+
     def offset(self, a, a0):
         return _pose_offset(getattr(a, self.field), getattr(a0, self.field))
 
@@ -253,6 +261,9 @@ class _Pose(ParamKind):
 
     def displacement(self, T, T0):
         return _pose_disp(T, T0)
+
+    def pose_of(self, T):
+        return T
 
     def offset(self, T, T0):
         return _pose_offset(T, T0)

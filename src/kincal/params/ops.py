@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from kincal.lie import se3
 from kincal.params.kinds import ARM_KINDS, POSE_COORDS, TWISTS
 from kincal.params.layout import Layout
 from kincal.params.values import State
@@ -56,13 +57,26 @@ def displacement(state: State, nominal: State, layout: Layout, only: np.ndarray 
     disp = np.zeros(layout.size)
     D = np.zeros((layout.size, layout.size)) if jacobian else None
     wanted = np.ones(layout.size, bool) if only is None else np.isin(np.arange(layout.size), only)
+    poses = []  # (block, pose, nominal pose) of the pose kinds: their logarithms in one batch
     for b in layout.blocks:
         if not wanted[b.slice].any():
             continue
-        if jacobian:
-            disp[b.slice], D[b.slice, b.slice] = b.kind.displacement(b.value(state), b.value(nominal))
+        value, value0 = b.value(state), b.value(nominal)
+        T = b.kind.pose_of(value)
+        if T is not None:
+            poses.append((b, T, b.kind.pose_of(value0)))
+        elif jacobian:
+            disp[b.slice], D[b.slice, b.slice] = b.kind.displacement(value, value0)
         else:
-            disp[b.slice] = b.kind.offset(b.value(state), b.value(nominal))
+            disp[b.slice] = b.kind.offset(value, value0)
+    if poses:
+        T, T0 = np.stack([t for _, t, _ in poses]), np.stack([t for _, _, t in poses])
+        x = se3.log(T @ se3.inverse(T0))
+        Jinv = se3.left_jacobian_inv(x) if jacobian else None
+        for k, (b, _, _) in enumerate(poses):
+            disp[b.slice] = x[k]
+            if jacobian:
+                D[b.slice, b.slice] = Jinv[k]
     return disp, D
 
 
