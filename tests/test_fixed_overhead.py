@@ -22,7 +22,7 @@ from kincal.estimation.gauge import priority
 from kincal.estimation.iterate import scale_test_needed
 from kincal.estimation.result import FinalReport
 from kincal.kinematics.twists import conform_twists
-from kincal.params import ArmValues
+from kincal.params import ArmValues, displacement, retract
 from test_structure_cache import NOISE, ur10_sets  # noqa: F401  (the UR10 data sets, a fixture)
 
 
@@ -197,3 +197,24 @@ def test_degenerate_needs_no_svd_when_the_frames_cannot_reach_the_rank(ur10_sets
     tol = 1e-9 * s_all[0]
     want = int(np.sum(s_frames > tol)) >= int(np.sum(s_all > tol))
     assert degenerate(lin.Rf, ana.rank, 1e-9, problem.layout, lin.free) is want is False
+
+
+def test_pose_blocks_batched_equal_their_kinds_block_by_block(ur10_sets):
+    """``retract`` and ``displacement`` take the pose blocks' exponentials and logarithms in one batch: what each
+    block's kind gives on its own, to round-off."""
+    nominal, ds, _ = ur10_sets
+    problem = Problem.build(nominal, [ds], "kinematic", noise=NOISE)
+    layout, start = problem.layout, problem.start
+    delta = problem.full_delta(np.random.default_rng(9).normal(0, 1e-2, len(problem.free_idx)))
+    moved = retract(start, layout, delta)
+    poses = [b for b in layout.blocks if b.kind.pose_of(b.value(start)) is not None and delta[b.slice].any()]
+    assert len(poses) >= 2  # the arm's home and the tracker at least
+    for b in poses:
+        want = b.kind.pose_of(b.kind.retract(b.value(start), delta[b.slice]))
+        assert np.allclose(b.kind.pose_of(b.value(moved)), want, rtol=1e-13, atol=1e-15)
+    disp, D = displacement(moved, start, layout)
+    for b in layout.blocks:
+        x, Db = b.kind.displacement(b.value(moved), b.value(start))
+        assert np.allclose(disp[b.slice], x, rtol=1e-10, atol=1e-15)
+        assert np.allclose(D[b.slice, b.slice], Db, rtol=1e-10, atol=1e-15)
+    assert np.array_equal(displacement(moved, start, layout, jacobian=False)[0], disp)

@@ -58,6 +58,10 @@ class ParamKind:
         ``ops.displacement``); None for the other kinds."""
         return None
 
+    def with_pose(self, value, T: np.ndarray):
+        """``value`` with its pose (``pose_of``) replaced by ``T`` (pose kinds only)."""
+        raise ModelError(f"parameter kind '{self.name}' is no pose")
+
     def scale(self, value) -> np.ndarray:
         """Local direction scaling every length of the value (zeros: nothing to scale)."""
         raise NotImplementedError
@@ -185,6 +189,9 @@ class _ArmPose(ParamKind):
     def pose_of(self, a):
         return getattr(a, self.field)
 
+    def with_pose(self, a, T):
+        return replace(a, **{self.field: T})
+
     def offset(self, a, a0):
         return _pose_offset(getattr(a, self.field), getattr(a0, self.field))
 
@@ -264,6 +271,9 @@ class _Pose(ParamKind):
 
     def pose_of(self, T):
         return T
+
+    def with_pose(self, T, T_new):
+        return T_new
 
     def offset(self, T, T0):
         return _pose_offset(T, T0)

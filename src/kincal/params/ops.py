@@ -13,14 +13,24 @@ from kincal.params.values import State
 def retract(state: State, layout: Layout, delta: np.ndarray) -> State:
     """Values at local coordinates ``delta`` (p,) around ``state`` (tangent bases kept: see ``recentre``)."""
     arms, extras = dict(state.arms), dict(state.extras)
+    poses = []  # the pose blocks that move: their exponentials in one batch (``exp(d) T``, as ``kind.retract``)
     for b in layout.blocks:
         d = delta[b.slice]
         if not d.any():
             continue
-        if b.arm is not None:
+        if b.kind.pose_of(b.value(state)) is not None:
+            poses.append(b)
+        elif b.arm is not None:
             arms[b.arm] = b.kind.retract(arms[b.arm], d)
         else:
             extras[b.name] = b.kind.retract(extras[b.name], d)
+    if poses:
+        E = se3.exp(np.stack([delta[b.slice] for b in poses]))
+        for b, Ek in zip(poses, E):
+            if b.arm is not None:
+                arms[b.arm] = b.kind.with_pose(arms[b.arm], Ek @ b.kind.pose_of(arms[b.arm]))
+            else:
+                extras[b.name] = b.kind.with_pose(extras[b.name], Ek @ extras[b.name])
     return state.replace(arms, extras)
 
 
