@@ -22,7 +22,7 @@ from kincal.estimation.gauge import priority
 from kincal.estimation.iterate import scale_test_needed
 from kincal.estimation.result import FinalReport
 from kincal.kinematics.twists import conform_twists
-from kincal.params import ArmValues, displacement, retract
+from kincal.params import ArmValues, displacement, recentre, retract
 from test_structure_cache import NOISE, ur10_sets  # noqa: F401  (the UR10 data sets, a fixture)
 
 
@@ -218,3 +218,22 @@ def test_pose_blocks_batched_equal_their_kinds_block_by_block(ur10_sets):
         assert np.allclose(disp[b.slice], x, rtol=1e-10, atol=1e-15)
         assert np.allclose(D[b.slice, b.slice], Db, rtol=1e-10, atol=1e-15)
     assert np.array_equal(displacement(moved, start, layout, jacobian=False)[0], disp)
+
+
+def test_a_trial_point_retracts_its_screws_only(ur10_sets):
+    """``retract(..., tangents=False)`` (a Gauss-Newton trial, a Levenberg-Marquardt residual): the same values,
+    bit for bit, without the tangent bases, which ``recentre`` gives back as from the full retraction."""
+    nominal, ds, _ = ur10_sets
+    problem = Problem.build(nominal, [ds], "kinematic", noise=NOISE)
+    delta = problem.full_delta(np.random.default_rng(10).normal(0, 1e-2, len(problem.free_idx)))
+    full = retract(problem.start, problem.layout, delta)
+    trial = retract(problem.start, problem.layout, delta, tangents=False)
+    a, b = full.arms["arm"], trial.arms["arm"]
+    assert b.bases is None and b.generators is None  # read by nothing but a Jacobian: would fail loudly
+    for name in ("screws", "offsets", "base", "home", "tool"):
+        assert np.array_equal(getattr(a, name), getattr(b, name))
+    ra, rb = recentre(full).arms["arm"], recentre(trial).arms["arm"]
+    assert all(np.array_equal(x, y) for x, y in zip(ra.bases + ra.generators, rb.bases + rb.generators))
+    W = problem.whiteners(problem.start)
+    z = delta[problem.free_idx]
+    assert np.array_equal(problem.evaluate(problem.start, z, W, jac=False)[0], problem.evaluate(problem.start, z, W)[0])

@@ -7,11 +7,13 @@ import numpy as np
 from kincal.lie import se3
 from kincal.params.kinds import ARM_KINDS, POSE_COORDS, TWISTS
 from kincal.params.layout import Layout
-from kincal.params.values import State
+from kincal.params.values import State, retract_twists
 
 
-def retract(state: State, layout: Layout, delta: np.ndarray) -> State:
-    """Values at local coordinates ``delta`` (p,) around ``state`` (tangent bases kept: see ``recentre``)."""
+def retract(state: State, layout: Layout, delta: np.ndarray, tangents: bool = True) -> State:
+    """Values at local coordinates ``delta`` (p,) around ``state`` (tangent bases kept: see ``recentre``).
+    ``tangents=False``: for residuals without Jacobian only (``values.retract_twists``; ``recentre`` restores
+    the tangent bases)."""
     arms, extras = dict(state.arms), dict(state.extras)
     poses = []  # the pose blocks that move: their exponentials in one batch (``exp(d) T``, as ``kind.retract``)
     for b in layout.blocks:
@@ -20,6 +22,8 @@ def retract(state: State, layout: Layout, delta: np.ndarray) -> State:
             continue
         if b.kind.pose_of(b.value(state)) is not None:
             poses.append(b)
+        elif b.kind is TWISTS and not tangents:
+            arms[b.arm] = retract_twists(arms[b.arm], d, tangents=False)
         elif b.arm is not None:
             arms[b.arm] = b.kind.retract(arms[b.arm], d)
         else:

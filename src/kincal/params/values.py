@@ -139,9 +139,10 @@ _FROM_MODEL: dict[int, tuple[weakref.ref, ArmValues]] = {}
 _FROM_MODEL_ENTRIES = 64
 
 
-def retract_twists(a: ArmValues, d: np.ndarray) -> ArmValues:
+def retract_twists(a: ArmValues, d: np.ndarray, tangents: bool = True) -> ArmValues:
     """Exact retraction of the joint screws: xi_j = Ad(exp(G_j d_j)) xi_j, which stays a valid joint screw,
-    with the basis at d: d xi_j = -ad(xi_j) J_l(G_j d_j) G_j dd_j."""
+    with the basis at d: d xi_j = -ad(xi_j) J_l(G_j d_j) G_j dd_j. ``tangents=False``: the screws only, for a
+    residual without Jacobian (a trial point, re-centred if kept): ``bases`` and ``generators`` are None."""
     widths = {G.shape[1] for G in a.generators}
     if len(widths) == 1:  # joints of one kind (all revolute, say): one batched product each
         G = np.stack(a.generators)
@@ -151,6 +152,9 @@ def retract_twists(a: ArmValues, d: np.ndarray) -> ArmValues:
         g = np.stack([G @ d[i:k] for G, i, k in zip(a.generators, cuts[:-1], cuts[1:])])  # all joints at once
     Ad = se3.adjoint(se3.exp(g))
     screws = np.einsum("jab,jb->ja", Ad, a.screws)
+    axes = None if a.lateral_axes is None else np.einsum("jab,jkb->jka", Ad, a.lateral_axes)
+    if not tangents:
+        return replace(a, screws=screws, bases=None, generators=None, lateral_axes=axes)
     Jl, ad = se3.left_jacobian(g), se3.ad(screws)
     if len(widths) == 1:
         gens = Jl @ G  # retracting again from here keeps basis == -ad(xi) G
@@ -158,7 +162,6 @@ def retract_twists(a: ArmValues, d: np.ndarray) -> ArmValues:
     else:
         gens = tuple(Jl[j] @ G for j, G in enumerate(a.generators))
         bs = tuple(-ad[j] @ G for j, G in enumerate(gens))
-    axes = None if a.lateral_axes is None else np.einsum("jab,jkb->jka", Ad, a.lateral_axes)
     return replace(a, screws=screws, bases=bs, generators=gens, lateral_axes=axes)
 
 
