@@ -256,7 +256,15 @@ def _check_compliance(arm: ArmModel, where: str) -> None:
 
 
 def _check_joint_screws(screws: np.ndarray, types, names, where: str) -> None:
-    """Revolute joints: a unit axis with zero pitch; prismatic: w = 0 and a unit v."""
+    """Revolute joints: a unit axis with zero pitch; prismatic: w = 0 and a unit v (every joint at once; the
+    first one that fails is named)."""
+    v, w = screws[:, :3], screws[:, 3:]
+    nw, nv, pitch = np.linalg.norm(w, axis=1), np.linalg.norm(v, axis=1), np.abs(np.einsum("ij,ij->i", w, v))
+    rev = np.array([t == REVOLUTE for t in types])
+    bad_rev = rev & ((np.abs(nw - 1) > _UNIT_TOL) | (pitch > _UNIT_TOL))
+    bad_pri = ~rev & ((nw > _UNIT_TOL) | (np.abs(nv - 1) > _UNIT_TOL))
+    if not (bad_rev.any() or bad_pri.any()):
+        return
     for i, t in enumerate(types):
         v, w = screws[i, :3], screws[i, 3:]
         if t == REVOLUTE and (abs(np.linalg.norm(w) - 1) > _UNIT_TOL or abs(w @ v) > _UNIT_TOL):
