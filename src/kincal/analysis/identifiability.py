@@ -293,8 +293,7 @@ def analyse(
     has_scale = scale is not None and np.linalg.norm(scale) > 0
     Ns, rank, lifted, held_scale = _hold(sv, ([scale] if has_scale else []) + list(held), has_scale, gauges)
     identifiable = np.linalg.norm(Ns, axis=1) < IDENTIFIABLE_TOL
-    N = _orth(Ns / sv.c[:, None])
-    R = _complement(N, p)
+    N, R = _null_and_range(Ns / sv.c[:, None])
     weak_idx = _weak_indices(sv, rank, rtol, weak_rtol, lifted)
     weak = tuple(_top_names(sv.Vt[i], names) for i in weak_idx)
     weak_vectors = sv.Vt[weak_idx].T / sv.c[:, None]
@@ -471,27 +470,33 @@ def select_columns(J: np.ndarray, order: Sequence[int], rank: int, tol: float = 
 
 def _rref(M: np.ndarray, order: Sequence[int]) -> list[np.ndarray]:
     """Rows spanning the same space as M's rows, reduced with pivots taken in ``order``."""
-    M = np.array(M, dtype=float)
-    k = M.shape[0]
+    M = np.asarray(M, dtype=float)
+    k, p = M.shape
     order = np.asarray(order, dtype=int)
+    rest = np.setdiff1d(np.arange(p), order)  # columns outside ``order``: reduced too, never pivots
+    perm = np.concatenate([order, rest])
+    A = M[:, perm]  # columns in pivot order (a copy): ``order[pos:]`` is the slice ``pos:`` (same arithmetic)
+    n = len(order)
     rows_done, pos = 0, 0
-    while rows_done < k and pos < len(order):
-        # the next column in order with a usable pivot (the columns passed over stay unusable: M is unchanged)
-        usable = np.flatnonzero(np.abs(M[rows_done:][:, order[pos:]]).max(axis=0) >= 1e-8)
+    while rows_done < k and pos < n:
+        # the next column in order with a usable pivot (the columns passed over stay unusable: A is unchanged)
+        usable = np.flatnonzero(np.abs(A[rows_done:, pos:n]).max(axis=0) >= 1e-8)
         if not len(usable):
             break
-        j = int(order[pos + usable[0]])
-        pos += int(usable[0]) + 1
-        i = rows_done + int(np.argmax(np.abs(M[rows_done:, j])))
+        j = pos + int(usable[0])
+        pos = j + 1
+        i = rows_done + int(np.argmax(np.abs(A[rows_done:, j])))
         if i != rows_done:
-            M[[rows_done, i]] = M[[i, rows_done]]
-        M[rows_done] /= M[rows_done, j]
-        pivot = M[rows_done].copy()  # eliminate column j from every row, then put the pivot row back
-        M -= np.outer(M[:, j], pivot)
-        M[rows_done] = pivot
+            A[[rows_done, i]] = A[[i, rows_done]]
+        A[rows_done] /= A[rows_done, j]
+        pivot = A[rows_done].copy()  # eliminate column j from every row, then put the pivot row back
+        A -= np.outer(A[:, j], pivot)
+        A[rows_done] = pivot
         rows_done += 1
-    M[np.abs(M) < 1e-12] = 0.0
-    return [M[i] for i in range(rows_done)]
+    A[np.abs(A) < 1e-12] = 0.0
+    out = np.empty((rows_done, p))
+    out[:, perm] = A[:rows_done]
+    return list(out)
 
 
 def _orth(A: np.ndarray, drop: int = 0) -> np.ndarray:
@@ -502,11 +507,13 @@ def _orth(A: np.ndarray, drop: int = 0) -> np.ndarray:
     return U[:, :k]
 
 
-def _complement(N: np.ndarray, p: int) -> np.ndarray:
-    if N.shape[1] == 0:
-        return np.eye(p)
-    Q, _ = np.linalg.qr(np.column_stack([N, np.eye(p)]))
-    return Q[:, N.shape[1]: p]
+def _null_and_range(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Orthonormal bases of span(A) (p, k independent columns) and of its complement (p, p - k), from one SVD."""
+    p, k = A.shape
+    if k == 0:
+        return A, np.eye(p)
+    U = svd(A, full_matrices=True)[0]
+    return U[:, :k], U[:, k:]
 
 
 def _top_names(v: np.ndarray, names, count: int = 4) -> str:

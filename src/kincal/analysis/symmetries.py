@@ -6,6 +6,7 @@ e.g. turning a last joint together with a clamp's fixture). Each is confirmed st
 from __future__ import annotations
 
 import hashlib
+import weakref
 from collections import OrderedDict
 from dataclasses import replace
 from typing import Sequence
@@ -204,14 +205,29 @@ def structure_key(lin: Linearization, layout: Layout, experiments: Sequence, rto
     m = 0
     for e, W, r in zip(experiments, lin.W, lin.residuals):
         m += r.size
+        h.update(experiment_digest(e))
+        h.update(repr(np.shape(W)).encode())  # W is invertible: it moves no exact null direction
+    h.update(np.ascontiguousarray(lin.J[m:]).tobytes())
+    return h.digest()
+
+
+# Each experiment's part of ``structure_key``, computed once per experiment object (a solve asks at every
+# linearization; experiments and their data sets are immutable). Weak keys: forgotten with the experiment.
+_DIGESTS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def experiment_digest(e) -> bytes:
+    """A digest of experiment ``e``'s kind, arms, frames, joint readings and known frames (remembered)."""
+    digest = _DIGESTS.get(e)
+    if digest is None:
+        h = hashlib.blake2b(digest_size=20)
         h.update(repr((type(e).__name__, e.kind, e.arms, sorted(dict(e.frames).items()))).encode())
         for a in sorted(e.dataset.q):  # the data set's arms and those carrying them
             h.update(np.ascontiguousarray(e.dataset.q[a], dtype=float).tobytes())
         for name, value in sorted(e.dataset.known.items()):  # known frames enter the Jacobian
             h.update(name.encode() + np.ascontiguousarray(value, dtype=float).tobytes())
-        h.update(repr(np.shape(W)).encode())  # W is invertible: it moves no exact null direction
-    h.update(np.ascontiguousarray(lin.J[m:]).tobytes())
-    return h.digest()
+        digest = _DIGESTS[e] = h.digest()
+    return digest
 
 
 def _consistent_nulls(lin: Linearization, layout: Layout, experiments: Sequence, rtol: float,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from kincal.analysis import Identifiability, Linearization, correlated_pairs, covariance, identify
-from kincal.analysis.identifiability import coupling_gauges, named
+from kincal.analysis.identifiability import coupling_gauges
 from kincal.estimation import steps
 from kincal.estimation.blocks import weighted_factor
 from kincal.estimation.gauge import gauge_basis
@@ -13,7 +13,7 @@ from kincal.estimation.iterate import Iteration, scale_test_needed
 from kincal.estimation.options import SolverOptions
 from kincal.estimation.plausibility import negative_compliance_notes, negative_compliances
 from kincal.estimation.problem import SENSITIVITY_SAMPLES, Problem
-from kincal.estimation.result import Estimate, Result, TwistEstimate, low_redundancy
+from kincal.estimation.result import Estimate, FinalReport, Result, TwistEstimate, low_redundancy
 from kincal.estimation.sandwich import Sandwich
 from kincal.experiments.markers import MarkersExperiment
 from kincal.experiments.pose import PoseExperiment
@@ -50,21 +50,14 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
     if lin is None:  # the loop stopped after a step: linearize the final state
         lin = steps.linearize(problem, run.state, None if problem.joint_noise else run.whiteners,
                               scale_test_needed(problem))
-    structural = coupling_gauges(run.state, run.first)
-    if run.first is not None and run.analysis is run.first.analysis:  # the loop stopped at its start
-        ana = run.first.report
-    elif run.analysis is not None and run.linearization is not None:  # the loop analysed this linearization
-        ana = named(run.analysis, lin, problem.layout, problem.experiments, list(run.order), structural)
-    else:
-        ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=list(run.order),
-                       structural=structural, hold=run.held)
+    ana, named_now = _final_analysis(problem, options, run, lin)
     weights, slopes = robust_weights(lin.r, options.loss, options.f_scale)
     dof = len(lin.r) - ana.rank
     sigma2, sw = noise_variance_factor(problem, lin, ana, weights, slopes)
     status, messages = _status(problem, run, options, sigma2)
     scale = covariance_scale(sigma2, dof, ana.rank)
     cov, std, ok = _uncertainty(lin, ana, options, run.order, scale, status, weights, sw)
-    messages += list(ana.messages)
+    messages.append(_REPORT)  # where the final report's messages go (``FinalReport``: named when read)
     if low_redundancy(dof, ana.rank):
         messages.append(low_redundancy_note(len(lin.r), ana.rank, sigma2))
     if dof <= 0:
@@ -81,17 +74,37 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
     estimates = tuple(_estimates(problem, run.state, std, ok, cov))
     negative = negative_compliances(problem.layout, estimates)
     messages[:0] = negative_compliance_notes(negative)
+    k = messages.index(_REPORT)
+    report = FinalReport(ana, lin, problem.layout, tuple(problem.experiments), tuple(run.order),
+                         coupling_gauges(run.state, run.first), tuple(messages[:k]), tuple(messages[k + 1:]))
+    if named_now is not None:
+        report.__dict__["report"] = named_now  # named already (the loop stopped at its start)
     return Result(
         robot=run.state.to_robot(problem.robot), nominal_robot=problem.robot, state=run.state,
         layout=problem.layout, estimates=estimates, covariance=cov,
         correlated=tuple(correlated_pairs(cov, names, options.correlation_threshold, ok)),
-        identifiability=ana, start_identifiability=run.first, before=run.before,
+        identifiability=report, start_identifiability=run.first, before=run.before,
         after=tuple(problem.statistics(run.state, lin.W)), sigma2=sigma2, status=status,
-        iterations=run.iterations, evaluations=run.evaluations, messages=tuple(messages),
+        iterations=run.iterations, evaluations=run.evaluations, messages=report,
         extras=dict(run.state.extras), problem=problem, linearization=lin,
         twists=_twists(problem, run.state, cov), weights=None if options.loss == "linear" else weights,
         covariance_scale=scale, negative_compliances=negative, held=run.held,
     )
+
+
+_REPORT = object()  # the final report's place among the messages
+
+
+def _final_analysis(problem: Problem, options: SolverOptions, run: Iteration, lin: Linearization):
+    """The identifiability at the final linearization ``lin`` (not named), and its named report where that is
+    at hand already (the loop stopped at its start: the start's report), else None."""
+    if run.first is not None and run.analysis is run.first.analysis:  # the loop stopped at its start
+        report = run.first.report
+        return report, report
+    if run.analysis is not None and run.linearization is not None:  # the loop analysed this linearization
+        return run.analysis, None
+    return identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=list(run.order),
+                    report=False, hold=run.held), None
 
 
 def covariance_scale(sigma2: float, dof: int, rank: int) -> float:

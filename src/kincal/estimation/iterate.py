@@ -103,7 +103,8 @@ def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.nd
     never the last step: the loop relinearizes and goes on (or ends "not converged")."""
     accepted, evaluations, moved, finished = False, 0, None, True
     if options.loss == "linear" and fast:
-        moved = retract(lin.state, problem.layout, problem.full_delta(V @ z))  # retracted once: kept if accepted
+        # retracted once, kept if accepted (the screws only: the tangent bases are re-centred below)
+        moved = retract(lin.state, problem.layout, problem.full_delta(V @ z), tangents=False)
         r_new = problem.evaluate(moved, np.zeros(V.shape[0]), lin.W, jac=False)[0]
         evaluations += 1
         cost2_new = float(r_new @ r_new)

@@ -253,7 +253,7 @@ class Problem:
     def evaluate(self, state0: State, delta_free: np.ndarray, whiteners, jac: bool = True):
         """Whitened stacked residual (m,) at ``retract(state0, delta)`` and, if asked, its Jacobian (m, p_free)."""
         delta = self.full_delta(delta_free)
-        state = retract(state0, self.layout, delta)
+        state = retract(state0, self.layout, delta, tangents=jac)
         if not jac:
             return self._stack(state, self._residuals(state, False), whiteners, None, {})[0], None
         Rl = {k: v for k, v in pose_retraction_jacobians(self.layout, delta).items() if k in self.want}
@@ -272,7 +272,7 @@ class Problem:
             J = scatter_columns(res.jac, self.layout, cols, (N, k), Rl)
             Js.append((W @ J).reshape(N * k, -1))
         if len(self.prior_idx):
-            disp, D = displacement(state, self.nominal, self.layout)
+            disp, D = displacement(state, self.nominal, self.layout, jacobian=cols is not None)
             sig = self.layout.prior_sigma[self.prior_idx]
             rs.append((disp[self.prior_idx] - self.layout.prior_mean[self.prior_idx]) / sig)
             if cols is not None:

@@ -11,7 +11,7 @@ import numpy as np
 from kincal.analysis import Identifiability, Linearization, covariance, identify
 from kincal.analysis.derived import Derived, derived
 from kincal.analysis.gauge import GaugeView, min_change, representative, weights
-from kincal.analysis.identifiability import DeferredReport
+from kincal.analysis.identifiability import DeferredReport, named
 from kincal.analysis.prediction import Prediction, predicted_accuracy
 from kincal.estimation.crossval import CrossValidation
 from kincal.estimation import steps
@@ -79,6 +79,55 @@ class StageRecord:
 
 
 @dataclass(frozen=True, eq=False)
+class FinalReport:
+    """The final identifiability report and the messages that carry its words, named when first read: a solve's
+    steps and estimates need only the analysis (``analysis``: ``identify(report=False)`` of ``lin``); the words
+    (row reduction, forward kinematics for the joint axes, each direction described) are for reports. ``head``
+    and ``tail``: the solve's messages before and after the report's own."""
+
+    analysis: Identifiability
+    lin: Linearization
+    layout: Layout
+    experiments: tuple
+    order: tuple[int, ...]
+    structural: np.ndarray | None
+    head: tuple[str, ...]
+    tail: tuple[str, ...]
+
+    @cached_property
+    def report(self) -> Identifiability:
+        """``named``'s report of ``analysis``, computed once."""
+        return named(self.analysis, self.lin, self.layout, self.experiments, list(self.order), self.structural)
+
+    @property
+    def messages(self) -> tuple[str, ...]:
+        return self.head + tuple(self.report.messages) + self.tail
+
+
+class _Named:
+    """A ``Result`` field that may hold a ``FinalReport``: resolved (``report`` or ``messages``) on first read and
+    kept. Stored in the instance's ``__dict__`` under the field's name (a data descriptor wins over it), so a
+    Result pickles and copies with the report still unnamed."""
+
+    def __init__(self, part: str):
+        self.part = part
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:  # no class-level default: the dataclass field stays required
+            raise AttributeError(self.name)
+        value = obj.__dict__[self.name]
+        if isinstance(value, FinalReport):
+            value = obj.__dict__[self.name] = getattr(value, self.part)
+        return value
+
+    def __set__(self, obj, value) -> None:
+        obj.__dict__[self.name] = value
+
+
+@dataclass(frozen=True, eq=False)
 class Result:
     """What ``solve`` returns. Reports, never raises, on non-convergence or rank deficiency (see ``status`` and
     ``messages``). ``problem`` and ``linearization`` (at the final state) are what it was computed from:
@@ -91,7 +140,7 @@ class Result:
     estimates: tuple[Estimate, ...]
     covariance: np.ndarray  # (p_free, p_free) in local coordinates, gauge-fixed
     correlated: tuple[tuple[str, str, float], ...]
-    identifiability: Identifiability  # after solving
+    identifiability: Identifiability = _Named("report")  # after solving (named on first read: ``FinalReport``)
     start_identifiability: DeferredReport | None  # at the start; read as ``identifiability_before``
     before: tuple[ResidualStats, ...]  # per experiment at the start (the nominal values)
     after: tuple[ResidualStats, ...]
@@ -99,7 +148,7 @@ class Result:
     status: str  # converged | misfit | not converged | degenerate (docs/calibration.md "Statuses and exit codes")
     iterations: int  # outer iterations: linearizations, the one that confirmed convergence included
     evaluations: int  # residual evaluations spent on steps (Gauss-Newton trials, least_squares)
-    messages: tuple[str, ...]
+    messages: tuple[str, ...] = _Named("messages")  # with the final report's words (``FinalReport``)
     extras: Mapping[str, object] = field(default_factory=dict)  # final experiment frames
     problem: Problem | None = None
     linearization: Linearization | None = None  # at ``state``

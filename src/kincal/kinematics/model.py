@@ -125,25 +125,11 @@ class ArmModel:
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731  (frozen dataclass)
         set_("screws", _frozen(screws))
         for key in ("home", "base", "tool"):
-            set_(key, _frozen(check_transform(getattr(self, key), f"{where}: {key}", tol=1e-6)))
-
-        def vec(key, default):
-            val = getattr(self, key)
-            arr = np.full(n, default, dtype=float) if val is None else np.asarray(val, dtype=float)
-            if arr.shape != (n,):
-                raise ModelError(f"{where}: {key} must have {n} entries (one per joint), got shape {arr.shape}")
-            if key != "lower" and key != "upper" and not np.all(np.isfinite(arr)):
-                raise ModelError(f"{where}: {key} must be finite, got {arr.tolist()}")
-            set_(key, _frozen(arr))
-
-        vec("offsets", 0.0)
-        vec("lower", -np.inf)
-        vec("upper", np.inf)
-        vec("gear_ratios", 1.0)
-        vec("compliance", 0.0)
-        if np.any(self.compliance < 0) and not self.allow_negative_compliance:
-            raise ModelError(f"{where}: compliance must be >= 0 (rad/(N m) or m/N), got {self.compliance.tolist()}"
-                             "; a calibration's estimates below 0 need allow_negative_compliance")
+            set_(key, _checked_transform(self, key, where))
+        for key, default in (("offsets", 0.0), ("lower", -np.inf), ("upper", np.inf), ("gear_ratios", 1.0),
+                             ("compliance", 0.0)):
+            set_(key, _joint_vector(self, key, default, n, where))
+        _check_compliance(self, where)
         if np.any(np.isnan(self.lower)) or np.any(np.isnan(self.upper)) or np.any(self.lower >= self.upper):
             raise ModelError(f"{where}: joint limits need lower < upper, got lower={self.lower.tolist()} upper={self.upper.tolist()}")
         if np.any(self.gear_ratios == 0):
@@ -160,18 +146,7 @@ class ArmModel:
         if len(types) != n or any(t not in (REVOLUTE, PRISMATIC) for t in types):
             raise ModelError(f"{where}: joint_types must be {n} of 'revolute'/'prismatic', got {types}")
         set_("joint_types", types)
-        for i, t in enumerate(types):
-            v, w = screws[i, :3], screws[i, 3:]
-            if t == REVOLUTE and (abs(np.linalg.norm(w) - 1) > _UNIT_TOL or abs(w @ v) > _UNIT_TOL):
-                raise ModelError(
-                    f"{where}: joint {names[i]} is revolute and needs a unit axis with zero pitch; "
-                    f"got |w| = {np.linalg.norm(w):.12g}, w.v = {w @ v:.3g} (use kincal.kinematics.conform_twists)"
-                )
-            if t == PRISMATIC and (np.linalg.norm(w) > _UNIT_TOL or abs(np.linalg.norm(v) - 1) > _UNIT_TOL):
-                raise ModelError(
-                    f"{where}: joint {names[i]} is prismatic and needs w = 0 and a unit v; "
-                    f"got |w| = {np.linalg.norm(w):.3g}, |v| = {np.linalg.norm(v):.12g}"
-                )
+        _check_joint_screws(screws, types, names, where)
 
         set_("allow_negative_compliance", bool(self.allow_negative_compliance))
         set_("compliance_nodes", MappingProxyType(_nodes(self, where)))
@@ -197,8 +172,31 @@ class ArmModel:
             bool(np.any(self.link_masses)) or self.payload_mass > 0)
 
     def replace(self, **changes) -> "ArmModel":
-        """A copy with some fields changed (validated again)."""
+        """A copy with some fields changed (validated again). Changes of the geometry alone (screws of the same
+        joints, offsets, base, home, tool, constant compliances: a calibrated model) validate only those
+        fields, with the same checks: the others were validated with this model."""
+        if changes.keys() <= _GEOMETRY and not self.compliance_nodes and (
+                "screws" not in changes or np.shape(changes["screws"]) == self.screws.shape):
+            return self._with_geometry(changes)
         return replace(self, **changes)
+
+    def _with_geometry(self, changes: dict) -> "ArmModel":
+        where = f"arm '{self.name}'"
+        new = object.__new__(ArmModel)
+        new.__dict__.update(self.__dict__, **changes)
+        set_ = lambda k, v: object.__setattr__(new, k, v)  # noqa: E731  (frozen dataclass)
+        if "screws" in changes:
+            screws = as_array(new.screws, f"{where}: screws", (6,))
+            set_("screws", _frozen(screws))
+            _check_joint_screws(screws, new.joint_types, new.joint_names, where)
+        for key in ("home", "base", "tool"):
+            if key in changes:
+                set_(key, _checked_transform(new, key, where))
+        for key, default in (("offsets", 0.0), ("compliance", 0.0)):
+            if key in changes:
+                set_(key, _joint_vector(new, key, default, new.dof, where))
+        _check_compliance(new, where)
+        return new
 
     def home_twist(self) -> np.ndarray:
         """The thesis' xi_st: twist coordinates with exp(xi_st) = home."""
@@ -230,6 +228,55 @@ class ArmModel:
         )
 
     __hash__ = None  # type: ignore[assignment]
+
+
+# The fields ``ArmModel.replace`` validates on their own (``_with_geometry``).
+_GEOMETRY = frozenset({"screws", "offsets", "base", "home", "tool", "compliance"})
+
+
+def _checked_transform(arm: ArmModel, key: str, where: str) -> np.ndarray:
+    return _frozen(check_transform(getattr(arm, key), f"{where}: {key}", tol=1e-6))
+
+
+def _joint_vector(arm: ArmModel, key: str, default: float, n: int, where: str) -> np.ndarray:
+    """Field ``key`` as n per-joint values (``default`` for None), finite except the limits."""
+    val = getattr(arm, key)
+    arr = np.full(n, default, dtype=float) if val is None else np.asarray(val, dtype=float)
+    if arr.shape != (n,):
+        raise ModelError(f"{where}: {key} must have {n} entries (one per joint), got shape {arr.shape}")
+    if key != "lower" and key != "upper" and not np.all(np.isfinite(arr)):
+        raise ModelError(f"{where}: {key} must be finite, got {arr.tolist()}")
+    return _frozen(arr)
+
+
+def _check_compliance(arm: ArmModel, where: str) -> None:
+    if np.any(arm.compliance < 0) and not arm.allow_negative_compliance:
+        raise ModelError(f"{where}: compliance must be >= 0 (rad/(N m) or m/N), got {arm.compliance.tolist()}"
+                         "; a calibration's estimates below 0 need allow_negative_compliance")
+
+
+def _check_joint_screws(screws: np.ndarray, types, names, where: str) -> None:
+    """Revolute joints: a unit axis with zero pitch; prismatic: w = 0 and a unit v (every joint at once; the
+    first one that fails is named)."""
+    v, w = screws[:, :3], screws[:, 3:]
+    nw, nv, pitch = np.linalg.norm(w, axis=1), np.linalg.norm(v, axis=1), np.abs(np.einsum("ij,ij->i", w, v))
+    rev = np.array([t == REVOLUTE for t in types])
+    bad_rev = rev & ((np.abs(nw - 1) > _UNIT_TOL) | (pitch > _UNIT_TOL))
+    bad_pri = ~rev & ((nw > _UNIT_TOL) | (np.abs(nv - 1) > _UNIT_TOL))
+    if not (bad_rev.any() or bad_pri.any()):
+        return
+    for i, t in enumerate(types):
+        v, w = screws[i, :3], screws[i, 3:]
+        if t == REVOLUTE and (abs(np.linalg.norm(w) - 1) > _UNIT_TOL or abs(w @ v) > _UNIT_TOL):
+            raise ModelError(
+                f"{where}: joint {names[i]} is revolute and needs a unit axis with zero pitch; "
+                f"got |w| = {np.linalg.norm(w):.12g}, w.v = {w @ v:.3g} (use kincal.kinematics.conform_twists)"
+            )
+        if t == PRISMATIC and (np.linalg.norm(w) > _UNIT_TOL or abs(np.linalg.norm(v) - 1) > _UNIT_TOL):
+            raise ModelError(
+                f"{where}: joint {names[i]} is prismatic and needs w = 0 and a unit v; "
+                f"got |w| = {np.linalg.norm(w):.3g}, |v| = {np.linalg.norm(v):.12g}"
+            )
 
 
 def _lateral_fields(arm: ArmModel, where: str) -> dict:

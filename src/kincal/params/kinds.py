@@ -53,6 +53,15 @@ class ParamKind:
         """The local displacement from ``nominal`` alone (``displacement`` without its derivative)."""
         return self.displacement(value, nominal)[0]
 
+    def pose_of(self, value) -> np.ndarray | None:
+        """The 4 x 4 pose a pose kind's displacement is taken of (``log(T T0^-1)``, batched over blocks by
+        ``ops.displacement``); None for the other kinds."""
+        return None
+
+    def with_pose(self, value, T: np.ndarray):
+        """``value`` with its pose (``pose_of``) replaced by ``T`` (pose kinds only)."""
+        raise ModelError(f"parameter kind '{self.name}' is no pose")
+
     def scale(self, value) -> np.ndarray:
         """Local direction scaling every length of the value (zeros: nothing to scale)."""
         raise NotImplementedError
@@ -157,7 +166,7 @@ class _Twists(ParamKind):
         v = np.zeros_like(a.screws)
         rev = np.array(a.joint_types) == REVOLUTE
         v[rev, :3] = a.screws[rev, :3]
-        return a.basis_pinv @ v.ravel()
+        return a.tangent_coordinates(v)
 
 
 class _ArmPose(ParamKind):
@@ -176,6 +185,12 @@ class _ArmPose(ParamKind):
 
     def displacement(self, a, a0):
         return _pose_disp(getattr(a, self.field), getattr(a0, self.field))
+
+    def pose_of(self, a):
+        return getattr(a, self.field)
+
+    def with_pose(self, a, T):
+        return replace(a, **{self.field: T})
 
     def offset(self, a, a0):
         return _pose_offset(getattr(a, self.field), getattr(a0, self.field))
@@ -253,6 +268,12 @@ class _Pose(ParamKind):
 
     def displacement(self, T, T0):
         return _pose_disp(T, T0)
+
+    def pose_of(self, T):
+        return T
+
+    def with_pose(self, T, T_new):
+        return T_new
 
     def offset(self, T, T0):
         return _pose_offset(T, T0)

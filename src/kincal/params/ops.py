@@ -4,22 +4,37 @@ from __future__ import annotations
 
 import numpy as np
 
+from kincal.lie import se3
 from kincal.params.kinds import ARM_KINDS, POSE_COORDS, TWISTS
 from kincal.params.layout import Layout
-from kincal.params.values import State
+from kincal.params.values import State, retract_twists
 
 
-def retract(state: State, layout: Layout, delta: np.ndarray) -> State:
-    """Values at local coordinates ``delta`` (p,) around ``state`` (tangent bases kept: see ``recentre``)."""
+def retract(state: State, layout: Layout, delta: np.ndarray, tangents: bool = True) -> State:
+    """Values at local coordinates ``delta`` (p,) around ``state`` (tangent bases kept: see ``recentre``).
+    ``tangents=False``: for residuals without Jacobian only (``values.retract_twists``; ``recentre`` restores
+    the tangent bases)."""
     arms, extras = dict(state.arms), dict(state.extras)
+    poses = []  # the pose blocks that move: their exponentials in one batch (``exp(d) T``, as ``kind.retract``)
     for b in layout.blocks:
         d = delta[b.slice]
         if not d.any():
             continue
-        if b.arm is not None:
+        if b.kind.pose_of(b.value(state)) is not None:
+            poses.append(b)
+        elif b.kind is TWISTS and not tangents:
+            arms[b.arm] = retract_twists(arms[b.arm], d, tangents=False)
+        elif b.arm is not None:
             arms[b.arm] = b.kind.retract(arms[b.arm], d)
         else:
             extras[b.name] = b.kind.retract(extras[b.name], d)
+    if poses:
+        E = se3.exp(np.stack([delta[b.slice] for b in poses]))
+        for b, Ek in zip(poses, E):
+            if b.arm is not None:
+                arms[b.arm] = b.kind.with_pose(arms[b.arm], Ek @ b.kind.pose_of(arms[b.arm]))
+            else:
+                extras[b.name] = b.kind.with_pose(extras[b.name], Ek @ extras[b.name])
     return state.replace(arms, extras)
 
 
@@ -56,13 +71,26 @@ def displacement(state: State, nominal: State, layout: Layout, only: np.ndarray 
     disp = np.zeros(layout.size)
     D = np.zeros((layout.size, layout.size)) if jacobian else None
     wanted = np.ones(layout.size, bool) if only is None else np.isin(np.arange(layout.size), only)
+    poses = []  # (block, pose, nominal pose) of the pose kinds: their logarithms in one batch
     for b in layout.blocks:
         if not wanted[b.slice].any():
             continue
-        if jacobian:
-            disp[b.slice], D[b.slice, b.slice] = b.kind.displacement(b.value(state), b.value(nominal))
+        value, value0 = b.value(state), b.value(nominal)
+        T = b.kind.pose_of(value)
+        if T is not None:
+            poses.append((b, T, b.kind.pose_of(value0)))
+        elif jacobian:
+            disp[b.slice], D[b.slice, b.slice] = b.kind.displacement(value, value0)
         else:
-            disp[b.slice] = b.kind.offset(b.value(state), b.value(nominal))
+            disp[b.slice] = b.kind.offset(value, value0)
+    if poses:
+        T, T0 = np.stack([t for _, t, _ in poses]), np.stack([t for _, _, t in poses])
+        x = se3.log(T @ se3.inverse(T0))
+        Jinv = se3.left_jacobian_inv(x) if jacobian else None
+        for k, (b, _, _) in enumerate(poses):
+            disp[b.slice] = x[k]
+            if jacobian:
+                D[b.slice, b.slice] = Jinv[k]
     return disp, D
 
 

@@ -92,6 +92,17 @@ class ArmValues:
                 out[cols[j]: cols[j + 1], 6 * j: 6 * j + 6] = P
         return out
 
+    def tangent_coordinates(self, v: np.ndarray) -> np.ndarray:
+        """``basis_pinv @ v.ravel()`` for twist changes ``v`` (n, 6), joint by joint (the joints of one shape in
+        one batched solve) without forming ``basis_pinv``: what a state met once (the scale test at every
+        linearization) needs."""
+        widths = {b.shape[1] for b in self.bases}
+        if len(widths) != 1:
+            return self.basis_pinv @ np.ravel(v)
+        B = np.stack(self.bases)
+        Bt = np.swapaxes(B, -1, -2)
+        return np.linalg.solve(Bt @ B, Bt @ np.reshape(v, (-1, 6, 1))).ravel()
+
     @staticmethod
     def from_model(model: ArmModel) -> "ArmValues":
         """The values of ``model`` (remembered per model object: models and values are immutable, and a Monte
@@ -128,17 +139,30 @@ _FROM_MODEL: dict[int, tuple[weakref.ref, ArmValues]] = {}
 _FROM_MODEL_ENTRIES = 64
 
 
-def retract_twists(a: ArmValues, d: np.ndarray) -> ArmValues:
+def retract_twists(a: ArmValues, d: np.ndarray, tangents: bool = True) -> ArmValues:
     """Exact retraction of the joint screws: xi_j = Ad(exp(G_j d_j)) xi_j, which stays a valid joint screw,
-    with the basis at d: d xi_j = -ad(xi_j) J_l(G_j d_j) G_j dd_j."""
-    cuts = np.cumsum([0] + [G.shape[1] for G in a.generators])
-    g = np.stack([G @ d[i:k] for G, i, k in zip(a.generators, cuts[:-1], cuts[1:])])  # all joints at once
-    screws = np.einsum("jab,jb->ja", se3.adjoint(se3.exp(g)), a.screws)
+    with the basis at d: d xi_j = -ad(xi_j) J_l(G_j d_j) G_j dd_j. ``tangents=False``: the screws only, for a
+    residual without Jacobian (a trial point, re-centred if kept): ``bases`` and ``generators`` are None."""
+    widths = {G.shape[1] for G in a.generators}
+    if len(widths) == 1:  # joints of one kind (all revolute, say): one batched product each
+        G = np.stack(a.generators)
+        g = np.einsum("jak,jk->ja", G, d.reshape(len(G), -1))
+    else:
+        cuts = np.cumsum([0] + [G.shape[1] for G in a.generators])
+        g = np.stack([G @ d[i:k] for G, i, k in zip(a.generators, cuts[:-1], cuts[1:])])  # all joints at once
+    Ad = se3.adjoint(se3.exp(g))
+    screws = np.einsum("jab,jb->ja", Ad, a.screws)
+    axes = None if a.lateral_axes is None else np.einsum("jab,jkb->jka", Ad, a.lateral_axes)
+    if not tangents:
+        return replace(a, screws=screws, bases=None, generators=None, lateral_axes=axes)
     Jl, ad = se3.left_jacobian(g), se3.ad(screws)
-    gens = [Jl[j] @ G for j, G in enumerate(a.generators)]  # retracting again from here keeps basis == -ad(xi) G
-    bs = [-ad[j] @ G for j, G in enumerate(gens)]
-    axes = None if a.lateral_axes is None else np.einsum("jab,jkb->jka", se3.adjoint(se3.exp(g)), a.lateral_axes)
-    return replace(a, screws=screws, bases=tuple(bs), generators=tuple(gens), lateral_axes=axes)
+    if len(widths) == 1:
+        gens = Jl @ G  # retracting again from here keeps basis == -ad(xi) G
+        gens, bs = tuple(gens), tuple(-ad @ gens)
+    else:
+        gens = tuple(Jl[j] @ G for j, G in enumerate(a.generators))
+        bs = tuple(-ad[j] @ G for j, G in enumerate(gens))
+    return replace(a, screws=screws, bases=bs, generators=gens, lateral_axes=axes)
 
 
 def _compliance_fields(a: ArmValues) -> dict:
