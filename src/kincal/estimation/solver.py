@@ -32,6 +32,7 @@ from kincal.estimation.problem import Problem
 from kincal.estimation.result import Result
 from kincal.estimation.stages import Stage, solve_stages, stage_problems
 from kincal.estimation.stats import ResidualStats, ValidationStats
+from kincal.experiments import remembered_kinematics
 from kincal.kinematics import Robot
 from kincal.noise import Noise, effective
 from kincal.params import Prior
@@ -135,7 +136,8 @@ def solve(problem: Problem, options: SolverOptions = SolverOptions()) -> Result:
     free or there are fewer equations than free coordinates; reports (``Result.status``) everything else."""
     _require_equations(problem)
     _require_plausible_units(problem)
-    return finalize(problem, options, iterate(problem, options))
+    with remembered_kinematics(problem.experiments, not problem.blocked):  # an accepted trial's kinematics reused
+        return finalize(problem, options, iterate(problem, options))
 
 
 def evaluate(robot: Robot, datasets: Sequence[Dataset], noise=None) -> list[ResidualStats]:

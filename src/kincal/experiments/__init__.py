@@ -20,7 +20,7 @@ import numpy as np
 
 from kincal.data import Dataset
 from kincal.errors import DataFormatError
-from kincal.experiments.base import KINDS, Experiment, Residual, hung_arms
+from kincal.experiments.base import KINDS, Experiment, Residual, hung_arms, remembered_kinematics
 from kincal.kinematics.model import lineage
 from kincal.experiments.sharing import frame_kinds, frame_names, frame_values
 from kincal.params import State
@@ -36,7 +36,7 @@ def _import_kinds() -> None:
 
 _import_kinds()
 
-__all__ = ["Experiment", "KINDS", "Residual", "build", "check_joints", "frame_kinds"]
+__all__ = ["Experiment", "KINDS", "Residual", "build", "check_joints", "frame_kinds", "remembered_kinematics"]
 
 
 def check_joints(ds: Dataset, state: State) -> None:

@@ -7,7 +7,9 @@ Known frames are extras too (fixed unless the user frees them), so one code path
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import weakref
+from contextlib import contextmanager
+from dataclasses import dataclass, fields
 from typing import ClassVar, Mapping
 
 import numpy as np
@@ -39,6 +41,59 @@ class Residual:
     r: np.ndarray
     jac: Mapping[str, np.ndarray]
     jq: Mapping[str, np.ndarray]
+
+
+# Experiment -> {arm: (geometry, Kinematics)}: the last kinematics of each arm while a solve remembers them
+# (``remembered_kinematics``); weak keys, so an experiment no longer used takes its entry with it.
+_KINEMATICS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+# The fields of ``ArmValues`` the kinematics do not read: the tangent bases and generators of the twists (a
+# trial point retracts without them, ``params.retract(tangents=False)``, its Jacobian evaluation with them).
+_TANGENT_FIELDS = frozenset({"bases", "generators"})
+
+
+@contextmanager
+def remembered_kinematics(experiments, on: bool = True):
+    """Within the block, ``experiments`` keep their last kinematics per arm and reuse them at a state of the same
+    geometry (every arm's field but the tangent bases equal bit for bit, and the same mounts): a trial point
+    accepted by the inner solver is then not evaluated twice (its residual, then its Jacobian). ``on`` False:
+    nothing kept (a problem solved by blocks keeps no state of the data's size)."""
+    mine = [e for e in experiments if on and e not in _KINEMATICS]
+    for e in mine:
+        _KINEMATICS[e] = {}
+    try:
+        yield
+    finally:
+        for e in mine:
+            _KINEMATICS.pop(e, None)
+
+
+def _geometry(state: State) -> tuple:
+    """What the kinematics of any arm of ``state`` are computed from: the mounts and every arm's values."""
+    return tuple(state.mounts.items()), tuple(state.arms.items())
+
+
+def _same_geometry(a: tuple, b: tuple) -> bool:
+    """Bit for bit the same geometry (``_geometry``): the same arms, each the same object or with every field
+    but the tangent ones equal in type, shape and bytes."""
+    if a[0] != b[0] or len(a[1]) != len(b[1]):
+        return False
+    return all(ka == kb and (va is vb or _same_values(va, vb)) for (ka, va), (kb, vb) in zip(a[1], b[1]))
+
+
+def _same_values(a, b) -> bool:
+    return all(_same(getattr(a, f.name), getattr(b, f.name)) for f in fields(a) if f.name not in _TANGENT_FIELDS)
+
+
+def _same(x, y) -> bool:
+    """Equal bit for bit (arrays, and tuples of them), or the same object."""
+    if x is y:
+        return True
+    if isinstance(x, np.ndarray) and isinstance(y, np.ndarray):
+        return x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
+    if isinstance(x, tuple) and isinstance(y, tuple):
+        return len(x) == len(y) and all(_same(u, v) for u, v in zip(x, y))
+    return isinstance(x, (str, int, float)) and type(x) is type(y) and x == y
 
 
 @dataclass(frozen=True, eq=False)
@@ -142,7 +197,21 @@ class Experiment:
         """The arm's kinematics at the data's readings (the composite chain through its ancestors when mounted,
         ``kincal.kinematics.tree``); deflected by ``wrench_tool`` when the data has loads and by the arm's own
         weight when its model has masses and gravity (``kincal.kinematics.gravity``; on a tree the weights of all
-        its arms, ``kincal.kinematics.branches``)."""
+        its arms, ``kincal.kinematics.branches``). While kinematics are remembered (``remembered_kinematics``)
+        the last ones per arm are reused at a state of the same geometry, bit for bit."""
+        memo = _KINEMATICS.get(self)
+        if memo is None:
+            return self._fresh_kin(state, arm)
+        key = _geometry(state)
+        last = memo.get(arm)
+        if last is not None and _same_geometry(last[0], key):
+            return last[1]
+        kin = self._fresh_kin(state, arm)
+        memo[arm] = (key, kin)
+        return kin
+
+    def _fresh_kin(self, state: State, arm: str) -> Kinematics:
+        """``_kin`` computed."""
         line = lineage(state.mounts, arm)
         if len(line) > 1 or hung_arms(state, line) or state.arms[arm].lateral is not None:
             return tree_kin(state, line, self.dataset.q, self.dataset.measured.get("wrench_tool"))
