@@ -3,6 +3,7 @@ a solve remembers them, an experiment reuses its last kinematics per arm at a st
 the residuals and Jacobians are bit for bit those computed afresh."""
 
 from contextlib import nullcontext
+from dataclasses import fields
 
 import numpy as np
 import pytest
@@ -11,6 +12,7 @@ from kincal.estimation import Problem, SolverOptions, solver
 from kincal.experiments import base, remembered_kinematics
 from kincal.kinematics import Robot
 from kincal.noise import Noise as Stated
+from kincal.params import conform, recentre, retract
 from kincal.robots import load
 from kincal.simulate.generators import generate_markers
 from kincal.simulate.noise import Noise
@@ -134,3 +136,29 @@ def test_a_problem_solved_by_blocks_remembers_nothing(monkeypatch):
         spent = count.fresh
         problem.evaluate(problem.start, delta, W, jac=True)
         assert count.fresh == 2 * spent > 0
+
+
+@pytest.mark.parametrize("case", ["markers", "tree lateral"])
+def test_a_conformed_trial_recentres_to_the_same_point_bit_for_bit(case):
+    """``recentre(conform(x), conformed=True)`` is ``recentre(x)`` field by field, bit for bit, and keeps the
+    trial's screws (the same arrays): an accepted Gauss-Newton trial's kinematics serve the next linearization."""
+    problem = _markers_problem() if case == "markers" else _tree_problem(True)
+    trial = retract(problem.start, problem.layout, problem.full_delta(_delta(problem)), tangents=False)
+    conformed = conform(trial)
+    old, new = recentre(trial), recentre(conformed, conformed=True)
+    for name, a in old.arms.items():
+        for f in fields(a):  # the tangent bases and generators included
+            assert base._same(getattr(a, f.name), getattr(new.arms[name], f.name)), f.name
+        assert new.arms[name].screws is conformed.arms[name].screws
+    assert base._same_geometry(base._geometry(conformed), base._geometry(new))
+
+
+def test_the_linearization_after_an_accepted_gauss_newton_step_reuses_its_trial(monkeypatch):
+    problem = _markers_problem()
+    count = _Count(monkeypatch)
+    solver.solve(problem)
+    with_memo = count.fresh
+    count.fresh = 0
+    monkeypatch.setattr(solver, "remembered_kinematics", lambda *a, **k: nullcontext())
+    solver.solve(_markers_problem())
+    assert count.fresh - with_memo >= 2  # two accepted Gauss-Newton trials (three outer iterations)

@@ -19,7 +19,7 @@ from kincal.estimation.gauge import gauge_basis, priority, rigid_gauges
 from kincal.estimation.options import SolverOptions
 from kincal.estimation.problem import Problem
 from kincal.estimation.stats import ResidualStats
-from kincal.params import State, recentre, retract
+from kincal.params import State, conform, recentre, retract
 
 log = logging.getLogger(__name__)
 
@@ -103,8 +103,10 @@ def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.nd
     never the last step: the loop relinearizes and goes on (or ends "not converged")."""
     accepted, evaluations, moved, finished = False, 0, None, True
     if options.loss == "linear" and fast:
-        # retracted once, kept if accepted (the screws only: the tangent bases are re-centred below)
-        moved = retract(lin.state, problem.layout, problem.full_delta(V @ z), tangents=False)
+        # retracted once, kept if accepted (the screws only: the tangent bases are re-centred below), its twists
+        # conformed as ``recentre`` conforms them, so the next linearization has its screws and reuses its
+        # kinematics (``experiments.remembered_kinematics``)
+        moved = conform(retract(lin.state, problem.layout, problem.full_delta(V @ z), tangents=False))
         r_new = problem.evaluate(moved, np.zeros(V.shape[0]), lin.W, jac=False)[0]
         evaluations += 1
         cost2_new = float(r_new @ r_new)
@@ -120,7 +122,8 @@ def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.nd
         evaluations += nfev
     delta = V @ x
     step = float(np.linalg.norm(lin.Rf @ delta))
-    state = recentre(moved if accepted else retract(lin.state, problem.layout, problem.full_delta(delta)))
+    state = recentre(moved, conformed=True) if accepted else \
+        recentre(retract(lin.state, problem.layout, problem.full_delta(delta)))
     if options.progress:
         options.progress(it, 2 * cost)
     log.debug("outer %d (%s): cost %.6g, whitened step %.3g, max |delta| %.3g", it,

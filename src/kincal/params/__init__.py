@@ -43,6 +43,7 @@ from kincal.params.kinds import (
 )
 from kincal.params.layout import LEVELS, Block, Layout, Prior, build_layout, clear_caches, level_patterns
 from kincal.params.ops import (
+    conform,
     displacement,
     pose_retraction_jacobians,
     recentre,
@@ -55,6 +56,6 @@ from kincal.params.values import ArmValues, Plane, State
 __all__ = [
     "ARM_KINDS", "ArmValues", "BASE", "Block", "COMPLIANCE", "COMPLIANCE_UNITS", "FRAME_KINDS", "HOME", "LATERAL", "LEVELS",
     "Layout", "OFFSETS", "PLANE", "POINT", "POINTS", "POSE", "POSE_COORDS", "ParamKind", "Plane", "Prior", "State",
-    "TOOL", "TWISTS", "build_layout", "clear_caches", "displacement", "level_patterns", "pose_retraction_jacobians",
-    "recentre", "retract", "scale_direction", "twist_coordinates",
+    "TOOL", "TWISTS", "build_layout", "clear_caches", "conform", "displacement", "level_patterns",
+    "pose_retraction_jacobians", "recentre", "retract", "scale_direction", "twist_coordinates",
 ]

@@ -152,9 +152,16 @@ class _Twists(ParamKind):
         return retract_twists(a, d)
 
     def recentre(self, a):
-        screws = conform_twists(a.screws, a.joint_types)  # removes round-off only: the retraction is exact
-        B, G = tangent_frames(screws, a.joint_types)
-        return replace(a, screws=screws, bases=B, generators=G)
+        return self.with_tangents(self.conform(a))
+
+    def conform(self, a):
+        """The screws conformed (``conform_twists``: removes round-off only, the retraction is exact)."""
+        return replace(a, screws=conform_twists(a.screws, a.joint_types))
+
+    def with_tangents(self, a):
+        """The tangent bases and generators at the screws as they are."""
+        B, G = tangent_frames(a.screws, a.joint_types)
+        return replace(a, bases=B, generators=G)
 
     def displacement(self, a, a0):
         return self.offset(a, a0), a0.basis_pinv @ a.basis

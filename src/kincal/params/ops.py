@@ -38,16 +38,23 @@ def retract(state: State, layout: Layout, delta: np.ndarray, tangents: bool = Tr
     return state.replace(arms, extras)
 
 
-def recentre(state: State) -> State:
+def recentre(state: State, conformed: bool = False) -> State:
     """The next linearization point: every kind re-centres its values (twists conformed, planes normalized,
-    tangent bases recomputed)."""
+    tangent bases recomputed). ``conformed``: the twists were conformed already (``conform``): their screws are
+    kept as they are, the same arrays."""
     arms = {}
     for name, a in state.arms.items():
         for kind in ARM_KINDS:
-            a = kind.recentre(a)
+            a = TWISTS.with_tangents(a) if conformed and kind is TWISTS else kind.recentre(a)
         arms[name] = a
     extras = {k: state.kinds[k].recentre(v) for k, v in state.extras.items()}
     return state.replace(arms, extras)
+
+
+def conform(state: State) -> State:
+    """``state`` with every arm's twists conformed as ``recentre`` conforms them (screws only, no tangent bases):
+    a trial point that ``recentre(..., conformed=True)`` makes the next linearization point with the same screws."""
+    return state.replace({name: TWISTS.conform(a) for name, a in state.arms.items()})
 
 
 def pose_retraction_jacobians(layout: Layout, delta: np.ndarray) -> dict[str, np.ndarray]:
