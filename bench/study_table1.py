@@ -15,6 +15,7 @@ The target (issue #13): under 10 s on a 2-core machine for 1000 repeats and two 
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import time
 from dataclasses import replace
@@ -22,6 +23,7 @@ from dataclasses import replace
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+import psutil  # noqa: E402  (Dask's dependency)
 
 from kincal import params  # noqa: E402
 from kincal.analysis import symmetries  # noqa: E402
@@ -61,6 +63,30 @@ def cpu_per_repeat(study: S.Study, n: int) -> None:
           f"{spent * 1000:.1f} s for Table I's 1000 repeats; load average {os.getloadavg()[0]:.1f}")
 
 
+class ProcessCPU:
+    """CPU time (user + system) this process and its child processes spent inside the block, read at its end:
+    a child's own and that of the processes it reaped (the fork server reaps the Dask workers it forked). On a
+    shared machine the wall time measures the other jobs too; this does not."""
+
+    def __enter__(self):
+        self.me = psutil.Process()
+        self.start = self._total(self.me, children=False)
+        return self
+
+    def __exit__(self, *exc):
+        self.client = self._total(self.me, children=False) - self.start
+        self.children = [self._total(p) for p in self.me.children()]
+
+    @staticmethod
+    def _total(p, children=True) -> float:
+        t = p.cpu_times()
+        return t.user + t.system + (t.children_user + t.children_system if children else 0.0)
+
+    def report(self) -> str:
+        return (f"{self.client + sum(self.children):.2f} s in all: this process {self.client:.2f} s, its children "
+                f"(the fork server with the workers it forked) {' + '.join(f'{c:.2f}' for c in self.children)} s")
+
+
 def forget_structures() -> None:
     """Empty what calibrations remember per structure (an older kincal on PYTHONPATH may lack some caches)."""
     for module in (params, se3):
@@ -85,11 +111,17 @@ def main() -> None:
         cpu_per_repeat(study, args.cpu)
     if not study.repeats:  # --repeats 0: the timings above only
         return
-    t = time.perf_counter()
-    result = S.run_study(study, workers=args.workers)
-    wall = time.perf_counter() - t
+    log = logging.getLogger("kincal.workflow.parallel")  # when the cluster was up, what this process ran
+    log.addHandler(logging.StreamHandler())
+    log.setLevel(logging.INFO)
+    load = os.getloadavg()[0]
+    with ProcessCPU() as cpu:
+        t = time.perf_counter()
+        result = S.run_study(study, workers=args.workers)
+        wall = time.perf_counter() - t
     print(f"table1: {study.repeats} repeats x {len(study.variants)} variants on {args.workers} workers: {wall:.2f} s "
-          f"(load average {os.getloadavg()[0]:.1f})")
+          f"(load average {load:.1f} before, {os.getloadavg()[0]:.1f} after)")
+    print(f"CPU of the study's processes: {cpu.report()}")
     print(f"{'variant':22s} {'param':6s} {'kincal std':>11s} {'paper std':>10s} {'reported/MC':>12s} {'bias':>10s}")
     for r in result.rows:
         f, unit = (1e3, "mm") if r.unit == "m" else (np.degrees(1.0) * 1e3, "mdeg")
