@@ -187,9 +187,11 @@ def _connect(workers: int | None, scheduler: str | None, fn: Callable | None = N
 
 # A local cluster's settings (read when it starts; the nannies pass them to their workers): Dask's statistical
 # profiler samples a worker's running task every 10 ms, its monitors poll every 20-500 ms and the scheduler
-# looks for work to steal every 100 ms, about a tenth of a core on two workers that a study's tasks (its
-# queue hands each worker a task as it frees up) have no use for.
+# looks for work to steal every 100 ms, about a tenth of a core on two workers that a study's tasks have no use
+# for. The scheduler's queue hands a worker its next task when it frees up (saturation 1: by default a worker
+# holds a second one, which at the end can leave it a long task while the other worker has nothing left).
 LOCAL_SETTINGS = {"distributed.worker.profile.enabled": False, "distributed.scheduler.work-stealing": False,
+                  "distributed.scheduler.worker-saturation": 1.0,
                   "distributed.admin.tick.interval": "1s", "distributed.admin.system-monitor.interval": "5s",
                   "distributed.worker.memory.monitor-interval": "1s"}
 
