@@ -70,12 +70,19 @@ class ProcessCPU:
 
     def __enter__(self):
         self.me = psutil.Process()
-        self.start = self._total(self.me, children=False)
+        self.start, self.machine = self._total(self.me, children=False), self._busy()
         return self
 
     def __exit__(self, *exc):
         self.client = self._total(self.me, children=False) - self.start
         self.children = [self._total(p) for p in self.me.children()]
+        self.others = self._busy() - self.machine - self.client - sum(self.children)
+
+    @staticmethod
+    def _busy() -> float:
+        """CPU seconds every process of the machine has used (all cores): with ours subtracted, the other jobs'."""
+        t = psutil.cpu_times()
+        return sum(t) - t.idle - getattr(t, "iowait", 0.0) - getattr(t, "guest", 0.0) - getattr(t, "guest_nice", 0.0)
 
     @staticmethod
     def _total(p, children=True) -> float:
@@ -84,7 +91,8 @@ class ProcessCPU:
 
     def report(self) -> str:
         return (f"{self.client + sum(self.children):.2f} s in all: this process {self.client:.2f} s, its children "
-                f"(the fork server with the workers it forked) {' + '.join(f'{c:.2f}' for c in self.children)} s")
+                f"(the fork server with the workers it forked) {' + '.join(f'{c:.2f}' for c in self.children)} s; "
+                f"other jobs on the machine meanwhile {max(self.others, 0.0):.2f} s")
 
 
 def forget_structures() -> None:
