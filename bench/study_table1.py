@@ -4,6 +4,10 @@ a local Dask cluster, timed from the call to the table (the cluster's start incl
 standard deviations next to the paper's and, with --profile, one klimchik3r calibration's cost with the
 structure caches emptied before each call and remembered (docs/partial-pose.md "Speed").
 
+After the study: the CPU time of all its processes (this one, the fork server with the Dask workers) and the
+CPU the machine's other jobs used meanwhile, and when the local cluster was up with how many tasks this process
+ran meanwhile (``kincal.workflow.parallel``'s log).
+
 With --cpu N, first the CPU time of N repeats run in this process (no Dask, both variants): the per-repeat cost
 without the cluster, steadier than the wall time on a shared machine (--repeats 0: that alone, no study).
 

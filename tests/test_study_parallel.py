@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import os
 import pickle
+import subprocess
+import sys
 import threading
 from dataclasses import replace
 
@@ -140,3 +142,13 @@ def test_task_bounds_end_with_short_tasks():
 def test_preload_is_the_task_module_and_dask():
     assert parallel.preload(S.run_chunk) == ["distributed", "kincal.workflow.study"]
     assert parallel.preload(lambda: None) == ["distributed"]
+
+
+def test_a_study_worker_does_not_import_the_job_machinery():
+    """The fork server imports the study's module: not the job runner with the thesis baseline and its
+    scipy.optimize (``kincal.workflow`` imports ``run_job`` on first use, and ``run_job`` still reaches it)."""
+    code = ("import sys, kincal.workflow.study; print(sorted(m for m in ('scipy.optimize', 'kincal.baselines', "
+            "'kincal.workflow.jobs') if m in sys.modules)); from kincal.workflow import run_job; "
+            "print(run_job.__module__)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["[]", "kincal.workflow.jobs"]

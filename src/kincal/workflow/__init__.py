@@ -1,8 +1,8 @@
 """Running things that files describe: a calibration job with kincal's solver or the thesis baseline.
 
 Above ``kincal.io`` (which only reads and writes) and below ``kincal.cli``. ``run_job`` is imported on first
-use: a study's Dask workers import ``kincal.workflow.study`` without the job machinery (the thesis baseline's
-SciPy optimizers, the job schema's validator), a second of imports each.
+use: a study's Dask workers import ``kincal.workflow.study`` without the job runner (the thesis baseline with
+SciPy's optimizers, a few tenths of a second of imports).
 """
 
 __all__ = ["run_job"]
