@@ -61,12 +61,10 @@ def run_tasks(fn: Callable, tasks: Sequence[tuple], *, workers: int | None = Non
             if progress:
                 progress(i)
         return out
+    lanes = _Lanes(fn, tasks, shared, progress)
     if scheduler is not None:
         client, cluster = _connect(workers, scheduler, fn)
-        lanes = _Lanes(fn, tasks, shared, progress)
-        lanes.hand_over(client)
     else:
-        lanes = _Lanes(fn, tasks, shared, progress)
         lanes.start_local(workers)
         try:
             if HERE_WHILE_STARTING:
@@ -76,6 +74,8 @@ def run_tasks(fn: Callable, tasks: Sequence[tuple], *, workers: int | None = Non
             raise
         client, cluster = lanes.join()
     try:
+        if scheduler is not None:  # an existing cluster is up: every task to it at once
+            lanes.hand_over(client)
         return lanes.gather()
     finally:
         client.close()
