@@ -4,6 +4,10 @@ a local Dask cluster, timed from the call to the table (the cluster's start incl
 standard deviations next to the paper's and, with --profile, one klimchik3r calibration's cost with the
 structure caches emptied before each call and remembered (docs/partial-pose.md "Speed").
 
+After the study: the CPU time of all its processes (this one, the fork server with the Dask workers) and the
+CPU the machine's other jobs used meanwhile, and when the local cluster was up with how many tasks this process
+ran meanwhile (``kincal.workflow.parallel``'s log).
+
 With --cpu N, first the CPU time of N repeats run in this process (no Dask, both variants): the per-repeat cost
 without the cluster, steadier than the wall time on a shared machine (--repeats 0: that alone, no study).
 
@@ -15,6 +19,7 @@ The target (issue #13): under 10 s on a 2-core machine for 1000 repeats and two 
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import time
 from dataclasses import replace
@@ -22,6 +27,7 @@ from dataclasses import replace
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+import psutil  # noqa: E402  (Dask's dependency)
 
 from kincal import params  # noqa: E402
 from kincal.analysis import symmetries  # noqa: E402
@@ -61,6 +67,38 @@ def cpu_per_repeat(study: S.Study, n: int) -> None:
           f"{spent * 1000:.1f} s for Table I's 1000 repeats; load average {os.getloadavg()[0]:.1f}")
 
 
+class ProcessCPU:
+    """CPU time (user + system) this process and its child processes spent inside the block, read at its end:
+    a child's own and that of the processes it reaped (the fork server reaps the Dask workers it forked). On a
+    shared machine the wall time measures the other jobs too; this does not."""
+
+    def __enter__(self):
+        self.me = psutil.Process()
+        self.start, self.machine = self._total(self.me, children=False), self._busy()
+        return self
+
+    def __exit__(self, *exc):
+        self.client = self._total(self.me, children=False) - self.start
+        self.children = [self._total(p) for p in self.me.children()]
+        self.others = self._busy() - self.machine - self.client - sum(self.children)
+
+    @staticmethod
+    def _busy() -> float:
+        """CPU seconds every process of the machine has used (all cores): with ours subtracted, the other jobs'."""
+        t = psutil.cpu_times()
+        return sum(t) - t.idle - getattr(t, "iowait", 0.0) - getattr(t, "guest", 0.0) - getattr(t, "guest_nice", 0.0)
+
+    @staticmethod
+    def _total(p, children=True) -> float:
+        t = p.cpu_times()
+        return t.user + t.system + (t.children_user + t.children_system if children else 0.0)
+
+    def report(self) -> str:
+        return (f"{self.client + sum(self.children):.2f} s in all: this process {self.client:.2f} s, its children "
+                f"(the fork server with the workers it forked) {' + '.join(f'{c:.2f}' for c in self.children)} s; "
+                f"other jobs on the machine meanwhile {max(self.others, 0.0):.2f} s")
+
+
 def forget_structures() -> None:
     """Empty what calibrations remember per structure (an older kincal on PYTHONPATH may lack some caches)."""
     for module in (params, se3):
@@ -85,11 +123,17 @@ def main() -> None:
         cpu_per_repeat(study, args.cpu)
     if not study.repeats:  # --repeats 0: the timings above only
         return
-    t = time.perf_counter()
-    result = S.run_study(study, workers=args.workers)
-    wall = time.perf_counter() - t
+    log = logging.getLogger("kincal.workflow.parallel")  # when the cluster was up, what this process ran
+    log.addHandler(logging.StreamHandler())
+    log.setLevel(logging.INFO)
+    load = os.getloadavg()[0]
+    with ProcessCPU() as cpu:
+        t = time.perf_counter()
+        result = S.run_study(study, workers=args.workers)
+        wall = time.perf_counter() - t
     print(f"table1: {study.repeats} repeats x {len(study.variants)} variants on {args.workers} workers: {wall:.2f} s "
-          f"(load average {os.getloadavg()[0]:.1f})")
+          f"(load average {load:.1f} before, {os.getloadavg()[0]:.1f} after)")
+    print(f"CPU of the study's processes: {cpu.report()}")
     print(f"{'variant':22s} {'param':6s} {'kincal std':>11s} {'paper std':>10s} {'reported/MC':>12s} {'bias':>10s}")
     for r in result.rows:
         f, unit = (1e3, "mm") if r.unit == "m" else (np.degrees(1.0) * 1e3, "mdeg")

@@ -121,7 +121,10 @@ class Fixed:
     true: Robot | None
     experiment_seed: np.random.SeedSequence
     q_validation: Mapping[str, np.ndarray]
-    memo: dict = field(default_factory=dict, repr=False)  # per task: what a fixed truth, a structure makes once
+    memo: dict = field(default_factory=dict, repr=False)  # per process: what a fixed truth, a structure makes once
+
+    def __reduce__(self):  # the memo stays in its process: a worker fills its own (it is cheaper than sending)
+        return Fixed, (self.true, self.experiment_seed, self.q_validation)
 
 
 def fixed_parts(study: Study) -> Fixed:
@@ -330,31 +333,46 @@ class StudyResult:
     outcomes: tuple[tuple[Outcome, ...], ...]  # per repeat, per variant
 
 
-# Repeats per Dask task by default: short tasks keep both workers busy to the end (the last task of a worker
-# runs alone), long enough that a task's set-up (its arguments, the noise-free data) stays small beside it.
+# Repeats per Dask task by default: long enough that a task's cost on the back end (a few ms) stays small beside
+# it; the last tasks are shorter (``TAIL_REPEATS``), so no worker (or this process, which runs tasks while the
+# local cluster starts) is left running one long task alone at the end.
 REPEATS_PER_TASK = 25
+TAIL_REPEATS = 5
 
 
 def run_study(study: Study, *, workers: int | None = None, scheduler: str | None = None, chunks: int | None = None,
               progress: Callable[[int, int], None] | None = None) -> StudyResult:
     """Run ``study``'s repeats on the Dask back end (``kincal.workflow.parallel``: ``workers`` local processes,
-    0 for this process, or the cluster at ``scheduler``), in ``chunks`` tasks (default: 8 per worker, and at
-    most ``REPEATS_PER_TASK`` repeats each); ``progress(done, total)`` counts repeats."""
+    0 for this process, or the cluster at ``scheduler``), in ``chunks`` tasks of equal size (default: at most
+    ``REPEATS_PER_TASK`` repeats each, the last ones shorter: ``task_bounds``); ``progress(done, total)`` counts
+    repeats. The study and its fixed parts go to each worker once (``run_tasks``'s ``shared``)."""
     fixed = fixed_parts(study)
     w = workers if workers is not None else (default_workers() if scheduler is None else 4)
-    n = chunks or max(8 * max(1, w), -(-study.repeats // REPEATS_PER_TASK))
-    bounds = np.linspace(0, study.repeats, min(n, study.repeats) + 1).astype(int)
-    tasks = [(study, fixed, range(a, b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+    if chunks:
+        bounds = np.linspace(0, study.repeats, min(chunks, study.repeats) + 1).astype(int)
+    else:
+        bounds = task_bounds(study.repeats, max(1, w) + 1)
+    tasks = [(range(a, b),) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
     done = [0]
 
     def tick(i):
-        done[0] += len(tasks[i][2])
+        done[0] += len(tasks[i][0])
         if progress:
             progress(done[0], study.repeats)
 
-    parts = run_tasks(run_chunk, tasks, workers=workers, scheduler=scheduler, progress=tick)
+    parts = run_tasks(run_chunk, tasks, workers=workers, scheduler=scheduler, progress=tick, shared=(study, fixed))
     outcomes = tuple(tuple(o) for part in parts for o in part)
     return summarize(study, outcomes)
+
+
+def task_bounds(repeats: int, lanes: int) -> np.ndarray:
+    """Task boundaries over ``repeats``: tasks of ``REPEATS_PER_TASK``, then the last ``2 * lanes`` tasks of
+    ``TAIL_REPEATS`` (``lanes``: the processes that run tasks)."""
+    tail = min(repeats, 2 * lanes * TAIL_REPEATS)
+    head = repeats - tail
+    edges = [np.linspace(0, head, -(-head // REPEATS_PER_TASK) + 1),
+             np.linspace(head, repeats, -(-tail // TAIL_REPEATS) + 1)]
+    return np.unique(np.concatenate(edges).astype(int))
 
 
 def summarize(study: Study, outcomes) -> StudyResult:
