@@ -94,13 +94,19 @@ def _calibration():
 
 
 def test_a_calibration_with_gesdd_failing_everywhere_gives_the_same_result(monkeypatch):
-    """Rank, gauge, symmetries, covariance, steps and predictions: every decomposition on the fallback."""
+    """Rank, gauge, symmetries, covariance, steps, the min-change view and predictions: every decomposition on the
+    fallback."""
     ref = _calibration()
+    ref_gauge = ref.gauge
     svd, lstsq = _failing(NUMPY_SVD), _failing(NUMPY_LSTSQ)
     monkeypatch.setattr(np.linalg, "svd", svd)
     monkeypatch.setattr(np.linalg, "lstsq", lstsq)
     res = _calibration()
+    # the estimates in the min-change gauge, as ``kincal calibrate`` prints them: the walk to the min-change point
+    # solves by least squares (the solve's own steps take theirs from the rank analysis' SVD, ``analysis.factor``)
+    gauge = res.gauge
     assert svd.failed > 10 and lstsq.failed > 3  # the fallback did the work
+    np.testing.assert_allclose(gauge.determined, ref_gauge.determined, rtol=1e-6, atol=1e-10)
     assert (res.status, res.trusted, res.identifiability.rank) == (ref.status, ref.trusted, ref.identifiability.rank)
     # the same messages naming the same directions; which partners of equal weight are listed first (and which
     # are left to "and N more") round-off decides

@@ -25,6 +25,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from kincal.analysis.covariance import right_svd
+from kincal.analysis.factor import Factor
 from kincal.analysis.linalg import lstsq, svd
 from kincal.analysis.linearization import Linearization, unit_columns
 from kincal.analysis.naming import context, degenerate, describer
@@ -60,6 +61,9 @@ class Identifiability:
     weak_vectors: np.ndarray | None = None  # (p, w) the directions of ``weak`` in natural units, unit norm
     degenerate: bool | None = None  # no arm parameter identifiable, only frames (judged by ``identify`` reports)
     naming_basis: np.ndarray | None = field(default=None, repr=False)  # the null basis ``directions`` name
+    # the analysed Jacobian's own SVD where ``null_space`` is exactly its trailing directions (``analysis.factor``:
+    # the Gauss-Newton step and the covariance without another decomposition), else None
+    factor: Factor | None = field(default=None, repr=False, compare=False)
 
     @property
     def deficiency(self) -> int:
@@ -154,6 +158,7 @@ def _pinned(ana: Identifiability, hold: np.ndarray, pins: list[int]) -> Identifi
     null = _orth(np.column_stack([hold, U[:, S > 0.5]]))
     names = _list([ana.names[i] for i in pins], 8)
     return replace(ana, null_space=null, naming_basis=null, identifiable=np.linalg.norm(null, axis=1) < 1e-6,
+                   factor=None,
                    messages=ana.messages + (RIGID_HELD.format(len(pins), names),))
 
 
@@ -307,8 +312,10 @@ def analyse(
     directions = _directions(Nd, order, names, describe, context) if name else []
     messages += [d.words for d in directions]
     messages += _weak_messages(weak, sv, weak_idx)
+    own = sv.U is not None and not lifted and rank == sv.rank  # the null space is the SVD's own
     return Identifiability(names, rank, sv.S, rtol, N, R, identifiable, scale_null_found, tuple(directions),
-                           weak, tuple(messages), weak_vectors, naming_basis=Nd)
+                           weak, tuple(messages), weak_vectors, naming_basis=Nd,
+                           factor=Factor.of(sv.U, sv.S, sv.Vt, sv.c, rank) if own else None)
 
 
 @dataclass(frozen=True)
@@ -318,18 +325,23 @@ class _Spectrum:
     c: np.ndarray  # (p,) column norms (1 where a column is zero)
     smax: float
     rank: int
+    U: np.ndarray | None = None  # (m, p) left singular vectors, where J is no taller than 2p (a triangular factor)
 
 
 def _spectrum(J: np.ndarray, rtol: float) -> _Spectrum:
     """Singular values and vectors of J with every column scaled to unit norm, and the rank at ``rtol``."""
     m, p = J.shape
     Js, c_safe = unit_columns(J)
-    S, Vt = right_svd(Js) if m >= p else svd(Js, full_matrices=True)[1:]  # all p rows of Vt
+    U = None
+    if p <= m <= 2 * p:  # ``right_svd``'s own call, keeping U
+        U, S, Vt = svd(Js, full_matrices=False)
+    else:
+        S, Vt = right_svd(Js) if m >= p else svd(Js, full_matrices=True)[1:]  # all p rows of Vt
     S_full = np.zeros(p)
     S_full[: len(S)] = S
     smax = S_full[0] if p else 0.0
     rank = int(np.sum(S_full > rtol * smax)) if smax > 0 else 0
-    return _Spectrum(S_full, Vt, c_safe, smax, rank)
+    return _Spectrum(S_full, Vt, c_safe, smax, rank, U)
 
 
 def _hold(sv: _Spectrum, symmetries: list, has_scale: bool, gauges: np.ndarray | None = None):

@@ -200,8 +200,12 @@ def _uncertainty(lin: Linearization, ana: Identifiability, options: SolverOption
     s2 = sigma2 if np.isfinite(sigma2) else 1.0
     if not V.shape[1]:
         cov = np.zeros((p, p))
+    elif sw is not None:
+        cov = sw.covariance(V, s2)
+    elif ana.factor is not None and options.loss == "linear" and V is ana.range_space:  # the analysis' SVD of Rf
+        cov = ana.factor.covariance(V, s2)
     else:
-        cov = covariance(Rf, V, s2) if sw is None else sw.covariance(V, s2)
+        cov = covariance(Rf, V, s2)
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
     ok = ana.identifiable & (status != "degenerate")
     return cov, np.where(ok, std, np.nan), ok

@@ -77,7 +77,7 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
                 break
             _require_redundancy(problem, lin, ana.rank)
         V = gauge_basis(lin.Rf, ana, options.gauge, order)
-        z, r1sq = steps.gauss_newton(lin, V)
+        z, r1sq = steps.gauss_newton(lin, V, ana.factor if V is ana.range_space else None)
         if it > 1 and steps.negligible(lin, V, z, r1sq):
             status = "converged"  # the re-linearized problem asks for no step
             break

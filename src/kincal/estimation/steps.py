@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from kincal.analysis import Linearization
+from kincal.analysis.factor import Factor
 from kincal.analysis.linalg import lstsq
 from kincal.errors import DegenerateExperimentError
 from kincal.estimation import blocks, levenberg
@@ -139,11 +140,13 @@ def converged(step: float, r0_norm: float, cost: float, dof: int) -> bool:
     return step < max(1e-6 * (1.0 + r0_norm), 1e-2 * scatter)
 
 
-def gauss_newton(lin: Linearization, V: np.ndarray) -> tuple[np.ndarray, float]:
+def gauss_newton(lin: Linearization, V: np.ndarray, factor: Factor | None = None) -> tuple[np.ndarray, float]:
     """Gauss-Newton step in the subspace V and the predicted |r|^2 after it, from the triangular factor alone:
-    with ``J = Q R``, ``z = argmin |R V z + Q^T r|`` and ``|r + J V z|^2 = |r|^2 - |Q^T r|^2 + |R V z + Q^T r|^2``."""
+    with ``J = Q R``, ``z = argmin |R V z + Q^T r|`` and ``|r + J V z|^2 = |r|^2 - |Q^T r|^2 + |R V z + Q^T r|^2``.
+    ``factor``: the rank analysis' own SVD of ``lin.Rf`` when V is its identifiable subspace (``analysis.factor``):
+    the step from it, without another least-squares solve."""
     RV = lin.Rf @ V
-    z = lstsq(RV, -lin.qtr)
+    z = V.T @ factor.step(-lin.qtr) if factor is not None else lstsq(RV, -lin.qtr)
     e = lin.qtr + RV @ z
     return z, max(lin.cost2 - float(lin.qtr @ lin.qtr) + float(e @ e), 0.0)
 
