@@ -520,12 +520,13 @@ def _orth(A: np.ndarray, drop: int = 0) -> np.ndarray:
 
 
 def _null_and_range(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Orthonormal bases of span(A) (p, k independent columns) and of its complement (p, p - k), from one SVD."""
+    """Orthonormal bases of span(A) (p, k independent columns) and of its complement (p, p - k), from one complete
+    QR (Householder: as accurate as an SVD for independent columns, half its cost at p = 45, k = 18)."""
     p, k = A.shape
     if k == 0:
         return A, np.eye(p)
-    U = svd(A, full_matrices=True)[0]
-    return U[:, :k], U[:, k:]
+    Q = np.linalg.qr(A, mode="complete")[0]
+    return Q[:, :k], Q[:, k:]
 
 
 def _top_names(v: np.ndarray, names, count: int = 4) -> str:
