@@ -26,5 +26,8 @@ def scatter_columns(blocks: Mapping[str, np.ndarray], layout: Layout, cols: np.n
             Jb = Jb @ right[b.name]
         c = col[b.start: b.stop]
         sel = c >= 0
-        J[..., c[sel]] = Jb[..., sel]
+        if len(c) and c[0] >= 0 and c[-1] - c[0] == len(c) - 1 and (len(c) == 1 or (np.diff(c) == 1).all()):
+            J[..., c[0]: c[-1] + 1] = Jb  # the whole block in consecutive columns: a slice, not fancy indexing
+        elif sel.any():
+            J[..., c[sel]] = Jb[..., sel]
     return J

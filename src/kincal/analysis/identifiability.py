@@ -26,7 +26,7 @@ import numpy as np
 
 from kincal.analysis.covariance import right_svd
 from kincal.analysis.factor import Factor
-from kincal.analysis.linalg import lstsq, svd
+from kincal.analysis.linalg import lstsq, norm, svd
 from kincal.analysis.linearization import Linearization, unit_columns
 from kincal.analysis.naming import context, degenerate, describer
 from kincal.analysis.symmetries import consistent_nulls, rotation_nulls, scale_null
@@ -295,7 +295,7 @@ def analyse(
     sv = _spectrum(J, rtol)
     if callable(gauges):
         gauges = gauges(p - sv.rank)
-    has_scale = scale is not None and np.linalg.norm(scale) > 0
+    has_scale = scale is not None and norm(scale) > 0
     Ns, rank, lifted, held_scale = _hold(sv, ([scale] if has_scale else []) + list(held), has_scale, gauges)
     identifiable = np.linalg.norm(Ns, axis=1) < IDENTIFIABLE_TOL
     N, R = _null_and_range(Ns / sv.c[:, None])
@@ -305,7 +305,7 @@ def analyse(
     weak_vectors /= np.maximum(np.linalg.norm(weak_vectors, axis=0), 1e-300)
     messages: list[str] = []
     Nd, scale_null_found = N, False
-    if scale is not None and N.shape[1] and np.linalg.norm(scale) > 0:
+    if has_scale and N.shape[1]:
         Nd, scale_null_found, words = _scale_message(N, scale, names, held_scale)
         messages += words
     order = list(range(p)) if priority is None else list(priority)
@@ -363,10 +363,10 @@ def _hold(sv: _Spectrum, symmetries: list, has_scale: bool, gauges: np.ndarray |
             rank = len(sv.c) - Ns.shape[1]
     for k, h in enumerate(symmetries):
         hc = sv.c * h
-        hc /= np.linalg.norm(hc)
+        hc /= norm(hc)
         outside = hc - Ns @ (Ns.T @ hc)
-        if np.linalg.norm(outside) > 1e-6:
-            Ns = np.column_stack([Ns, outside / np.linalg.norm(outside)])
+        if norm(outside) > 1e-6:
+            Ns = np.column_stack([Ns, outside / norm(outside)])
             rank -= 1
             lifted.append(hc)
             held_scale = held_scale or (has_scale and k == 0)

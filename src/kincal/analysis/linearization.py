@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -52,6 +53,11 @@ class Linearization:
     @property
     def Rf(self) -> np.ndarray:
         return self.R[: self.p, : self.p]
+
+    @cached_property
+    def colnorm(self) -> np.ndarray:
+        """Column norms of ``Rf``: those of the whitened Jacobian ``J`` (its triangular factor), computed once."""
+        return np.linalg.norm(self.Rf, axis=0)
 
     @property
     def qtr(self) -> np.ndarray:

@@ -15,7 +15,7 @@ import numpy as np
 
 from kincal.analysis.columns import scatter_columns
 from kincal.analysis.covariance import right_svd
-from kincal.analysis.linalg import lstsq, svd
+from kincal.analysis.linalg import lstsq, norm, svd
 from kincal.analysis.linearization import Linearization, unit_columns
 from kincal.kinematics import REVOLUTE
 from kincal.kinematics.model import lineage
@@ -46,7 +46,7 @@ def scale_null(lin: Linearization, layout: Layout) -> np.ndarray | None:
     s_all = scale_direction(lin.state, layout) if lin.scale is None else lin.scale
     s = np.concatenate([s_all[lin.free], s_all[fixed]])
     colnorm = np.linalg.norm(Ra, axis=0)
-    if np.linalg.norm(Ra @ s - lin.Rlen) > 1e-6 * (np.sum(colnorm * np.abs(s)) + np.linalg.norm(lin.Rlen)):
+    if norm(Ra @ s - lin.Rlen) > 1e-6 * (np.sum(colnorm * np.abs(s)) + norm(lin.Rlen)):
         return None
     units = np.array(layout.units)[fixed]
     lengths = np.flatnonzero((units == "m") & (colnorm[p:] > 0))
@@ -57,7 +57,7 @@ def scale_null(lin: Linearization, layout: Layout) -> np.ndarray | None:
             return None
     u = lstsq(lin.Rf, Ra[:p, p:] @ s[p:])
     d = s[:p] + u
-    return d if np.linalg.norm(d) > 0 else None
+    return d if norm(d) > 0 else None
 
 
 def rotation_nulls(lin: Linearization, layout: Layout, experiments: Sequence) -> list[np.ndarray]:
@@ -67,7 +67,8 @@ def rotation_nulls(lin: Linearization, layout: Layout, experiments: Sequence) ->
     socket's world-frame vector ``r`` turns, ``J g = w x r``, which residuals left would mistake for
     information. Returned (natural units, free coordinates) where the linearization confirms the symmetry:
     ``J g`` equals the turned residuals."""
-    col = {int(i): k for k, i in enumerate(lin.free)}
+    free = np.zeros(layout.size, bool)
+    free[lin.free] = True
     out = []
     for arm, a in lin.state.arms.items():
         if arm in lin.state.mounts:
@@ -76,17 +77,17 @@ def rotation_nulls(lin: Linearization, layout: Layout, experiments: Sequence) ->
         if not exps or any(len(e.arms) > 1 for e in exps):
             continue  # another arm in the loop does not turn along
         i1 = layout.index(f"{arm}.{a.joint_names[0]}.offset")
-        if i1 not in col or a.joint_types[0] != REVOLUTE:
+        if not free[i1] or a.joint_types[0] != REVOLUTE:
             continue
         xi = se3.adjoint(a.base) @ a.screws[0]  # joint 1's screw in world coordinates
         g = _turned_frames(lin, layout, exps, xi, i1)
-        if g is None or any(g[i] != 0 and i not in col for i in np.flatnonzero(g)):
+        if g is None or (g[~free] != 0).any():
             continue
         gf = g[lin.free]
         t = _turned_residuals(lin, experiments, arm, se3.split(xi)[1])
         Jg = lin.J @ gf
-        colnorm = np.linalg.norm(lin.Rf, axis=0)  # J's column norms (R is J's triangular factor): J is not read whole
-        if np.linalg.norm(Jg - t) <= 1e-6 * (np.sum(colnorm * np.abs(gf)) + np.linalg.norm(t)):
+        colnorm = lin.colnorm  # J's column norms (R is J's triangular factor): J is not read whole
+        if norm(Jg - t) <= 1e-6 * (np.sum(colnorm * np.abs(gf)) + norm(t)):
             out.append(gf)
     return out
 
@@ -149,8 +150,8 @@ def consistent_nulls(lin: Linearization, layout: Layout, experiments: Sequence, 
     gauges out of it, so where it has as many dimensions as this structure's noise-free null space had, at a
     state where the residuals lifted none (the structure cache, below), it is that space: an empty basis is
     returned (nothing to add) without the consistent linearization."""
-    enough = 0.1 * rtol * np.max(np.linalg.norm(lin.Rf, axis=0), initial=0.0)
-    if np.linalg.norm(lin.r) <= enough:
+    enough = 0.1 * rtol * np.max(lin.colnorm, initial=0.0)
+    if norm(lin.r) <= enough:
         return None
     key = structure_key(lin, layout, experiments, rtol)
     known = 0 if key in _FULL_RANK else _NULLITY.get(key)

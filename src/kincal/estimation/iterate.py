@@ -13,6 +13,7 @@ import numpy as np
 from kincal.analysis import Identifiability, Linearization, identify
 from kincal.analysis.identifiability import DeferredReport
 from kincal.analysis.covariance import right_svd
+from kincal.analysis.linalg import norm
 from kincal.errors import DegenerateExperimentError
 from kincal.estimation import steps
 from kincal.estimation.gauge import gauge_basis, priority, rigid_gauges
@@ -121,7 +122,7 @@ def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.nd
         x, cost, nfev, finished = steps.inner_solve(problem, lin.state, lin, V, options.loss, options.f_scale)
         evaluations += nfev
     delta = V @ x
-    step = float(np.linalg.norm(lin.Rf @ delta))
+    step = norm(lin.Rf @ delta)
     state = recentre(moved, conformed=True) if accepted else \
         recentre(retract(lin.state, problem.layout, problem.full_delta(delta)))
     if options.progress:

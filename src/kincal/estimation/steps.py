@@ -13,7 +13,7 @@ import numpy as np
 
 from kincal.analysis import Linearization
 from kincal.analysis.factor import Factor
-from kincal.analysis.linalg import lstsq
+from kincal.analysis.linalg import lstsq, norm
 from kincal.errors import DegenerateExperimentError
 from kincal.estimation import blocks, levenberg
 from kincal.estimation.problem import Problem
@@ -153,5 +153,5 @@ def gauss_newton(lin: Linearization, V: np.ndarray, factor: Factor | None = None
 
 def negligible(lin: Linearization, V: np.ndarray, z: np.ndarray, r1sq: float) -> bool:
     """Convergence test at a new linearization point: the Gauss-Newton step asked for there is negligible."""
-    step = float(np.linalg.norm(lin.Rf @ (V @ z)))
+    step = norm(lin.Rf @ (V @ z))
     return converged(step, np.sqrt(lin.cost2), 0.5 * r1sq, len(lin.r) - V.shape[1])

@@ -77,7 +77,10 @@ def displacement(state: State, nominal: State, layout: Layout, only: np.ndarray 
     fixed frames)."""
     disp = np.zeros(layout.size)
     D = np.zeros((layout.size, layout.size)) if jacobian else None
-    wanted = np.ones(layout.size, bool) if only is None else np.isin(np.arange(layout.size), only)
+    wanted = np.ones(layout.size, bool)
+    if only is not None:
+        wanted[:] = False
+        wanted[np.asarray(only, dtype=int)] = True
     poses = []  # (block, pose, nominal pose) of the pose kinds: their logarithms in one batch
     for b in layout.blocks:
         if not wanted[b.slice].any():

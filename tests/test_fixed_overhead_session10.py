@@ -1,16 +1,18 @@
-"""The rank analysis' own SVD reused (``kincal.analysis.factor``, docs/performance.md "Fixed overhead: session 10"):
-the Gauss-Newton step and the covariance on the identifiable subspace from it equal the least-squares solve and the
-SVD they replace to round-off, it is offered only where the null space is that SVD's own, and whole calibrations
-give the same results with it as without it."""
+"""Session 10's cuts of a small calibration's fixed cost (docs/performance.md "Fixed overhead: session 10").
+
+The rank analysis' own SVD reused (``kincal.analysis.factor``): the Gauss-Newton step and the covariance on the
+identifiable subspace from it equal the least-squares solve and the SVD they replace to round-off, it is offered
+only where the null space is that SVD's own, and whole calibrations give the same results with it as without it.
+The smaller cuts give what they replace bit for bit: ``linalg.norm``, block columns scattered by slices."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from kincal.analysis import analyse, covariance, identify
+from kincal.analysis import analyse, covariance, identify, scatter_columns
 from kincal.analysis import factor as factor_module
-from kincal.analysis.linalg import lstsq
+from kincal.analysis.linalg import lstsq, norm
 from kincal.estimation import Problem, calibrate, steps
 from kincal.estimation.gauge import priority
 from kincal.estimation.iterate import scale_test_needed
@@ -91,3 +93,28 @@ def test_calibrations_with_and_without_the_factor_agree(ur10_sets, monkeypatch, 
         assert a.std == pytest.approx(b.std, rel=1e-9, nan_ok=True)
     np.testing.assert_allclose(fast.covariance, slow.covariance, rtol=1e-9, atol=1e-12 * np.abs(slow.covariance).max())
 
+
+
+def test_norm_is_numpys_bit_for_bit():
+    rng = np.random.default_rng(5)
+    for shape in ((1,), (7,), (45,), (300,), (6, 5)):
+        x = rng.standard_normal(shape) * 10.0 ** rng.integers(-12, 12)
+        assert norm(x) == np.linalg.norm(x)
+        assert norm(x[..., ::2]) == np.linalg.norm(x[..., ::2])  # a strided view
+    assert norm(np.zeros(3)) == 0.0 and norm(np.zeros(0)) == 0.0
+
+
+def test_scattered_columns_equal_the_fancy_indexed_ones(ur10_sets):
+    nominal, markers, _ = ur10_sets
+    problem = Problem.build(nominal, [markers], "kinematic", noise=NOISE)
+    layout = problem.layout
+    blocks = {b.name: np.random.default_rng(k).standard_normal((4, 3, b.stop - b.start))
+              for k, b in enumerate(layout.blocks)}
+    rng = np.random.default_rng(6)
+    for cols in (problem.free_idx, np.arange(layout.size), np.sort(rng.choice(layout.size, 20, replace=False)),
+                 rng.permutation(layout.size)[:30], np.array([3])):
+        want = np.zeros((4, 3, len(cols)))
+        for j, i in enumerate(cols):
+            b = layout.block_at(int(i))
+            want[..., j] = blocks[b.name][..., i - b.start]
+        assert np.array_equal(scatter_columns(blocks, layout, cols, (4, 3)), want)
