@@ -3,7 +3,8 @@
 The rank analysis' own SVD reused (``kincal.analysis.factor``): the Gauss-Newton step and the covariance on the
 identifiable subspace from it equal the least-squares solve and the SVD they replace to round-off, it is offered
 only where the null space is that SVD's own, and whole calibrations give the same results with it as without it.
-The smaller cuts give what they replace bit for bit: ``linalg.norm``, block columns scattered by slices."""
+The smaller cuts give what they replace bit for bit: ``linalg.norm``, block columns scattered by slices, one
+batched exponential per retraction."""
 
 from __future__ import annotations
 
@@ -16,6 +17,8 @@ from kincal.analysis.linalg import lstsq, norm
 from kincal.estimation import Problem, calibrate, steps
 from kincal.estimation.gauge import priority
 from kincal.estimation.iterate import scale_test_needed
+from kincal.params import TWISTS, retract
+from kincal.params.values import retract_twists
 from test_structure_cache import NOISE, ur10_sets  # noqa: F401  (the UR10 data sets, a fixture)
 
 
@@ -118,3 +121,39 @@ def test_scattered_columns_equal_the_fancy_indexed_ones(ur10_sets):
             b = layout.block_at(int(i))
             want[..., j] = blocks[b.name][..., i - b.start]
         assert np.array_equal(scatter_columns(blocks, layout, cols, (4, 3)), want)
+
+
+@pytest.mark.parametrize("tangents", [True, False])
+def test_one_batched_exponential_retracts_as_block_by_block(ur10_sets, tangents):
+    """``params.retract`` takes the joint screws' and the poses' exponentials in one batch: the same values, bit for
+    bit, as each block retracted on its own (``kind.retract``)."""
+    nominal, markers, _ = ur10_sets
+    res = calibrate(nominal, [markers], "kinematic", noise=NOISE)
+    state, layout, free = res.state, res.layout, res.problem.free_idx
+    rng = np.random.default_rng(2)
+    for scale in (1e-8, 1e-3, 0.3):
+        delta = np.zeros(layout.size)
+        delta[free] = rng.standard_normal(len(free)) * scale
+        got = retract(state, layout, delta, tangents)
+        arms, extras = dict(state.arms), dict(state.extras)
+        for b in layout.blocks:
+            d = delta[b.slice]
+            if not d.any():
+                continue
+            if b.kind is TWISTS:
+                arms[b.arm] = retract_twists(arms[b.arm], d, tangents)
+            elif b.arm is not None:
+                arms[b.arm] = b.kind.retract(arms[b.arm], d)
+            else:
+                extras[b.name] = b.kind.retract(extras[b.name], d)
+        for name, a in arms.items():
+            g = got.arms[name]
+            for f in ("screws", "offsets", "home", "base", "tool", "compliance"):
+                assert np.array_equal(getattr(g, f), getattr(a, f)), f
+            if tangents:
+                assert all(np.array_equal(x, y) for x, y in zip(g.bases, a.bases))
+                assert all(np.array_equal(x, y) for x, y in zip(g.generators, a.generators))
+            else:
+                assert g.bases is None and g.generators is None
+        for name, v in extras.items():
+            assert np.array_equal(np.asarray(got.extras[name]), np.asarray(v)), name

@@ -7,7 +7,7 @@ import numpy as np
 from kincal.lie import se3
 from kincal.params.kinds import ARM_KINDS, POSE_COORDS, TWISTS
 from kincal.params.layout import Layout
-from kincal.params.values import State, retract_twists
+from kincal.params.values import State, retract_twists, twist_motions
 
 
 def retract(state: State, layout: Layout, delta: np.ndarray, tangents: bool = True) -> State:
@@ -15,22 +15,31 @@ def retract(state: State, layout: Layout, delta: np.ndarray, tangents: bool = Tr
     ``tangents=False``: for residuals without Jacobian only (``values.retract_twists``; ``recentre`` restores
     the tangent bases)."""
     arms, extras = dict(state.arms), dict(state.extras)
-    poses = []  # the pose blocks that move: their exponentials in one batch (``exp(d) T``, as ``kind.retract``)
+    # the joint screws' rigid motions and the pose blocks that move: their exponentials in one batch (``exp(d) T``
+    # for a pose, as ``kind.retract``; ``values.retract_twists`` for the screws)
+    twists, poses = [], []
     for b in layout.blocks:
         d = delta[b.slice]
         if not d.any():
             continue
         if b.kind.pose_of(b.value(state)) is not None:
             poses.append(b)
-        elif b.kind is TWISTS and not tangents:
-            arms[b.arm] = retract_twists(arms[b.arm], d, tangents=False)
+        elif b.kind is TWISTS:
+            twists.append((b, twist_motions(state.arms[b.arm], d)))
         elif b.arm is not None:
             arms[b.arm] = b.kind.retract(arms[b.arm], d)
         else:
             extras[b.name] = b.kind.retract(extras[b.name], d)
+    if not twists and not poses:
+        return state.replace(arms, extras)
+    E = se3.exp(np.concatenate([g for _, g in twists] + [delta[b.slice][None] for b in poses]))
+    k = 0
+    for b, g in twists:
+        a = arms[b.arm]  # the twists' fields only: the arm's other blocks changed others
+        arms[b.arm] = retract_twists(a, delta[b.slice], tangents, (g, E[k: k + len(g)]))
+        k += len(g)
     if poses:
-        E = se3.exp(np.stack([delta[b.slice] for b in poses]))
-        for b, Ek in zip(poses, E):
+        for b, Ek in zip(poses, E[k:]):
             if b.arm is not None:
                 arms[b.arm] = b.kind.with_pose(arms[b.arm], Ek @ b.kind.pose_of(arms[b.arm]))
             else:

@@ -139,25 +139,30 @@ _FROM_MODEL: dict[int, tuple[weakref.ref, ArmValues]] = {}
 _FROM_MODEL_ENTRIES = 64
 
 
-def retract_twists(a: ArmValues, d: np.ndarray, tangents: bool = True) -> ArmValues:
+def twist_motions(a: ArmValues, d: np.ndarray) -> np.ndarray:
+    """The rigid motions ``G_j d_j`` (n, 6) that retract the joint screws by tangent coordinates ``d``."""
+    if len({G.shape[1] for G in a.generators}) == 1:  # joints of one kind (all revolute, say): one batched product
+        G = np.stack(a.generators)
+        return np.einsum("jak,jk->ja", G, d.reshape(len(G), -1))
+    cuts = np.cumsum([0] + [G.shape[1] for G in a.generators])
+    return np.stack([G @ d[i:k] for G, i, k in zip(a.generators, cuts[:-1], cuts[1:])])  # all joints at once
+
+
+def retract_twists(a: ArmValues, d: np.ndarray, tangents: bool = True, motion=None) -> ArmValues:
     """Exact retraction of the joint screws: xi_j = Ad(exp(G_j d_j)) xi_j, which stays a valid joint screw,
     with the basis at d: d xi_j = -ad(xi_j) J_l(G_j d_j) G_j dd_j. ``tangents=False``: the screws only, for a
-    residual without Jacobian (a trial point, re-centred if kept): ``bases`` and ``generators`` are None."""
-    widths = {G.shape[1] for G in a.generators}
-    if len(widths) == 1:  # joints of one kind (all revolute, say): one batched product each
-        G = np.stack(a.generators)
-        g = np.einsum("jak,jk->ja", G, d.reshape(len(G), -1))
-    else:
-        cuts = np.cumsum([0] + [G.shape[1] for G in a.generators])
-        g = np.stack([G @ d[i:k] for G, i, k in zip(a.generators, cuts[:-1], cuts[1:])])  # all joints at once
-    Ad = se3.adjoint(se3.exp(g))
+    residual without Jacobian (a trial point, re-centred if kept): ``bases`` and ``generators`` are None.
+    ``motion``: ``(twist_motions(a, d), their exponentials)`` when computed already (``ops.retract`` takes every
+    exponential of a retraction in one batch)."""
+    g, E = motion if motion is not None else (twist_motions(a, d), None)
+    Ad = se3.adjoint(se3.exp(g) if E is None else E)
     screws = np.einsum("jab,jb->ja", Ad, a.screws)
     axes = None if a.lateral_axes is None else np.einsum("jab,jkb->jka", Ad, a.lateral_axes)
     if not tangents:
         return replace(a, screws=screws, bases=None, generators=None, lateral_axes=axes)
     Jl, ad = se3.left_jacobian(g), se3.ad(screws)
-    if len(widths) == 1:
-        gens = Jl @ G  # retracting again from here keeps basis == -ad(xi) G
+    if len({G.shape[1] for G in a.generators}) == 1:
+        gens = Jl @ np.stack(a.generators)  # retracting again from here keeps basis == -ad(xi) G
         gens, bs = tuple(gens), tuple(-ad @ gens)
     else:
         gens = tuple(Jl[j] @ G for j, G in enumerate(a.generators))
