@@ -37,7 +37,7 @@ def scale_null(lin: Linearization, layout: Layout) -> np.ndarray | None:
     linearization's triangular factor.
     """
     p = lin.p
-    if not any(layout.units[i] == "m" for i in lin.free):
+    if not layout.lengths[lin.free].any():
         return None  # no free length, nothing to scale
     if not lin.every:
         raise AssertionError("the scale test needs a linearization with every column")
@@ -48,8 +48,7 @@ def scale_null(lin: Linearization, layout: Layout) -> np.ndarray | None:
     colnorm = np.linalg.norm(Ra, axis=0)
     if norm(Ra @ s - lin.Rlen) > 1e-6 * (np.sum(colnorm * np.abs(s)) + norm(lin.Rlen)):
         return None
-    units = np.array(layout.units)[fixed]
-    lengths = np.flatnonzero((units == "m") & (colnorm[p:] > 0))
+    lengths = np.flatnonzero(layout.lengths[fixed] & (colnorm[p:] > 0))
     if len(lengths):
         # the part of a fixed length's column outside the free columns' range sits below row p of R
         outside = np.linalg.norm(Ra[p:, p + lengths], axis=0) / colnorm[p + lengths]

@@ -49,7 +49,7 @@ class Iteration:
 
 def scale_test_needed(problem: Problem) -> bool:
     """The scale test (every length column in the linearization) applies when some length is free."""
-    return any(problem.layout.units[i] == "m" for i in problem.free_idx)
+    return bool(problem.layout.lengths[problem.free_idx].any())
 
 
 def iterate(problem: Problem, options: SolverOptions) -> Iteration:

@@ -29,7 +29,7 @@ def linearize(problem: Problem, state: State, W, every: bool) -> Linearization:
     if every:
         layout = problem.layout
         scale = scale_direction(state, layout)  # kept for the scale test (``symmetries.scale_null``)
-        moves = (np.array(layout.units) == "m") | (scale != 0)
+        moves = layout.lengths | (scale != 0)
         fixed = np.flatnonzero(~layout.free & moves)
     cols = np.concatenate([problem.free_idx, fixed])
     if problem.blocked:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import fnmatch
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -69,6 +70,13 @@ class Layout:
     @property
     def size(self) -> int:
         return len(self.names)
+
+    @cached_property
+    def lengths(self) -> np.ndarray:
+        """(size,) bool: the coordinates in metres (read at every linearization by the scale test)."""
+        out = np.array(self.units) == "m"
+        out.flags.writeable = False
+        return out
 
     def index(self, name: str) -> int:
         try:
