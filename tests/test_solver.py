@@ -127,7 +127,7 @@ def test_gauss_newton_and_inner_solve_paths_agree(rng, monkeypatch, caplog):
         fast = calibrate(robot, data, "kinematic")
     assert "Gauss-Newton" in caplog.text and "inner solve" not in caplog.text
     caplog.clear()
-    monkeypatch.setattr(steps, "gauss_newton", lambda lin, V: (np.zeros(V.shape[1]), 0.0))  # never helps
+    monkeypatch.setattr(steps, "gauss_newton", lambda lin, V, *factor: (np.zeros(V.shape[1]), 0.0))  # never helps
     with caplog.at_level(logging.DEBUG, logger="kincal.estimation.iterate"):
         slow = calibrate(robot, data, "kinematic")
     assert "inner solve" in caplog.text
