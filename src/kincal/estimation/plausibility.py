@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import threading
 import weakref
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -98,27 +99,31 @@ def implausible_units(robot: Robot, ds: Dataset) -> Implausible | None:
 # set's arms and readings; the newest READINGS_ENTRIES kept.
 READINGS_ENTRIES = 64
 _READINGS: OrderedDict[tuple, tuple[weakref.ref, Implausible | None, float]] = OrderedDict()
+_READINGS_LOCK = threading.Lock()
 
 
 def readings_verdict(robot: Robot, ds: Dataset) -> tuple[Implausible | None, float]:
     """(the first joint reading of ``ds`` beyond +-4 pi rad, or None; the nominal tool's RMS spread at the readings
     of a one-arm data set, else 0), remembered per robot and readings."""
     key = (id(robot), _readings_digest(ds))
-    hit = _READINGS.get(key)
-    if hit is not None and hit[0]() is robot:
-        _READINGS.move_to_end(key)
-        return hit[1], hit[2]
+    with _READINGS_LOCK:  # a Dask worker may run tasks on several threads
+        hit = _READINGS.get(key)
+        if hit is not None and hit[0]() is robot:
+            _READINGS.move_to_end(key)
+            return hit[1], hit[2]
     bad = _bad_reading(robot, ds)
     tool = _tool_spread(robot, ds) if bad is None and len(ds.arms) == 1 else 0.0
-    _READINGS[key] = (weakref.ref(robot), bad, tool)
-    while len(_READINGS) > READINGS_ENTRIES:
-        _READINGS.popitem(last=False)
+    with _READINGS_LOCK:
+        _READINGS[key] = (weakref.ref(robot), bad, tool)
+        while len(_READINGS) > READINGS_ENTRIES:
+            _READINGS.popitem(last=False)
     return bad, tool
 
 
 def clear_readings_cache() -> None:
     """Forget ``readings_verdict``'s memory (tests, cold-start timings)."""
-    _READINGS.clear()
+    with _READINGS_LOCK:
+        _READINGS.clear()
 
 
 def _readings_digest(ds: Dataset) -> bytes:
