@@ -31,6 +31,7 @@ import psutil  # noqa: E402  (Dask's dependency)
 
 from kincal import params  # noqa: E402
 from kincal.analysis import symmetries  # noqa: E402
+from kincal.estimation import plausibility  # noqa: E402
 from kincal.lie import se3  # noqa: E402
 from kincal.workflow import study as S  # noqa: E402
 
@@ -104,6 +105,7 @@ def forget_structures() -> None:
     for module in (params, se3):
         getattr(module, "clear_caches", lambda: None)()
     symmetries.clear_structure_cache()
+    getattr(plausibility, "clear_readings_cache", lambda: None)()
 
 
 def main() -> None:

@@ -11,8 +11,13 @@ a warning (a stiff joint's estimate scatters around 0), beyond them as a reason 
 
 from __future__ import annotations
 
+import hashlib
 import math
+import threading
+import weakref
+from collections import OrderedDict
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -69,16 +74,10 @@ class Implausible:
 
 def implausible_units(robot: Robot, ds: Dataset) -> Implausible | None:
     """The first implausible joint reading, measured value or measured spread of ``ds`` for ``robot``, or None."""
-    for a, q in ds.q.items():
-        arm = robot[a]
-        limited = np.isfinite(arm.lower) | np.isfinite(arm.upper)
-        checked = np.array([t != PRISMATIC for t in arm.joint_types]) & limited
-        big = np.abs(q) * checked > MAX_JOINT_RAD
-        if big.any():
-            i, j = np.argwhere(big)[0]
-            return Implausible("q", a, float(q[i, j]), int(i), int(j))
+    bad, tool = readings_verdict(robot, ds)
+    if bad is not None:
+        return bad
     a = ds.arms[0]
-    tool = _tool_spread(robot, ds) if len(ds.arms) == 1 else 0.0
     lengths = _measured_lengths(ds)
     for key, x in lengths.items():
         bad = _absurd_cell(key, a, x, tool)
@@ -91,6 +90,60 @@ def implausible_units(robot: Robot, ds: Dataset) -> Implausible | None:
         ratio = spread(x) / tool
         if not 1 / SPREAD_FACTOR <= ratio <= SPREAD_FACTOR:
             return Implausible(key, a, ratio, spread=spread(x), tool=tool)
+    return None
+
+
+# What ``implausible_units`` finds from the joint readings alone (a reading beyond +-4 pi, the nominal tool's
+# spread): a Monte Carlo study checks the same readings with fresh measurements at every repeat. Keyed by the
+# robot object (a weak reference: robots are immutable; a dead one's id never matches) and a digest of the data
+# set's arms and readings; the newest READINGS_ENTRIES kept.
+READINGS_ENTRIES = 64
+_READINGS: OrderedDict[tuple, tuple[weakref.ref, Implausible | None, float]] = OrderedDict()
+_READINGS_LOCK = threading.Lock()
+
+
+def readings_verdict(robot: Robot, ds: Dataset) -> tuple[Implausible | None, float]:
+    """(the first joint reading of ``ds`` beyond +-4 pi rad, or None; the nominal tool's RMS spread at the readings
+    of a one-arm data set, else 0), remembered per robot and readings."""
+    key = (id(robot), _readings_digest(ds))
+    with _READINGS_LOCK:  # a Dask worker may run tasks on several threads
+        hit = _READINGS.get(key)
+        if hit is not None and hit[0]() is robot:
+            _READINGS.move_to_end(key)
+            return hit[1], hit[2]
+    bad = _bad_reading(robot, ds)
+    tool = _tool_spread(robot, ds) if bad is None and len(ds.arms) == 1 else 0.0
+    with _READINGS_LOCK:
+        _READINGS[key] = (weakref.ref(robot), bad, tool)
+        while len(_READINGS) > READINGS_ENTRIES:
+            _READINGS.popitem(last=False)
+    return bad, tool
+
+
+def clear_readings_cache() -> None:
+    """Forget ``readings_verdict``'s memory (tests, cold-start timings)."""
+    with _READINGS_LOCK:
+        _READINGS.clear()
+
+
+def _readings_digest(ds: Dataset) -> bytes:
+    """A digest of the data set's arms (in order) and every arm's joint readings with their shapes."""
+    h = hashlib.blake2b(repr((ds.arms, [(a, q.shape) for a, q in ds.q.items()])).encode(), digest_size=20)
+    for q in ds.q.values():
+        h.update(np.ascontiguousarray(q, dtype=float).tobytes())
+    return h.digest()
+
+
+def _bad_reading(robot: Robot, ds: Dataset) -> Implausible | None:
+    """The first reading of a revolute joint with limits beyond +-4 pi rad (not an angle in radians), or None."""
+    for a, q in ds.q.items():
+        arm = robot[a]
+        limited = np.isfinite(arm.lower) | np.isfinite(arm.upper)
+        checked = np.array([t != PRISMATIC for t in arm.joint_types]) & limited
+        big = np.abs(q) * checked > MAX_JOINT_RAD
+        if big.any():
+            i, j = np.argwhere(big)[0]
+            return Implausible("q", a, float(q[i, j]), int(i), int(j))
     return None
 
 
@@ -119,9 +172,13 @@ def _tool_spread(robot: Robot, ds: Dataset) -> float:
     return spread(tip_pose(robot, a, {s: ds.q[s][rows] for s in line})[:, :3, 3])
 
 
+@lru_cache(maxsize=16)
 def _spread_rows(n: int) -> np.ndarray:
-    """At most SPREAD_ROWS row indices spread evenly over ``n`` rows (a spread needs no more)."""
-    return np.unique(np.linspace(0, n - 1, min(n, SPREAD_ROWS)).astype(int))
+    """At most SPREAD_ROWS row indices spread evenly over ``n`` rows (a spread needs no more); read-only,
+    remembered per ``n``."""
+    rows = np.unique(np.linspace(0, n - 1, min(n, SPREAD_ROWS)).astype(int))
+    rows.flags.writeable = False
+    return rows
 
 
 def _measured_lengths(ds: Dataset) -> dict[str, np.ndarray]:
@@ -137,6 +194,8 @@ def _absurd_cell(key: str, arm: str, x: np.ndarray, tool: float) -> Implausible 
     """The first coordinate of ``x`` (N, ..., 3) farther from its column's median than CELL_FACTOR times the
     data's size, or None."""
     flat = x.reshape(len(x), -1)
+    if _within(flat, CELL_FACTOR * MIN_SIZE):  # no cell that far from any value of its column: none from the median
+        return None
     median = np.median(flat, axis=0)
     with np.errstate(over="ignore", invalid="ignore"):  # the absurd value itself overflows a distance: inf
         typical = np.median(np.linalg.norm((flat - median).reshape(len(x), -1, 3), axis=-1))
@@ -146,6 +205,14 @@ def _absurd_cell(key: str, arm: str, x: np.ndarray, tool: float) -> Implausible 
         return None
     i, c = np.argwhere(far)[0]
     return Implausible(key, arm, float(flat[i, c]), sample=int(i), spread=bound, column=int(c))
+
+
+def _within(flat: np.ndarray, bound: float) -> bool:
+    """Every column of ``flat`` spans at most ``bound`` and holds no value near overflow (a median of two values
+    then stays between them): every value is within ``bound`` of its column's median, in floating point too."""
+    with np.errstate(invalid="ignore"):
+        hi, lo = flat.max(axis=0), flat.min(axis=0)
+        return bool(np.all(hi - lo <= bound) and np.all(np.abs(hi) <= 1e300) and np.all(np.abs(lo) <= 1e300))
 
 
 def spread(x: np.ndarray) -> float:

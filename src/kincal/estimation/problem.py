@@ -24,7 +24,7 @@ from kincal.estimation.constraints import FrameDistance, constraint_rows
 from kincal.estimation.memory import by_blocks, chunk_rows, require_memory
 from kincal.estimation.start import starting_state
 from kincal.estimation.stats import ResidualStats, residual_norms
-from kincal.experiments import Experiment, build as build_experiments, frame_kinds
+from kincal.experiments import Experiment, _check_finite, build as build_experiments, frame_kinds
 from kincal.kinematics import Robot
 from kincal.noise import Noise, effective
 from kincal.params import Layout, Prior, State, build_layout, displacement, pose_retraction_jacobians, retract
@@ -135,6 +135,26 @@ class Problem:
         want = frozenset(b.name for b in layout.blocks if layout.free[b.start: b.stop].any())
         return cls(robot, tuple(experiments), layout, nominal, nominal if start is None else start, tuple(noise),
                    tuple(constraints), tuple(unknown), np.flatnonzero(layout.free), np.flatnonzero(prior), want)
+
+    def with_measurements(self, datasets: Sequence[Dataset]) -> "Problem | None":
+        """This problem with ``datasets`` in place of its data sets when they differ from them in measured values only
+        (``same_structure``: kinds, names, arms, frames, joint readings, known values, stated noise), no frame is
+        unknown and the start was not corrected: the layout, nominal, start and noise are reused, and what
+        ``build`` checks of measured values is checked again (finite, the kind's ``check``, the memory, the
+        start). None where that does not hold: ``build`` the problem then. A Monte Carlo study's repeats differ so."""
+        if self.unknown or self.start is not self.nominal or len(datasets) != len(self.experiments) or not all(
+                same_structure(e.dataset, d) for e, d in zip(self.experiments, datasets)):
+            return None
+        require_memory(datasets, len(self.free_idx))
+        exps = []
+        for e, ds in zip(self.experiments, datasets):
+            _check_finite(ds)
+            exps.append(type(e)(ds, e.frames))
+            exps[-1].check()
+        start, nominal = starting_state(self.nominal, exps, self.layout, self.unknown)
+        if start is not self.nominal or nominal is not self.nominal:
+            return None
+        return replace(self, experiments=tuple(exps), cache=ResidualCache())
 
     @property
     def joint_noise(self) -> bool:
@@ -299,6 +319,30 @@ class Problem:
                                      **residual_norms(r, exp.components()),
                                      chi2=float(np.sum(np.einsum("nij,nj->ni", Wi, r) ** 2)), dof=int(r.size)))
         return out
+
+
+def same_structure(a: Dataset, b: Dataset) -> bool:
+    """Whether data sets ``a`` and ``b`` differ in their measured values only: the same kind, robot, name, arms,
+    frames and stated noise, the same measured entries with their shapes, and joint readings and known values
+    equal bit for bit (what a problem's experiments, frames, layout and noise are made of)."""
+    if (a.kind, a.robot, a.name, a.arms, dict(a.frames), a.meta.get("noise")) != \
+            (b.kind, b.robot, b.name, b.arms, dict(b.frames), b.meta.get("noise")):
+        return False
+    if {k: np.shape(v) for k, v in a.measured.items()} != {k: np.shape(v) for k, v in b.measured.items()}:
+        return False
+    return all(_same_arrays(x, y) for x, y in ((a.q, b.q), (a.known, b.known)))
+
+
+def _same_arrays(x: Mapping, y: Mapping) -> bool:
+    """The same keys, in the same order, each with arrays of the same dtype and shape and the same bytes (a -0.0
+    is not a 0.0 here)."""
+    if list(x) != list(y):
+        return False
+    for k in x:
+        u, v = np.asarray(x[k]), np.asarray(y[k])
+        if u is not v and (u.dtype != v.dtype or u.shape != v.shape or u.tobytes() != v.tobytes()):
+            return False
+    return True
 
 
 def _noise_per_experiment(noise, exps) -> list[Noise]:

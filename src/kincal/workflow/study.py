@@ -11,14 +11,15 @@ depends on the seed only, never on how repeats are spread over workers (``kincal
 from __future__ import annotations
 
 import inspect
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from typing import Any, Callable, Mapping
 
 import numpy as np
 
 from kincal.data import Dataset
 from kincal.errors import DataFormatError, KincalError
-from kincal.estimation import calibrate
+from kincal.estimation import Problem, SolverOptions, calibrate, solve
+from kincal.estimation.outliers import any_beyond, outlier_threshold
 from kincal.experiments.pose import weighted
 from kincal.experiments.pose_from_markers import markers_to_pose
 from kincal.io import units
@@ -170,12 +171,47 @@ def with_noise(ds: Dataset, noise: Noise, rng: np.random.Generator) -> Dataset:
     return replace(ds, q=q, measured=measured, meta={**ds.meta, "noise": noise.as_si()})
 
 
-def calibrate_variant(study: Study, variant: Variant, ds: Dataset):
-    """The ``Result`` of one variant on one repeat's data."""
+def calibrate_variant(study: Study, variant: Variant, ds: Dataset, memo: dict | None = None):
+    """The ``Result`` of one variant on one repeat's data: ``calibrate``'s. With ``memo`` (a ``Fixed.memo``) a
+    variant of plain options (``PLAIN_OPTIONS``) reuses the problem of its last repeat (``_calibrate_plain``)."""
     data, noise = ds, calibration_noise(study)
     if variant.data == "pose":
         data, noise = pose_data(ds, noise, variant.weighting, variant.length_per_radian, variant.noise_known)
-    return calibrate(study.robot, [data], noise=noise, **variant.options)
+    if memo is None or not set(variant.options) <= PLAIN_OPTIONS:
+        return calibrate(study.robot, [data], noise=noise, **variant.options)
+    return _calibrate_plain(study.robot, variant, data, noise, memo)
+
+
+# ``calibrate``'s keywords a problem of the same structure serves: the solver's options, ``free``, ``fixed`` and
+# ``outliers``. Other options (stages, priors, cv, ...) go through ``calibrate`` as given.
+_SOLVER_OPTIONS = frozenset(f.name for f in fields(SolverOptions)) - {"progress"}
+PLAIN_OPTIONS = _SOLVER_OPTIONS | {"free", "fixed", "outliers"}
+
+
+def _calibrate_plain(robot: Robot, variant: Variant, data: Dataset, noise: Noise, memo: dict):
+    """``calibrate(robot, [data], noise=noise, **variant.options)``, bit for bit, with the problem of the
+    variant's last repeat given these data's measurements (``Problem.with_measurements``: the same robot object,
+    options and noise, and data of the same structure), else built as ``calibrate`` builds it. A solve with rows
+    beyond the outlier rule goes through ``calibrate`` itself (its robust pass and refit)."""
+    opts = variant.options
+    threshold = outlier_threshold(opts.get("outliers", "reject"))
+    options = SolverOptions(**{k: v for k, v in opts.items() if k in _SOLVER_OPTIONS})
+    key = ("problem", variant.name)
+    last = memo.get(key)
+    problem = None
+    if last is not None and last[0] is robot and last[1] == variant and last[2] == noise:
+        problem = last[3].with_measurements([data])
+    if problem is None:
+        free = opts.get("free")
+        problem = Problem.build(robot, [data], "offsets" if free is None else free, opts.get("fixed", ()),
+                                noise=noise)
+        if len(problem.free_idx) == 0:  # calibrate's own error
+            return calibrate(robot, [data], noise=noise, **opts)
+        memo[key] = (robot, variant, noise, problem)
+    result = solve(problem, options)
+    if threshold is not None and any_beyond(result.problem, result.state, threshold):
+        return calibrate(robot, [data], noise=noise, **opts)
+    return result
 
 
 def pose_data(ds: Dataset, noise: Noise, weighting: str, length_per_radian: float = 1.0,
@@ -219,7 +255,7 @@ def run_repeat(study: Study, fixed: Fixed, r: int) -> list[Outcome]:
     out = []
     for v in study.variants:
         try:
-            result = calibrate_variant(study, v, ds)
+            result = calibrate_variant(study, v, ds, fixed.memo)
         except KincalError as exc:
             out.append(Outcome(FAILED, message=str(exc)))
             continue
