@@ -103,7 +103,7 @@ def loaded_chain(screws, theta0, base, home, tool, compliance, wrench_tool,
         tau = np.einsum("...ki,...ki->...k", axes, W[..., :-1, :])
         extra = (weights.g, M, S, W)
     kin = chain(screws, kin0.theta + deflection(compliance, tau, coupling), base, home, tool)
-    return LoadedKinematics(kin.theta, kin.exps, kin.prefixes, kin.flange, kin.tool, kin0, coupling, F_s, axes, tau,
+    return LoadedKinematics(kin.theta, kin.screws, kin.prefixes, kin.flange, kin.tool, kin0, coupling, F_s, axes, tau,
                             *extra)
 
 

@@ -7,6 +7,7 @@ Loops run over the n joints only, never over configurations.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -34,17 +35,28 @@ class Kinematics:
     Attributes
     ----------
     theta : (..., n) joint values with offsets applied.
-    exps : (..., n, 4, 4) ``exp(hat(xi_i) theta_i)``.
+    screws : (n, 6) the joint screws the chain was computed with.
     prefixes : (..., n + 1, 4, 4) ``base @ exp_1 @ ... @ exp_i`` for i = 0..n (index 0 is ``base``).
     flange : (..., 4, 4) ``T_world_flange``.
     tool : (..., 4, 4) ``T_world_tool``.
+    exps : (..., n, 4, 4) ``exp(hat(xi_i) theta_i)``, computed when first read (the chain does not need them).
     """
 
     theta: np.ndarray
-    exps: np.ndarray
+    screws: np.ndarray
     prefixes: np.ndarray
     flange: np.ndarray
     tool: np.ndarray
+
+    @cached_property
+    def exps(self) -> np.ndarray:
+        return _exponentials(self.screws, self.theta)
+
+
+def _exponentials(screws, theta) -> np.ndarray:
+    if se3.exact_joint_screws(screws):
+        return se3.exp_joint_screws(screws, theta)
+    return se3.exp(screws * theta[..., None])  # raw twists (e.g. a finite-difference step): the general exponential
 
 
 def kinematics(model: ArmModel, q) -> Kinematics:
@@ -54,33 +66,70 @@ def kinematics(model: ArmModel, q) -> Kinematics:
 
 
 def chain(screws, theta, base, home, tool) -> Kinematics:
-    """Unvalidated POE kernel on raw arrays (screws need not be conformed): theta (..., n)."""
+    """Unvalidated POE kernel on raw arrays (screws need not be conformed): theta (..., n).
+
+    Exact joint screws (``se3.exact_joint_screws``) go through their joint frames (``se3.joint_frames``):
+    ``P_i = (P_{i-1} C_i) Z_i(theta_i) C_i^-1``, two products with constants over all samples at once and a
+    change of two columns per joint; a joint at zero in every sample is the identity (its prefix is the last)."""
     theta = np.asarray(theta, dtype=float)
+    screws = np.asarray(screws, dtype=float)
     if se3.exact_joint_screws(screws):
-        exps = se3.exp_joint_screws(screws, theta)
-    else:  # raw twists (e.g. a finite-difference step): the general exponential
-        exps = se3.exp(screws * theta[..., None])
+        prefixes = _frame_prefixes(screws, theta, base)
+    else:
+        prefixes = _product_prefixes(screws, theta, base)
+    flange = prefixes[..., -1, :, :] @ home
+    return Kinematics(theta, screws, prefixes, flange, flange @ tool)
+
+
+def _product_prefixes(screws, theta, base) -> np.ndarray:
+    """The prefixes as products of the joints' exponentials (any twists)."""
+    exps = _exponentials(screws, theta)
     n = theta.shape[-1]
     prefixes = np.empty(theta.shape[:-1] + (n + 1, 4, 4))
     prefixes[..., 0, :, :] = base
     for i in range(n):
         prefixes[..., i + 1, :, :] = prefixes[..., i, :, :] @ exps[..., i, :, :]
-    flange = prefixes[..., -1, :, :] @ home
-    return Kinematics(theta, exps, prefixes, flange, flange @ tool)
+    return prefixes
+
+
+def _frame_prefixes(screws, theta, base) -> np.ndarray:
+    """The prefixes of exact joint screws through their joint frames (``chain``)."""
+    C, Ci, revolute, _, _ = se3.joint_frames(screws)
+    n = theta.shape[-1]
+    batch = theta.shape[:-1]
+    flat = theta.reshape(-1, n)
+    N = flat.shape[0]
+    prefixes = np.empty((N, n + 1, 4, 4))
+    prefixes[:, 0] = np.broadcast_to(base, batch + (4, 4)).reshape(N, 4, 4)
+    moves = np.any(flat, axis=0)
+    cos, sin = np.cos(flat), np.sin(flat)
+    for i in range(n):
+        if not moves[i]:  # exp(0) = I
+            prefixes[:, i + 1] = prefixes[:, i]
+            continue
+        X = (prefixes[:, i].reshape(4 * N, 4) @ C[i]).reshape(N, 4, 4)
+        if revolute[i]:  # X Rz(t): columns 0 and 1 turn
+            c, s = cos[:, i, None], sin[:, i, None]
+            x0, x1 = X[:, :, 0].copy(), X[:, :, 1].copy()
+            X[:, :, 0] = c * x0 + s * x1
+            X[:, :, 1] = c * x1 - s * x0
+        else:  # X Tz(t): the origin moves along z
+            X[:, :, 3] += flat[:, i, None] * X[:, :, 2]
+        prefixes[:, i + 1] = (X.reshape(4 * N, 4) @ Ci[i]).reshape(N, 4, 4)
+    return prefixes.reshape(batch + (n + 1, 4, 4))
 
 
 def expanded_chain(screws, theta, base, home, tool) -> Kinematics:
     """``chain`` of the joints ``screws`` (n, 6) at ``theta`` (..., n) seen as a chain of 3n joints whose every
     second and third joint stays at zero (``kincal.kinematics.lateral``'s expanded chain at its unloaded values):
-    the same numbers as that chain's ``chain``, without multiplying by its identities."""
+    the same numbers as that chain's ``chain``, without multiplying by its identities. Its ``screws`` repeat each
+    joint's three times (a joint at zero is the identity whatever its screw)."""
     compact = chain(screws, theta, base, home, tool)
     n = compact.theta.shape[-1]
     prefixes = compact.prefixes[..., np.repeat(np.arange(n + 1), [1] + [3] * n), :, :]
-    exps = np.empty(compact.exps.shape[:-3] + (n, 3, 4, 4))
-    exps[..., 0, :, :], exps[..., 1:, :, :] = compact.exps, np.eye(4)
     theta3 = np.zeros(compact.theta.shape[:-1] + (3 * n,))
     theta3[..., 0::3] = compact.theta
-    return Kinematics(theta3, exps.reshape(exps.shape[:-4] + (3 * n, 4, 4)), prefixes, compact.flange, compact.tool)
+    return Kinematics(theta3, np.repeat(compact.screws, 3, axis=0), prefixes, compact.flange, compact.tool)
 
 
 def space_axes(prefixes: np.ndarray, screws: np.ndarray) -> np.ndarray:

@@ -171,8 +171,45 @@ def joint_jacobian(kin: Kinematics, G: np.ndarray, screws: np.ndarray, projected
 
 
 def prefix_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
-    """``G Ad(P_j)`` (n + 1, N*k, 6) for every prefix of the chain: what its Jacobians share."""
+    """``G Ad(P_j)`` (n + 1, N*k, 6) for every prefix of the chain: what its Jacobians share. Exact joint screws
+    go joint by joint through their frames (``_frame_projections``), other twists project every prefix."""
+    if G.ndim == 3 and kin.theta.shape == G.shape[:1] + kin.screws.shape[:1] and se3.exact_joint_screws(kin.screws):
+        return _frame_projections(kin, G)
     return _project_prefixes(G, kin.prefixes)
+
+
+def _frame_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
+    """``prefix_projections`` of exact joint screws: with ``exp(xi_i t) = C_i Z_i(t) C_i^-1``
+    (``se3.joint_frames``), ``G Ad(P_{i+1}) = ((G Ad(P_i)) Ad(C_i)) Ad(Z_i) Ad(C_i^-1)``: two products with
+    constant 6 x 6 matrices over all rows at once, and ``Ad(Z_i)`` turns two pairs of columns (revolute) or adds
+    the translation's term (prismatic); a joint at zero in every sample is the identity."""
+    _, _, revolute, AdC, AdCi = se3.joint_frames(kin.screws)
+    N, k = G.shape[:2]
+    theta = kin.theta
+    n = theta.shape[1]
+    M = np.empty((n + 1, N * k, 6))
+    P0 = kin.prefixes[:, 0]
+    if np.all(P0 == P0[:1]):  # one base for every sample (a chain's own)
+        M[0] = G.reshape(N * k, 6) @ se3.adjoint(P0[0])
+    else:
+        M[0] = _project_prefixes(G, kin.prefixes[:, :1])[0]
+    moves = np.any(theta, axis=0)
+    cos, sin = np.cos(theta)[:, :, None, None], np.sin(theta)[:, :, None, None]
+    for i in range(n):
+        if not moves[i]:
+            M[i + 1] = M[i]
+            continue
+        K = (M[i] @ AdC[i]).reshape(N, k, 6)
+        if revolute[i]:  # Ad(Rz(t)) = diag(Rz, Rz): columns (0, 3) and (1, 4) turn
+            x0, x1 = K[..., 0::3].copy(), K[..., 1::3].copy()
+            K[..., 0::3] = cos[:, i] * x0 + sin[:, i] * x1
+            K[..., 1::3] = cos[:, i] * x1 - sin[:, i] * x0
+        else:  # Ad(Tz(t)) = [[I, hat(t e_z)], [0, I]]: g^T hat(t e_z) = (g x t e_z)^T
+            t = theta[:, i, None]
+            K[..., 3] += t * K[..., 1]
+            K[..., 4] -= t * K[..., 0]
+        M[i + 1] = K.reshape(N * k, 6) @ AdCi[i]
+    return M
 
 
 def _along_screws(M: np.ndarray, screws: np.ndarray, N: int, k: int) -> np.ndarray:
