@@ -265,12 +265,13 @@ class Problem:
         ``Rl``: retraction Jacobians of pose blocks stepped away from their linearization point."""
         rs, Js = [], []
         for res, W in zip(residuals, whiteners):
-            rs.append((W @ res.r[:, :, None]).ravel())
+            d = _constant_diagonal(W)
+            rs.append((res.r * d).ravel() if d is not None else (W @ res.r[:, :, None]).ravel())
             if cols is None:
                 continue
             N, k = res.r.shape
-            J = scatter_columns(res.jac, self.layout, cols, (N, k), Rl)
-            Js.append((W @ J).reshape(N * k, -1))
+            J = scatter_columns(res.jac, self.layout, cols, (N, k), Rl)  # a new array: whitened in place
+            Js.append((np.multiply(J, d[:, None], out=J) if d is not None else W @ J).reshape(N * k, -1))
         if len(self.prior_idx):
             disp, D = displacement(state, self.nominal, self.layout, jacobian=cols is not None)
             sig = self.layout.prior_sigma[self.prior_idx]
@@ -286,8 +287,8 @@ class Problem:
             rs.append(rc)
             if cols is not None:
                 Js.append(Jc)
-        r = np.concatenate(rs)
-        return (r, np.concatenate(Js, axis=0)) if cols is not None else (r, None)
+        r = _joined(rs)
+        return (r, _joined(Js)) if cols is not None else (r, None)
 
     def statistics(self, state: State, whiteners=None) -> list[ResidualStats]:
         """Per experiment: samples, position / orientation RMS and max (norm per sample), whitened chi^2."""
@@ -299,6 +300,22 @@ class Problem:
                                      **residual_norms(r, exp.components()),
                                      chi2=float(np.sum(np.einsum("nij,nj->ni", Wi, r) ** 2)), dof=int(r.size)))
         return out
+
+
+def _constant_diagonal(W: np.ndarray) -> np.ndarray | None:
+    """The diagonal (k,) of whiteners (N, k, k) that are one diagonal matrix for every sample (stated noise, no
+    encoder noise: ``_whiteners_of``), else None. Whitening by it scales rows: the same numbers as the product
+    (whose other terms are exact zeros)."""
+    if W.ndim != 3 or W.strides[0] != 0:
+        return None
+    D = W[0]
+    d = np.diagonal(D)
+    return d.copy() if not np.any(D - np.diag(d)) else None
+
+
+def _joined(pieces: list) -> np.ndarray:
+    """The pieces stacked along their first axis (one piece as it is: no copy)."""
+    return pieces[0] if len(pieces) == 1 else np.concatenate(pieces, axis=0)
 
 
 def _noise_per_experiment(noise, exps) -> list[Noise]:

@@ -93,21 +93,23 @@ def _product_prefixes(screws, theta, base) -> np.ndarray:
 
 
 def _frame_prefixes(screws, theta, base) -> np.ndarray:
-    """The prefixes of exact joint screws through their joint frames (``chain``)."""
+    """The prefixes of exact joint screws through their joint frames (``chain``), computed joint by joint in one
+    buffer (joint first) and returned as its (..., n + 1, 4, 4) view."""
     C, Ci, revolute, _, _ = se3.joint_frames(screws)
     n = theta.shape[-1]
     batch = theta.shape[:-1]
     flat = theta.reshape(-1, n)
     N = flat.shape[0]
-    prefixes = np.empty((N, n + 1, 4, 4))
-    prefixes[:, 0] = np.broadcast_to(base, batch + (4, 4)).reshape(N, 4, 4)
+    P = np.empty((n + 1, N, 4, 4))
+    P[0] = np.broadcast_to(base, batch + (4, 4)).reshape(N, 4, 4)
     moves = np.any(flat, axis=0)
     cos, sin = np.cos(flat), np.sin(flat)
+    X = np.empty((N, 4, 4))
     for i in range(n):
         if not moves[i]:  # exp(0) = I
-            prefixes[:, i + 1] = prefixes[:, i]
+            P[i + 1] = P[i]
             continue
-        X = (prefixes[:, i].reshape(4 * N, 4) @ C[i]).reshape(N, 4, 4)
+        np.matmul(P[i].reshape(4 * N, 4), C[i], out=X.reshape(4 * N, 4))
         if revolute[i]:  # X Rz(t): columns 0 and 1 turn
             c, s = cos[:, i, None], sin[:, i, None]
             x0, x1 = X[:, :, 0].copy(), X[:, :, 1].copy()
@@ -115,8 +117,8 @@ def _frame_prefixes(screws, theta, base) -> np.ndarray:
             X[:, :, 1] = c * x1 - s * x0
         else:  # X Tz(t): the origin moves along z
             X[:, :, 3] += flat[:, i, None] * X[:, :, 2]
-        prefixes[:, i + 1] = (X.reshape(4 * N, 4) @ Ci[i]).reshape(N, 4, 4)
-    return prefixes.reshape(batch + (n + 1, 4, 4))
+        np.matmul(X.reshape(4 * N, 4), Ci[i], out=P[i + 1].reshape(4 * N, 4))
+    return np.moveaxis(P, 0, 1).reshape(batch + (n + 1, 4, 4))
 
 
 def expanded_chain(screws, theta, base, home, tool) -> Kinematics:

@@ -37,7 +37,6 @@ import numpy as np
 from kincal.kinematics.elastic import LoadedKinematics, compliance_columns, deflection_map
 from kincal.kinematics.fk import Kinematics
 from kincal.kinematics.gravity import _Projected, gravity_torque_derivatives
-from kincal.kinematics.twists import padded_bases
 from kincal.lie import se3
 
 TOOL_PARTS = ("offsets", "twists", "home", "base", "tool", "compliance")
@@ -77,22 +76,20 @@ def tool_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, generator
     joints = with_jq or "offsets" in parts or loaded
     twists = "twists" in parts
     out: dict[str, np.ndarray] = {}
-    jq, bounds = None, [*range(0, n + 1, step)] if twists else []  # the groups' first prefixes, and n
+    jq = None
     if projected is None and (joints or twists):
         projected = prefix_projections(kin, G)  # readings, twists and home at once
     if projected is not None:
         jq = _along_screws(projected[:n], screws, N, k)
-        M = projected[bounds + [n]]
+        home = projected[n]
     elif "home" in parts:
-        M = _project_prefixes(G, kin.prefixes[:, [n]])
+        home = _project_prefixes(G, kin.prefixes[:, [n]])[0]
     if "offsets" in parts:
         out["offsets"] = jq[..., ::step]
     if twists:
-        Gen, keep = padded_bases(generators)  # (n / step, 6, t)
-        tw = (M[: len(bounds) - 1] - M[1: len(bounds)]) @ Gen  # (n / step, N*k, t): one product per joint
-        out["twists"] = np.moveaxis(tw.reshape(n // step, N, k, -1), 0, 2).reshape(N, k, -1)[..., keep]
+        out["twists"] = _twist_columns(projected, generators, step, N, k)
     if "home" in parts:
-        out["home"] = M[-1].reshape(N, k, 6)
+        out["home"] = home.reshape(N, k, 6)
     if "base" in parts:
         out["base"] = G
     if "tool" in parts:
@@ -195,11 +192,13 @@ def _frame_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
         M[0] = _project_prefixes(G, kin.prefixes[:, :1])[0]
     moves = np.any(theta, axis=0)
     cos, sin = np.cos(theta)[:, :, None, None], np.sin(theta)[:, :, None, None]
+    K2 = np.empty((N * k, 6))
+    K = K2.reshape(N, k, 6)
     for i in range(n):
         if not moves[i]:
             M[i + 1] = M[i]
             continue
-        K = (M[i] @ AdC[i]).reshape(N, k, 6)
+        np.matmul(M[i], AdC[i], out=K2)
         if revolute[i]:  # Ad(Rz(t)) = diag(Rz, Rz): columns (0, 3) and (1, 4) turn
             x0, x1 = K[..., 0::3].copy(), K[..., 1::3].copy()
             K[..., 0::3] = cos[:, i] * x0 + sin[:, i] * x1
@@ -208,8 +207,20 @@ def _frame_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
             t = theta[:, i, None]
             K[..., 3] += t * K[..., 1]
             K[..., 4] -= t * K[..., 0]
-        M[i + 1] = K.reshape(N * k, 6) @ AdCi[i]
+        np.matmul(K2, AdCi[i], out=M[i + 1])
     return M
+
+
+def _twist_columns(M: np.ndarray, generators, step: int, N: int, k: int) -> np.ndarray:
+    """``(M_a - M_b) G_j`` (N, k, sum of the k_j) for the joints' groups ``[a, b)`` of ``step`` screws, written
+    joint by joint into the result's columns."""
+    out = np.empty((N, k, sum(g.shape[1] for g in generators)))
+    c = 0
+    for j, Gj in enumerate(generators):
+        a, t = step * j, Gj.shape[1]
+        out[:, :, c: c + t] = ((M[a] - M[a + step]) @ Gj).reshape(N, k, t)
+        c += t
+    return out
 
 
 def _along_screws(M: np.ndarray, screws: np.ndarray, N: int, k: int) -> np.ndarray:
