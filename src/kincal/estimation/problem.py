@@ -287,8 +287,8 @@ class Problem:
             rs.append(rc)
             if cols is not None:
                 Js.append(Jc)
-        r = _joined(rs)
-        return (r, _joined(Js)) if cols is not None else (r, None)
+        r = np.concatenate(rs)
+        return (r, np.concatenate(Js, axis=0)) if cols is not None else (r, None)
 
     def statistics(self, state: State, whiteners=None) -> list[ResidualStats]:
         """Per experiment: samples, position / orientation RMS and max (norm per sample), whitened chi^2."""
@@ -302,6 +302,25 @@ class Problem:
         return out
 
 
+def triangular_factor(columns: Sequence[np.ndarray]) -> np.ndarray:
+    """``numpy.linalg.qr(np.column_stack(columns), mode="r")``, the same numbers without its two copies of the
+    tall matrix: the columns are written once into a Fortran-ordered array that LAPACK's ``geqrf`` factorizes in
+    place (numpy's ``qr`` copies its argument, then copies it again into Fortran order). C-ordered, as numpy's."""
+    from scipy.linalg.lapack import dgeqrf  # here: importing scipy.linalg costs more than importing kincal
+
+    cols = [c.reshape(len(c), -1) for c in columns]
+    m, n = len(cols[0]), sum(c.shape[1] for c in cols)
+    A = np.empty((m, n), order="F")
+    at = 0
+    for c in cols:
+        A[:, at: at + c.shape[1]] = c
+        at += c.shape[1]
+    qr, _, _, info = dgeqrf(A, lwork=max(1, 64 * n), overwrite_a=1)
+    if info != 0:  # an argument LAPACK rejects: numpy's error
+        return np.linalg.qr(np.column_stack(columns), mode="r")
+    return np.ascontiguousarray(np.triu(qr[: min(m, n)]))
+
+
 def _constant_diagonal(W: np.ndarray) -> np.ndarray | None:
     """The diagonal (k,) of whiteners (N, k, k) that are one diagonal matrix for every sample (stated noise, no
     encoder noise: ``_whiteners_of``), else None. Whitening by it scales rows: the same numbers as the product
@@ -311,11 +330,6 @@ def _constant_diagonal(W: np.ndarray) -> np.ndarray | None:
     D = W[0]
     d = np.diagonal(D)
     return d.copy() if not np.any(D - np.diag(d)) else None
-
-
-def _joined(pieces: list) -> np.ndarray:
-    """The pieces stacked along their first axis (one piece as it is: no copy)."""
-    return pieces[0] if len(pieces) == 1 else np.concatenate(pieces, axis=0)
 
 
 def _noise_per_experiment(noise, exps) -> list[Noise]:
