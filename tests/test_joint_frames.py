@@ -8,6 +8,7 @@ import pytest
 
 from kincal.kinematics import tangent_generators
 from kincal.kinematics.fk import _product_prefixes, chain
+from kincal.experiments._kernel import point_jacobian
 from kincal.kinematics.jacobians import _project_prefixes, prefix_projections, tool_jacobians
 from kincal.lie import se3
 from kincal.testing import numerical_jacobian, pose_minus, random_arm, random_pose
@@ -93,3 +94,20 @@ def test_tool_jacobians_with_a_joint_at_zero_match_finite_differences(rng, n, pr
         num = numerical_jacobian(lambda d: _moved_fk(arm, q, gens, part, d), np.zeros(size), minus=pose_minus)
         np.testing.assert_allclose(J[part], num, atol=1e-6 * max(1.0, np.abs(num).max()), err_msg=part)
     np.testing.assert_allclose(jq, J["offsets"], rtol=0, atol=0)
+
+
+def test_the_chain_keeps_the_turns_of_its_joints(rng):
+    arm = random_arm(rng, 6, (2,))
+    q = rng.uniform(-3, 3, (5, 6))
+    kin = chain(arm.screws, q, arm.base, arm.home, arm.tool)
+    np.testing.assert_array_equal(kin.turns[0], np.cos(q))
+    np.testing.assert_array_equal(kin.turns[1], np.sin(q))
+
+
+def test_a_constant_rows_point_jacobian_is_the_product(rng):
+    """``point_jacobian(p, A)`` = ``A [I, -hat(p)]`` row by row, and the derivative of A p under left increments."""
+    p = rng.normal(size=(5, 2, 3))
+    A = rng.normal(size=(4, 3))
+    np.testing.assert_allclose(point_jacobian(p, A), A @ point_jacobian(p), rtol=0, atol=1e-15)
+    num = numerical_jacobian(lambda d: (A @ se3.transform_points(se3.exp(d), p)[..., None])[..., 0], np.zeros(6))
+    np.testing.assert_allclose(point_jacobian(p, A), num, atol=1e-8)

@@ -52,6 +52,11 @@ class Kinematics:
     def exps(self) -> np.ndarray:
         return _exponentials(self.screws, self.theta)
 
+    @cached_property
+    def turns(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(cos theta, sin theta)``, each (..., n) (the chain's own when it computed them)."""
+        return np.cos(self.theta), np.sin(self.theta)
+
 
 def _exponentials(screws, theta) -> np.ndarray:
     if se3.exact_joint_screws(screws):
@@ -73,12 +78,25 @@ def chain(screws, theta, base, home, tool) -> Kinematics:
     change of two columns per joint; a joint at zero in every sample is the identity (its prefix is the last)."""
     theta = np.asarray(theta, dtype=float)
     screws = np.asarray(screws, dtype=float)
+    turns = None
     if se3.exact_joint_screws(screws):
-        prefixes = _frame_prefixes(screws, theta, base)
+        turns = np.cos(theta), np.sin(theta)
+        prefixes = _frame_prefixes(screws, theta, base, turns)
     else:
         prefixes = _product_prefixes(screws, theta, base)
-    flange = prefixes[..., -1, :, :] @ home
-    return Kinematics(theta, screws, prefixes, flange, flange @ tool)
+    flange = _times(prefixes[..., -1, :, :], home)
+    kin = Kinematics(theta, screws, prefixes, flange, _times(flange, tool))
+    if turns is not None:
+        kin.__dict__["turns"] = turns  # the cached property's value: the Jacobians turn by the same
+    return kin
+
+
+def _times(T: np.ndarray, X) -> np.ndarray:
+    """``T @ X`` for poses T (..., 4, 4) and X; one product over all samples for a constant X and contiguous T."""
+    X = np.asarray(X, dtype=float)
+    if X.ndim == 2 and T.ndim > 2 and T.flags.c_contiguous:
+        return (T.reshape(-1, 4) @ X).reshape(T.shape)
+    return T @ X
 
 
 def _product_prefixes(screws, theta, base) -> np.ndarray:
@@ -92,7 +110,7 @@ def _product_prefixes(screws, theta, base) -> np.ndarray:
     return prefixes
 
 
-def _frame_prefixes(screws, theta, base) -> np.ndarray:
+def _frame_prefixes(screws, theta, base, turns) -> np.ndarray:
     """The prefixes of exact joint screws through their joint frames (``chain``), computed joint by joint in one
     buffer (joint first) and returned as its (..., n + 1, 4, 4) view."""
     C, Ci, revolute, _, _ = se3.joint_frames(screws)
@@ -103,7 +121,7 @@ def _frame_prefixes(screws, theta, base) -> np.ndarray:
     P = np.empty((n + 1, N, 4, 4))
     P[0] = np.broadcast_to(base, batch + (4, 4)).reshape(N, 4, 4)
     moves = np.any(flat, axis=0)
-    cos, sin = np.cos(flat), np.sin(flat)
+    cos, sin = (t.reshape(-1, n) for t in turns)
     X = np.empty((N, 4, 4))
     for i in range(n):
         if not moves[i]:  # exp(0) = I
@@ -112,11 +130,11 @@ def _frame_prefixes(screws, theta, base) -> np.ndarray:
         np.matmul(P[i].reshape(4 * N, 4), C[i], out=X.reshape(4 * N, 4))
         if revolute[i]:  # X Rz(t): columns 0 and 1 turn
             c, s = cos[:, i, None], sin[:, i, None]
-            x0, x1 = X[:, :, 0].copy(), X[:, :, 1].copy()
-            X[:, :, 0] = c * x0 + s * x1
-            X[:, :, 1] = c * x1 - s * x0
+            x0, x1 = X[:, :3, 0].copy(), X[:, :3, 1].copy()  # the last row stays (0, 0, 0, 1)
+            X[:, :3, 0] = c * x0 + s * x1
+            X[:, :3, 1] = c * x1 - s * x0
         else:  # X Tz(t): the origin moves along z
-            X[:, :, 3] += flat[:, i, None] * X[:, :, 2]
+            X[:, :3, 3] += flat[:, i, None] * X[:, :3, 2]
         np.matmul(X.reshape(4 * N, 4), Ci[i], out=P[i + 1].reshape(4 * N, 4))
     return np.moveaxis(P, 0, 1).reshape(batch + (n + 1, 4, 4))
 

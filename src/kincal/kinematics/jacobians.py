@@ -191,7 +191,7 @@ def _frame_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
     else:
         M[0] = _project_prefixes(G, kin.prefixes[:, :1])[0]
     moves = np.any(theta, axis=0)
-    cos, sin = np.cos(theta)[:, :, None, None], np.sin(theta)[:, :, None, None]
+    cos, sin = (t[:, :, None, None] for t in kin.turns)
     K2 = np.empty((N * k, 6))
     K = K2.reshape(N, k, 6)
     for i in range(n):
