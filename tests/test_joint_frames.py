@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from kincal.kinematics import tangent_generators
+from kincal.kinematics.elastic import loaded_chain
 from kincal.kinematics.fk import _product_prefixes, chain
-from kincal.experiments._kernel import point_jacobian
 from kincal.kinematics.jacobians import _project_prefixes, prefix_projections, tool_jacobians
 from kincal.lie import se3
 from kincal.testing import numerical_jacobian, pose_minus, random_arm, random_pose
@@ -104,10 +104,13 @@ def test_the_chain_keeps_the_turns_of_its_joints(rng):
     np.testing.assert_array_equal(kin.turns[1], np.sin(q))
 
 
-def test_a_constant_rows_point_jacobian_is_the_product(rng):
-    """``point_jacobian(p, A)`` = ``A [I, -hat(p)]`` row by row, and the derivative of A p under left increments."""
-    p = rng.normal(size=(5, 2, 3))
-    A = rng.normal(size=(4, 3))
-    np.testing.assert_allclose(point_jacobian(p, A), A @ point_jacobian(p), rtol=0, atol=1e-15)
-    num = numerical_jacobian(lambda d: (A @ se3.transform_points(se3.exp(d), p)[..., None])[..., 0], np.zeros(6))
-    np.testing.assert_allclose(point_jacobian(p, A), num, atol=1e-8)
+
+def test_a_loaded_chain_keeps_the_products_of_exponentials(rng):
+    """A loaded chain (``elastic.loaded_chain``) and its projections keep the plain computations, bit for bit."""
+    arm = random_arm(rng, 6, ())
+    q = rng.uniform(-2, 2, (5, 6))
+    kin = loaded_chain(arm.screws, q, arm.base, arm.home, arm.tool, np.full(6, 1e-3), rng.normal(size=(5, 6)))
+    np.testing.assert_array_equal(kin.prefixes, _product_prefixes(arm.screws, kin.theta, arm.base))
+    np.testing.assert_array_equal(kin.unloaded.prefixes, _product_prefixes(arm.screws, q, arm.base))
+    G = rng.normal(size=(5, 3, 6))
+    np.testing.assert_array_equal(prefix_projections(kin, G), _project_prefixes(G, kin.prefixes))

@@ -226,14 +226,8 @@ def pose_gap_in_b(TA: np.ndarray, TB: np.ndarray):
     return r, G, -G
 
 
-def point_jacobian(p: np.ndarray, A: np.ndarray | None = None) -> np.ndarray:
-    """d p / d(left increment of the frame carrying p): [I, -hat(p)], (..., 3, 6); with a constant A (r, 3) that of
-    ``A p``, ``A [I, -hat(p)]`` (..., r, 6), row by row ``[a, p x a]`` (no product per sample)."""
-    if A is not None:
-        out = np.empty(p.shape[:-1] + (len(A), 6))
-        out[..., :3] = A
-        out[..., 3:] = so3.cross(p[..., None, :], A)
-        return out
+def point_jacobian(p: np.ndarray) -> np.ndarray:
+    """d p / d(left increment of the frame carrying p): [I, -hat(p)], (..., 3, 6)."""
     out = np.zeros(p.shape[:-1] + (3, 6))
     out[..., :, :3] = np.eye(3)
     out[..., :, 3:] = -so3.hat(p)

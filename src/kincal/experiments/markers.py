@@ -46,7 +46,7 @@ class MarkersExperiment(Experiment):
         F = kin.tool
         pA = se3.transform_points(F[:, None], x)  # (N, m, 3) world
         Rt = W[:3, :3].T
-        GA = point_jacobian(pA, Rt)  # (N, m, 3, 6)
+        GA = Rt @ point_jacobian(pA)  # (N, m, 3, 6)
         jac, jqs = {}, {}
         self._arm_jac(state, arm, kin, GA.reshape(N, 3 * m, 6), want, jq, jac, jqs)
         if self._wanted("markers", want):

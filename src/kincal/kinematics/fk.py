@@ -70,16 +70,17 @@ def kinematics(model: ArmModel, q) -> Kinematics:
     return chain(model.screws, q + model.offsets, model.base, model.home, model.tool)
 
 
-def chain(screws, theta, base, home, tool) -> Kinematics:
+def chain(screws, theta, base, home, tool, frames: bool = True) -> Kinematics:
     """Unvalidated POE kernel on raw arrays (screws need not be conformed): theta (..., n).
 
     Exact joint screws (``se3.exact_joint_screws``) go through their joint frames (``se3.joint_frames``):
     ``P_i = (P_{i-1} C_i) Z_i(theta_i) C_i^-1``, two products with constants over all samples at once and a
-    change of two columns per joint; a joint at zero in every sample is the identity (its prefix is the last)."""
+    change of two columns per joint; a joint at zero in every sample is the identity (its prefix is the last).
+    ``frames`` False: the products of the joints' exponentials (a loaded chain's, ``elastic.loaded_chain``)."""
     theta = np.asarray(theta, dtype=float)
     screws = np.asarray(screws, dtype=float)
     turns = None
-    if se3.exact_joint_screws(screws):
+    if frames and se3.exact_joint_screws(screws):
         turns = np.cos(theta), np.sin(theta)
         prefixes = _frame_prefixes(screws, theta, base, turns)
     else:
@@ -139,12 +140,12 @@ def _frame_prefixes(screws, theta, base, turns) -> np.ndarray:
     return np.moveaxis(P, 0, 1).reshape(batch + (n + 1, 4, 4))
 
 
-def expanded_chain(screws, theta, base, home, tool) -> Kinematics:
+def expanded_chain(screws, theta, base, home, tool, frames: bool = True) -> Kinematics:
     """``chain`` of the joints ``screws`` (n, 6) at ``theta`` (..., n) seen as a chain of 3n joints whose every
     second and third joint stays at zero (``kincal.kinematics.lateral``'s expanded chain at its unloaded values):
     the same numbers as that chain's ``chain``, without multiplying by its identities. Its ``screws`` repeat each
     joint's three times (a joint at zero is the identity whatever its screw)."""
-    compact = chain(screws, theta, base, home, tool)
+    compact = chain(screws, theta, base, home, tool, frames)
     n = compact.theta.shape[-1]
     prefixes = compact.prefixes[..., np.repeat(np.arange(n + 1), [1] + [3] * n), :, :]
     theta3 = np.zeros(compact.theta.shape[:-1] + (3 * n,))

@@ -169,8 +169,10 @@ def joint_jacobian(kin: Kinematics, G: np.ndarray, screws: np.ndarray, projected
 
 def prefix_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
     """``G Ad(P_j)`` (n + 1, N*k, 6) for every prefix of the chain: what its Jacobians share. Exact joint screws
-    go joint by joint through their frames (``_frame_projections``), other twists project every prefix."""
-    if G.ndim == 3 and kin.theta.shape == G.shape[:1] + kin.screws.shape[:1] and se3.exact_joint_screws(kin.screws):
+    go joint by joint through their frames (``_frame_projections``), other twists and loaded chains (whose
+    numbers stay those of the products of exponentials, ``fk.chain``) project every prefix."""
+    if (G.ndim == 3 and kin.theta.shape == G.shape[:1] + kin.screws.shape[:1] and not isinstance(kin, LoadedKinematics)
+            and se3.exact_joint_screws(kin.screws)):
         return _frame_projections(kin, G)
     return _project_prefixes(G, kin.prefixes)
 
