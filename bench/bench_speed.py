@@ -104,6 +104,7 @@ PHASES = (
     ("unit plausibility check", "kincal.estimation.plausibility:implausible_units"),
     ("outlier check", "kincal.estimation.outliers:any_beyond"),
     ("LAPACK QR", "numpy.linalg:qr"),
+    ("LAPACK QR", "kincal.estimation.problem:triangular_factor"),
     ("LAPACK SVD", "numpy.linalg:svd"),
     ("LAPACK lstsq", "numpy.linalg:lstsq"),
 )

@@ -285,12 +285,13 @@ class Problem:
         ``Rl``: retraction Jacobians of pose blocks stepped away from their linearization point."""
         rs, Js = [], []
         for res, W in zip(residuals, whiteners):
-            rs.append((W @ res.r[:, :, None]).ravel())
+            d = _constant_diagonal(W)
+            rs.append((res.r * d).ravel() if d is not None else (W @ res.r[:, :, None]).ravel())
             if cols is None:
                 continue
             N, k = res.r.shape
-            J = scatter_columns(res.jac, self.layout, cols, (N, k), Rl)
-            Js.append((W @ J).reshape(N * k, -1))
+            J = scatter_columns(res.jac, self.layout, cols, (N, k), Rl)  # a new array: whitened in place
+            Js.append((np.multiply(J, d[:, None], out=J) if d is not None else W @ J).reshape(N * k, -1))
         if len(self.prior_idx):
             disp, D = displacement(state, self.nominal, self.layout, jacobian=cols is not None)
             sig = self.layout.prior_sigma[self.prior_idx]
@@ -343,6 +344,36 @@ def _same_arrays(x: Mapping, y: Mapping) -> bool:
         if u is not v and (u.dtype != v.dtype or u.shape != v.shape or u.tobytes() != v.tobytes()):
             return False
     return True
+
+
+def triangular_factor(columns: Sequence[np.ndarray]) -> np.ndarray:
+    """``numpy.linalg.qr(np.column_stack(columns), mode="r")``, the same numbers without its two copies of the
+    tall matrix: the columns are written once into a Fortran-ordered array that LAPACK's ``geqrf`` factorizes in
+    place (numpy's ``qr`` copies its argument, then copies it again into Fortran order). C-ordered, as numpy's."""
+    from scipy.linalg.lapack import dgeqrf  # here: importing scipy.linalg costs more than importing kincal
+
+    cols = [c.reshape(len(c), -1) for c in columns]
+    m, n = len(cols[0]), sum(c.shape[1] for c in cols)
+    A = np.empty((m, n), order="F")
+    at = 0
+    for c in cols:
+        A[:, at: at + c.shape[1]] = c
+        at += c.shape[1]
+    qr, _, _, info = dgeqrf(A, lwork=max(1, 64 * n), overwrite_a=1)
+    if info != 0:  # an argument LAPACK rejects: numpy's error
+        return np.linalg.qr(np.column_stack(columns), mode="r")
+    return np.ascontiguousarray(np.triu(qr[: min(m, n)]))
+
+
+def _constant_diagonal(W: np.ndarray) -> np.ndarray | None:
+    """The diagonal (k,) of whiteners (N, k, k) that are one diagonal matrix for every sample (stated noise, no
+    encoder noise: ``_whiteners_of``), else None. Whitening by it scales rows: the same numbers as the product
+    (whose other terms are exact zeros)."""
+    if W.ndim != 3 or W.strides[0] != 0:
+        return None
+    D = W[0]
+    d = np.diagonal(D)
+    return d.copy() if not np.any(D - np.diag(d)) else None
 
 
 def _noise_per_experiment(noise, exps) -> list[Noise]:

@@ -16,7 +16,7 @@ from kincal.analysis.factor import Factor
 from kincal.analysis.linalg import lstsq, norm
 from kincal.errors import DegenerateExperimentError
 from kincal.estimation import blocks, levenberg
-from kincal.estimation.problem import Problem
+from kincal.estimation.problem import Problem, triangular_factor
 from kincal.params import State, scale_direction
 
 
@@ -38,11 +38,10 @@ def linearize(problem: Problem, state: State, W, every: bool) -> Linearization:
     if not np.all(np.isfinite(r)) or not np.all(np.isfinite(J)):
         raise DegenerateExperimentError(NOT_FINITE)
     if every:
-        A = np.column_stack([J, problem.length_part(raw, W), r])
+        R = triangular_factor([J, problem.length_part(raw, W), r])
         J = J[:, :p]
     else:
-        A = np.column_stack([J, r])
-    R = np.linalg.qr(A, mode="r")
+        R = triangular_factor([J, r])
     return Linearization(state, r, J, R, tuple(W), tuple(raw), problem.free_idx, fixed if every else None, scale)
 
 

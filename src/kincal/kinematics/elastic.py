@@ -82,9 +82,9 @@ def loaded_chain(screws, theta0, base, home, tool, compliance, wrench_tool,
     (lateral axes (n, 2, 6), lateral compliances (n, 2)): then the result is the *expanded* chain of 3n joints
     (``kincal.kinematics.lateral``); ``coupling``: the chain's coupling map (n, n) or None (``deflection``)."""
     if lateral is None:
-        kin0 = chain(screws, theta0, base, home, tool)
+        kin0 = chain(screws, theta0, base, home, tool, frames=False)
     else:  # the virtual joints are at zero before the load
-        kin0 = expanded_chain(screws, theta0, base, home, tool)
+        kin0 = expanded_chain(screws, theta0, base, home, tool, frames=False)
         screws = expand_screws(screws, lateral[0])
         compliance, weights = expand_values(compliance, lateral[1]), expand_load(weights)
         hung = [(3 * m, mass, moment) for m, mass, moment in hung]
@@ -102,8 +102,8 @@ def loaded_chain(screws, theta0, base, home, tool, compliance, wrench_tool,
         W = weight_wrenches(M, S, weights.g) + F_s[..., None, :]
         tau = np.einsum("...ki,...ki->...k", axes, W[..., :-1, :])
         extra = (weights.g, M, S, W)
-    kin = chain(screws, kin0.theta + deflection(compliance, tau, coupling), base, home, tool)
-    return LoadedKinematics(kin.theta, kin.exps, kin.prefixes, kin.flange, kin.tool, kin0, coupling, F_s, axes, tau,
+    kin = chain(screws, kin0.theta + deflection(compliance, tau, coupling), base, home, tool, frames=False)
+    return LoadedKinematics(kin.theta, kin.screws, kin.prefixes, kin.flange, kin.tool, kin0, coupling, F_s, axes, tau,
                             *extra)
 
 

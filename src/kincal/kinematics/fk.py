@@ -7,6 +7,7 @@ Loops run over the n joints only, never over configurations.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -34,17 +35,33 @@ class Kinematics:
     Attributes
     ----------
     theta : (..., n) joint values with offsets applied.
-    exps : (..., n, 4, 4) ``exp(hat(xi_i) theta_i)``.
+    screws : (n, 6) the joint screws the chain was computed with.
     prefixes : (..., n + 1, 4, 4) ``base @ exp_1 @ ... @ exp_i`` for i = 0..n (index 0 is ``base``).
     flange : (..., 4, 4) ``T_world_flange``.
     tool : (..., 4, 4) ``T_world_tool``.
+    exps : (..., n, 4, 4) ``exp(hat(xi_i) theta_i)``, computed when first read (the chain does not need them).
     """
 
     theta: np.ndarray
-    exps: np.ndarray
+    screws: np.ndarray
     prefixes: np.ndarray
     flange: np.ndarray
     tool: np.ndarray
+
+    @cached_property
+    def exps(self) -> np.ndarray:
+        return _exponentials(self.screws, self.theta)
+
+    @cached_property
+    def turns(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(cos theta, sin theta)``, each (..., n) (the chain's own when it computed them)."""
+        return np.cos(self.theta), np.sin(self.theta)
+
+
+def _exponentials(screws, theta) -> np.ndarray:
+    if se3.exact_joint_screws(screws):
+        return se3.exp_joint_screws(screws, theta)
+    return se3.exp(screws * theta[..., None])  # raw twists (e.g. a finite-difference step): the general exponential
 
 
 def kinematics(model: ArmModel, q) -> Kinematics:
@@ -53,34 +70,87 @@ def kinematics(model: ArmModel, q) -> Kinematics:
     return chain(model.screws, q + model.offsets, model.base, model.home, model.tool)
 
 
-def chain(screws, theta, base, home, tool) -> Kinematics:
-    """Unvalidated POE kernel on raw arrays (screws need not be conformed): theta (..., n)."""
+def chain(screws, theta, base, home, tool, frames: bool = True) -> Kinematics:
+    """Unvalidated POE kernel on raw arrays (screws need not be conformed): theta (..., n).
+
+    Exact joint screws (``se3.exact_joint_screws``) go through their joint frames (``se3.joint_frames``):
+    ``P_i = (P_{i-1} C_i) Z_i(theta_i) C_i^-1``, two products with constants over all samples at once and a
+    change of two columns per joint; a joint at zero in every sample is the identity (its prefix is the last).
+    ``frames`` False: the products of the joints' exponentials (a loaded chain's, ``elastic.loaded_chain``)."""
     theta = np.asarray(theta, dtype=float)
-    if se3.exact_joint_screws(screws):
-        exps = se3.exp_joint_screws(screws, theta)
-    else:  # raw twists (e.g. a finite-difference step): the general exponential
-        exps = se3.exp(screws * theta[..., None])
+    screws = np.asarray(screws, dtype=float)
+    turns = None
+    if frames and se3.exact_joint_screws(screws):
+        turns = np.cos(theta), np.sin(theta)
+        prefixes = _frame_prefixes(screws, theta, base, turns)
+    else:
+        prefixes = _product_prefixes(screws, theta, base)
+    flange = _times(prefixes[..., -1, :, :], home)
+    kin = Kinematics(theta, screws, prefixes, flange, _times(flange, tool))
+    if turns is not None:
+        kin.__dict__["turns"] = turns  # the cached property's value: the Jacobians turn by the same
+    return kin
+
+
+def _times(T: np.ndarray, X) -> np.ndarray:
+    """``T @ X`` for poses T (..., 4, 4) and X; one product over all samples for a constant X and contiguous T."""
+    X = np.asarray(X, dtype=float)
+    if X.ndim == 2 and T.ndim > 2 and T.flags.c_contiguous:
+        return (T.reshape(-1, 4) @ X).reshape(T.shape)
+    return T @ X
+
+
+def _product_prefixes(screws, theta, base) -> np.ndarray:
+    """The prefixes as products of the joints' exponentials (any twists)."""
+    exps = _exponentials(screws, theta)
     n = theta.shape[-1]
     prefixes = np.empty(theta.shape[:-1] + (n + 1, 4, 4))
     prefixes[..., 0, :, :] = base
     for i in range(n):
         prefixes[..., i + 1, :, :] = prefixes[..., i, :, :] @ exps[..., i, :, :]
-    flange = prefixes[..., -1, :, :] @ home
-    return Kinematics(theta, exps, prefixes, flange, flange @ tool)
+    return prefixes
 
 
-def expanded_chain(screws, theta, base, home, tool) -> Kinematics:
+def _frame_prefixes(screws, theta, base, turns) -> np.ndarray:
+    """The prefixes of exact joint screws through their joint frames (``chain``), computed joint by joint in one
+    buffer (joint first) and returned as its (..., n + 1, 4, 4) view."""
+    C, Ci, revolute, _, _ = se3.joint_frames(screws)
+    n = theta.shape[-1]
+    batch = theta.shape[:-1]
+    flat = theta.reshape(-1, n)
+    N = flat.shape[0]
+    P = np.empty((n + 1, N, 4, 4))
+    P[0] = np.broadcast_to(base, batch + (4, 4)).reshape(N, 4, 4)
+    moves = np.any(flat, axis=0)
+    cos, sin = (t.reshape(-1, n) for t in turns)
+    X = np.empty((N, 4, 4))
+    for i in range(n):
+        if not moves[i]:  # exp(0) = I
+            P[i + 1] = P[i]
+            continue
+        np.matmul(P[i].reshape(4 * N, 4), C[i], out=X.reshape(4 * N, 4))
+        if revolute[i]:  # X Rz(t): columns 0 and 1 turn
+            c, s = cos[:, i, None], sin[:, i, None]
+            x0, x1 = X[:, :3, 0].copy(), X[:, :3, 1].copy()  # the last row stays (0, 0, 0, 1)
+            X[:, :3, 0] = c * x0 + s * x1
+            X[:, :3, 1] = c * x1 - s * x0
+        else:  # X Tz(t): the origin moves along z
+            X[:, :3, 3] += flat[:, i, None] * X[:, :3, 2]
+        np.matmul(X.reshape(4 * N, 4), Ci[i], out=P[i + 1].reshape(4 * N, 4))
+    return np.moveaxis(P, 0, 1).reshape(batch + (n + 1, 4, 4))
+
+
+def expanded_chain(screws, theta, base, home, tool, frames: bool = True) -> Kinematics:
     """``chain`` of the joints ``screws`` (n, 6) at ``theta`` (..., n) seen as a chain of 3n joints whose every
     second and third joint stays at zero (``kincal.kinematics.lateral``'s expanded chain at its unloaded values):
-    the same numbers as that chain's ``chain``, without multiplying by its identities."""
-    compact = chain(screws, theta, base, home, tool)
+    the same numbers as that chain's ``chain``, without multiplying by its identities. Its ``screws`` repeat each
+    joint's three times (a joint at zero is the identity whatever its screw)."""
+    compact = chain(screws, theta, base, home, tool, frames)
     n = compact.theta.shape[-1]
     prefixes = compact.prefixes[..., np.repeat(np.arange(n + 1), [1] + [3] * n), :, :]
-    exps = np.empty(compact.exps.shape[:-3] + (n, 3, 4, 4))
-    exps[..., 0, :, :], exps[..., 1:, :, :] = compact.exps, np.eye(4)
     theta3 = np.zeros(compact.theta.shape[:-1] + (3 * n,))
     theta3[..., 0::3] = compact.theta
-    return Kinematics(theta3, exps.reshape(exps.shape[:-4] + (3 * n, 4, 4)), prefixes, compact.flange, compact.tool)
+    return Kinematics(theta3, np.repeat(compact.screws, 3, axis=0), prefixes, compact.flange, compact.tool)
 
 
 def space_axes(prefixes: np.ndarray, screws: np.ndarray) -> np.ndarray:

@@ -37,7 +37,6 @@ import numpy as np
 from kincal.kinematics.elastic import LoadedKinematics, compliance_columns, deflection_map
 from kincal.kinematics.fk import Kinematics
 from kincal.kinematics.gravity import _Projected, gravity_torque_derivatives
-from kincal.kinematics.twists import padded_bases
 from kincal.lie import se3
 
 TOOL_PARTS = ("offsets", "twists", "home", "base", "tool", "compliance")
@@ -77,22 +76,20 @@ def tool_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, generator
     joints = with_jq or "offsets" in parts or loaded
     twists = "twists" in parts
     out: dict[str, np.ndarray] = {}
-    jq, bounds = None, [*range(0, n + 1, step)] if twists else []  # the groups' first prefixes, and n
+    jq = None
     if projected is None and (joints or twists):
         projected = prefix_projections(kin, G)  # readings, twists and home at once
     if projected is not None:
         jq = _along_screws(projected[:n], screws, N, k)
-        M = projected[bounds + [n]]
+        home = projected[n]
     elif "home" in parts:
-        M = _project_prefixes(G, kin.prefixes[:, [n]])
+        home = _project_prefixes(G, kin.prefixes[:, [n]])[0]
     if "offsets" in parts:
         out["offsets"] = jq[..., ::step]
     if twists:
-        Gen, keep = padded_bases(generators)  # (n / step, 6, t)
-        tw = (M[: len(bounds) - 1] - M[1: len(bounds)]) @ Gen  # (n / step, N*k, t): one product per joint
-        out["twists"] = np.moveaxis(tw.reshape(n // step, N, k, -1), 0, 2).reshape(N, k, -1)[..., keep]
+        out["twists"] = _twist_columns(projected, generators, step, N, k)
     if "home" in parts:
-        out["home"] = M[-1].reshape(N, k, 6)
+        out["home"] = home.reshape(N, k, 6)
     if "base" in parts:
         out["base"] = G
     if "tool" in parts:
@@ -171,8 +168,61 @@ def joint_jacobian(kin: Kinematics, G: np.ndarray, screws: np.ndarray, projected
 
 
 def prefix_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
-    """``G Ad(P_j)`` (n + 1, N*k, 6) for every prefix of the chain: what its Jacobians share."""
+    """``G Ad(P_j)`` (n + 1, N*k, 6) for every prefix of the chain: what its Jacobians share. Exact joint screws
+    go joint by joint through their frames (``_frame_projections``), other twists and loaded chains (whose
+    numbers stay those of the products of exponentials, ``fk.chain``) project every prefix."""
+    if (G.ndim == 3 and kin.theta.shape == G.shape[:1] + kin.screws.shape[:1] and not isinstance(kin, LoadedKinematics)
+            and se3.exact_joint_screws(kin.screws)):
+        return _frame_projections(kin, G)
     return _project_prefixes(G, kin.prefixes)
+
+
+def _frame_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
+    """``prefix_projections`` of exact joint screws: with ``exp(xi_i t) = C_i Z_i(t) C_i^-1``
+    (``se3.joint_frames``), ``G Ad(P_{i+1}) = ((G Ad(P_i)) Ad(C_i)) Ad(Z_i) Ad(C_i^-1)``: two products with
+    constant 6 x 6 matrices over all rows at once, and ``Ad(Z_i)`` turns two pairs of columns (revolute) or adds
+    the translation's term (prismatic); a joint at zero in every sample is the identity."""
+    _, _, revolute, AdC, AdCi = se3.joint_frames(kin.screws)
+    N, k = G.shape[:2]
+    theta = kin.theta
+    n = theta.shape[1]
+    M = np.empty((n + 1, N * k, 6))
+    P0 = kin.prefixes[:, 0]
+    if np.all(P0 == P0[:1]):  # one base for every sample (a chain's own)
+        M[0] = G.reshape(N * k, 6) @ se3.adjoint(P0[0])
+    else:
+        M[0] = _project_prefixes(G, kin.prefixes[:, :1])[0]
+    moves = np.any(theta, axis=0)
+    cos, sin = (t[:, :, None, None] for t in kin.turns)
+    K2 = np.empty((N * k, 6))
+    K = K2.reshape(N, k, 6)
+    for i in range(n):
+        if not moves[i]:
+            M[i + 1] = M[i]
+            continue
+        np.matmul(M[i], AdC[i], out=K2)
+        if revolute[i]:  # Ad(Rz(t)) = diag(Rz, Rz): columns (0, 3) and (1, 4) turn
+            x0, x1 = K[..., 0::3].copy(), K[..., 1::3].copy()
+            K[..., 0::3] = cos[:, i] * x0 + sin[:, i] * x1
+            K[..., 1::3] = cos[:, i] * x1 - sin[:, i] * x0
+        else:  # Ad(Tz(t)) = [[I, hat(t e_z)], [0, I]]: g^T hat(t e_z) = (g x t e_z)^T
+            t = theta[:, i, None]
+            K[..., 3] += t * K[..., 1]
+            K[..., 4] -= t * K[..., 0]
+        np.matmul(K2, AdCi[i], out=M[i + 1])
+    return M
+
+
+def _twist_columns(M: np.ndarray, generators, step: int, N: int, k: int) -> np.ndarray:
+    """``(M_a - M_b) G_j`` (N, k, sum of the k_j) for the joints' groups ``[a, b)`` of ``step`` screws, written
+    joint by joint into the result's columns."""
+    out = np.empty((N, k, sum(g.shape[1] for g in generators)))
+    c = 0
+    for j, Gj in enumerate(generators):
+        a, t = step * j, Gj.shape[1]
+        out[:, :, c: c + t] = ((M[a] - M[a + step]) @ Gj).reshape(N, k, t)
+        c += t
+    return out
 
 
 def _along_screws(M: np.ndarray, screws: np.ndarray, N: int, k: int) -> np.ndarray:

@@ -97,12 +97,26 @@ _TERMS: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 _TERMS_ENTRIES = 16
 
 
+def _remembered(cache: dict, screws: np.ndarray, compute) -> tuple:
+    """``compute(screws)`` (a tuple of arrays, made read-only), remembered in ``cache`` by the screws' bytes."""
+    key = screws.tobytes()
+    hit = cache.get(key)
+    if hit is None:
+        hit = compute(screws)
+        for a in hit:
+            a.flags.writeable = False
+        if len(cache) >= _TERMS_ENTRIES:
+            cache.pop(next(iter(cache)))
+        cache[key] = hit
+    return hit
+
+
 def _screw_terms(screws: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """E1, E2, E3 (n, 12) of ``exp_joint_screws`` for exact joint screws (n, 6) (read-only arrays)."""
-    key = screws.tobytes()
-    hit = _TERMS.get(key)
-    if hit is not None:
-        return hit
+    return _remembered(_TERMS, screws, _compute_terms)
+
+
+def _compute_terms(screws: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     v, w = screws[:, :3], screws[:, 3:]
     revolute = np.sum(w * w, axis=1) > 0.5
     K = so3.hat(np.where(revolute[:, None], w, 0.0))
@@ -112,13 +126,33 @@ def _screw_terms(screws: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
     E2 = np.concatenate([K2, -(K2 @ p)], axis=-1).reshape(-1, 12)
     E3 = np.zeros((len(screws), 3, 4))
     E3[:, :, 3] = np.where(revolute[:, None], 0.0, v)
-    terms = (E1, E2, E3.reshape(-1, 12))
-    for a in terms:
-        a.flags.writeable = False
-    if len(_TERMS) >= _TERMS_ENTRIES:
-        _TERMS.pop(next(iter(_TERMS)))
-    _TERMS[key] = terms
-    return terms
+    return E1, E2, E3.reshape(-1, 12)
+
+
+def joint_frames(screws: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """For exact joint screws (n, 6): frames ``C`` (n, 4, 4) whose z axis is each joint's axis (origin on it),
+    so that ``exp(hat(xi_j) t) = C_j Z_j(t) C_j^-1`` with ``Z_j`` a rotation about z (revolute) or a translation
+    along it (prismatic); their inverses, the revolute mask (n,) and ``Ad(C)``, ``Ad(C^-1)`` (n, 6, 6). A chain
+    then multiplies per sample by ``Z`` only (two columns change) and by constants (read-only arrays)."""
+    return _remembered(_FRAMES, screws, _compute_frames)
+
+
+def _compute_frames(screws: np.ndarray) -> tuple:
+    v, w = screws[:, :3], screws[:, 3:]
+    revolute = np.sum(w * w, axis=1) > 0.5
+    z = np.where(revolute[:, None], w, v)
+    z = z / np.linalg.norm(z, axis=1, keepdims=True)
+    helper = np.where((np.abs(z[:, 0]) < 0.9)[:, None], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+    x = so3.cross(helper, z)
+    x = x / np.linalg.norm(x, axis=1, keepdims=True)
+    R = np.stack([x, so3.cross(z, x), z], axis=-1)
+    p = np.where(revolute[:, None], so3.cross(w, v), 0.0)  # a point of the axis (revolute)
+    Rt = np.swapaxes(R, -1, -2)
+    C, Ci = make(R, p), make(Rt, -(Rt[..., 0] * p[:, 0, None] + Rt[..., 1] * p[:, 1, None] + Rt[..., 2] * p[:, 2, None]))
+    return C, Ci, revolute, adjoint(C), adjoint(Ci)
+
+
+_FRAMES: dict[bytes, tuple] = {}  # joint_frames of the last few screw arrays
 
 
 def joint_screw_jacobian_coeffs(screws: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -154,6 +188,7 @@ def clear_caches() -> None:
     """Forget the joint-screw terms and exactness verdicts remembered per screw array (tests, cold timings)."""
     _TERMS.clear()
     _EXACT.clear()
+    _FRAMES.clear()
 
 
 def _exact(screws: np.ndarray, tol: float) -> bool:
