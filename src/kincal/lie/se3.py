@@ -105,8 +105,8 @@ def _remembered(cache: dict, screws: np.ndarray, compute) -> tuple:
         hit = compute(screws)
         for a in hit:
             a.flags.writeable = False
-        if len(cache) >= _TERMS_ENTRIES:
-            cache.pop(next(iter(cache)))
+        if len(cache) >= _TERMS_ENTRIES:  # tolerant of another thread (a Dask worker's) evicting the same entry
+            cache.pop(next(iter(cache), None), None)
         cache[key] = hit
     return hit
 
