@@ -148,7 +148,7 @@ def test_a_conformed_trial_recentres_to_the_same_point_bit_for_bit(case):
     old, new = recentre(trial), recentre(conformed, conformed=True)
     for name, a in old.arms.items():
         for f in fields(a):  # the tangent bases and generators included
-            assert base._same(getattr(a, f.name), getattr(new.arms[name], f.name)), f.name
+            assert base.same_bits(getattr(a, f.name), getattr(new.arms[name], f.name)), f.name
         assert new.arms[name].screws is conformed.arms[name].screws
     assert base._same_geometry(base._geometry(conformed), base._geometry(new))
 

@@ -24,7 +24,7 @@ from kincal.estimation.constraints import FrameDistance, constraint_rows
 from kincal.estimation.memory import by_blocks, chunk_rows, require_memory
 from kincal.estimation.start import starting_state
 from kincal.estimation.stats import ResidualStats, residual_norms
-from kincal.experiments import Experiment, _check_finite, build as build_experiments, frame_kinds
+from kincal.experiments import Experiment, build as build_experiments, checked, frame_kinds, same_bits
 from kincal.kinematics import Robot
 from kincal.noise import Noise, effective
 from kincal.params import Layout, Prior, State, build_layout, displacement, pose_retraction_jacobians, retract
@@ -146,11 +146,7 @@ class Problem:
                 same_structure(e.dataset, d) for e, d in zip(self.experiments, datasets)):
             return None
         require_memory(datasets, len(self.free_idx))
-        exps = []
-        for e, ds in zip(self.experiments, datasets):
-            _check_finite(ds)
-            exps.append(type(e)(ds, e.frames))
-            exps[-1].check()
+        exps = [checked(ds, e.frames) for e, ds in zip(self.experiments, datasets)]
         start, nominal = starting_state(self.nominal, exps, self.layout, self.unknown)
         if start is not self.nominal or nominal is not self.nominal:
             return None
@@ -335,15 +331,9 @@ def same_structure(a: Dataset, b: Dataset) -> bool:
 
 
 def _same_arrays(x: Mapping, y: Mapping) -> bool:
-    """The same keys, in the same order, each with arrays of the same dtype and shape and the same bytes (a -0.0
-    is not a 0.0 here)."""
-    if list(x) != list(y):
-        return False
-    for k in x:
-        u, v = np.asarray(x[k]), np.asarray(y[k])
-        if u is not v and (u.dtype != v.dtype or u.shape != v.shape or u.tobytes() != v.tobytes()):
-            return False
-    return True
+    """The same keys, in the same order, each with arrays equal bit for bit (``same_bits``: dtype, shape and bytes,
+    so a -0.0 is not a 0.0 here)."""
+    return list(x) == list(y) and all(same_bits(np.asarray(x[k]), np.asarray(y[k])) for k in x)
 
 
 def triangular_factor(columns: Sequence[np.ndarray]) -> np.ndarray:

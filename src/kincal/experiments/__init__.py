@@ -20,7 +20,7 @@ import numpy as np
 
 from kincal.data import Dataset
 from kincal.errors import DataFormatError
-from kincal.experiments.base import KINDS, Experiment, Residual, hung_arms, remembered_kinematics
+from kincal.experiments.base import KINDS, Experiment, Residual, hung_arms, remembered_kinematics, same_bits
 from kincal.kinematics.model import lineage
 from kincal.experiments.sharing import frame_kinds, frame_names, frame_values
 from kincal.params import State
@@ -36,7 +36,8 @@ def _import_kinds() -> None:
 
 _import_kinds()
 
-__all__ = ["Experiment", "KINDS", "Residual", "build", "check_joints", "frame_kinds", "remembered_kinematics"]
+__all__ = ["Experiment", "KINDS", "Residual", "build", "check_joints", "checked", "frame_kinds",
+           "remembered_kinematics", "same_bits"]
 
 
 def check_joints(ds: Dataset, state: State) -> None:
@@ -74,12 +75,18 @@ def build(datasets: Sequence[Dataset], state: State) -> tuple[list[Experiment], 
     experiments = []
     for ds, frames in zip(datasets, frame_names(datasets, tuple(state.arms))):
         check_joints(ds, state)
-        _check_finite(ds)
-        exp = KINDS[ds.kind](ds, frames)
-        exp.check()
-        experiments.append(exp)
+        experiments.append(checked(ds, frames))
     extras, unknown = frame_values(experiments, state)
     return experiments, extras, unknown
+
+
+def checked(ds: Dataset, frames) -> Experiment:
+    """The experiment of ``ds`` with its frames' names, after what its measured and known values must pass:
+    finite, and the kind's own ``check``."""
+    _check_finite(ds)
+    exp = KINDS[ds.kind](ds, frames)
+    exp.check()
+    return exp
 
 
 def _check_finite(ds: Dataset) -> None:

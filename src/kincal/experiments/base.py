@@ -82,17 +82,17 @@ def _same_geometry(a: tuple, b: tuple) -> bool:
 
 
 def _same_values(a, b) -> bool:
-    return all(_same(getattr(a, f.name), getattr(b, f.name)) for f in fields(a) if f.name not in _TANGENT_FIELDS)
+    return all(same_bits(getattr(a, f.name), getattr(b, f.name)) for f in fields(a) if f.name not in _TANGENT_FIELDS)
 
 
-def _same(x, y) -> bool:
+def same_bits(x, y) -> bool:
     """Equal bit for bit (arrays, and tuples of them), or the same object."""
     if x is y:
         return True
     if isinstance(x, np.ndarray) and isinstance(y, np.ndarray):
         return x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
     if isinstance(x, tuple) and isinstance(y, tuple):
-        return len(x) == len(y) and all(_same(u, v) for u, v in zip(x, y))
+        return len(x) == len(y) and all(same_bits(u, v) for u, v in zip(x, y))
     return isinstance(x, (str, int, float)) and type(x) is type(y) and x == y
 
 
