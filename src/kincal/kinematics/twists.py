@@ -70,8 +70,12 @@ def tangent_generators(screw: np.ndarray, kind: str) -> np.ndarray:
 
 def tangent_frames(screws: np.ndarray, joint_types) -> tuple[tuple, tuple]:
     """``tangent_basis`` and ``tangent_generators`` of every joint of an arm, each joint type in one batch:
-    (bases, generators), each a tuple of (6, k) per joint."""
+    (bases, generators), each a tuple of (6, k) per joint. Up to ``_FEW`` revolute joints and no prismatic one
+    (an arm's), joint by joint on Python floats (``_revolute_frame``): the same IEEE operations."""
     xi = np.asarray(screws, dtype=float)
+    if len(xi) <= _FEW and all(t == REVOLUTE for t in joint_types):
+        BG = np.array([c for x in xi.tolist() for c in _revolute_frame(x[:3], x[3:])]).reshape(len(xi), 2, 6, 4)
+        return tuple(BG[:, 0]), tuple(BG[:, 1])
     bases, gens = [None] * len(xi), [None] * len(xi)
     for kind, frames in ((REVOLUTE, _revolute_frames), (PRISMATIC, _prismatic_frames)):
         idx = [i for i, t in enumerate(joint_types) if t == kind]
@@ -93,6 +97,26 @@ def _revolute_frames(v: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarr
     B = np.stack([se3.join(-wu, zero) for wu in wus] + [se3.join(-so3.cross(u, p), u) for u in us], axis=-1)
     G = np.stack([se3.join(u, zero) for u in us] + [se3.join(-so3.cross(wu, p), wu) for wu in wus], axis=-1)
     return B, G
+
+
+_FEW = 16  # joints up to which ``tangent_frames`` goes joint by joint on Python floats
+
+
+def _revolute_frame(v, w) -> list:
+    """``_revolute_frames`` of one joint (v, w lists of floats) with the same operations (``argmin`` keeps the
+    first of equal magnitudes, the norm sums the squares in order): B's then G's entries, row by row."""
+    cross = so3.cross_tuple
+    p = cross(w, v)
+    x, y, z = abs(w[0]), abs(w[1]), abs(w[2])
+    a = (1.0, 0.0, 0.0) if x <= y and x <= z else (0.0, 1.0, 0.0) if y <= z else (0.0, 0.0, 1.0)
+    u1 = so3.unit_tuple(cross(w, a))
+    u2 = cross(w, u1)
+    wu1, wu2 = u2, cross(w, u2)  # w x u1 is u2
+    c1, c2, g1, g2 = cross(u1, p), cross(u2, p), cross(wu1, p), cross(wu2, p)
+    return [-wu1[0], -wu2[0], -c1[0], -c2[0], -wu1[1], -wu2[1], -c1[1], -c2[1], -wu1[2], -wu2[2], -c1[2], -c2[2],
+            0.0, 0.0, u1[0], u2[0], 0.0, 0.0, u1[1], u2[1], 0.0, 0.0, u1[2], u2[2],
+            u1[0], u2[0], -g1[0], -g2[0], u1[1], u2[1], -g1[1], -g2[1], u1[2], u2[2], -g1[2], -g2[2],
+            0.0, 0.0, wu1[0], wu2[0], 0.0, 0.0, wu1[1], wu2[1], 0.0, 0.0, wu1[2], wu2[2]]
 
 
 def _prismatic_frames(v: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -138,6 +138,17 @@ def joint_frames(screws: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 def _compute_frames(screws: np.ndarray) -> tuple:
+    if len(screws) <= _FEW_JOINTS:  # an arm's joints: on Python floats, the same IEEE operations
+        rows = [_frame_rows(*_cut(x)) for x in screws.tolist()]
+        n = len(rows)
+        T = np.array([r[0] for r in rows] + [r[1] for r in rows]).reshape(2 * n, 4, 4)  # C then C^-1
+        hats = [(0.0, -p[11], p[7], p[11], 0.0, -p[3], -p[7], p[3], 0.0) for p in [r[k] for k in (0, 1) for r in rows]]
+        R = T[:, :3, :3]
+        Ad = np.zeros((2 * n, 6, 6))  # ``adjoint(T)``: its hat(p) entries from the same floats
+        Ad[:, :3, :3] = R
+        Ad[:, 3:, 3:] = R
+        Ad[:, :3, 3:] = np.array(hats).reshape(2 * n, 3, 3) @ R
+        return T[:n], T[n:], np.array([r[2] for r in rows], bool), Ad[:n], Ad[n:]
     v, w = screws[:, :3], screws[:, 3:]
     revolute = np.sum(w * w, axis=1) > 0.5
     z = np.where(revolute[:, None], w, v)
@@ -153,6 +164,25 @@ def _compute_frames(screws: np.ndarray) -> tuple:
 
 
 _FRAMES: dict[bytes, tuple] = {}  # joint_frames of the last few screw arrays
+_FEW_JOINTS = 16  # up to this many joints, ``_compute_frames`` goes joint by joint on Python floats
+
+
+def _cut(x: list) -> tuple:
+    return x[:3], x[3:]
+
+
+def _frame_rows(v, w) -> tuple[list, list, bool]:
+    """One joint's ``C`` and ``C^-1`` (16 floats each, row by row) and whether it is revolute, with the batched
+    ``_compute_frames``' operations (``x, y, z`` the frame's axes, the columns of R)."""
+    revolute = w[0] * w[0] + w[1] * w[1] + w[2] * w[2] > 0.5
+    z = so3.unit_tuple(w if revolute else v)
+    x = so3.unit_tuple(so3.cross_tuple((1.0, 0.0, 0.0) if abs(z[0]) < 0.9 else (0.0, 1.0, 0.0), z))
+    y = so3.cross_tuple(z, x)
+    p = so3.cross_tuple(w, v) if revolute else (0.0, 0.0, 0.0)
+    t = [-(e[0] * p[0] + e[1] * p[1] + e[2] * p[2]) for e in (x, y, z)]
+    C = [x[0], y[0], z[0], p[0], x[1], y[1], z[1], p[1], x[2], y[2], z[2], p[2], 0.0, 0.0, 0.0, 1.0]
+    Ci = [*x, t[0], *y, t[1], *z, t[2], 0.0, 0.0, 0.0, 1.0]
+    return C, Ci, revolute
 
 
 def joint_screw_jacobian_coeffs(screws: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -7,6 +7,8 @@ satisfies ``exp(w + dw) = exp(J_l(w) dw) exp(w)`` to first order; the right Jaco
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from kincal.lie._coeffs import log_coeff, one_minus_cos_over_t2, sin_over_t, t_minus_sin_over_t3
@@ -51,6 +53,17 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
     out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
     return out
+
+
+def cross_tuple(a, b) -> tuple:
+    """``cross`` of two 3-sequences of Python floats (the same operations): an arm's few joints one by one."""
+    return a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]
+
+
+def unit_tuple(a) -> tuple:
+    """``a / np.linalg.norm(a)`` of a 3-sequence of Python floats (the squares summed in order, as numpy's)."""
+    n = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    return a[0] / n, a[1] / n, a[2] / n
 
 
 def exp(w: np.ndarray) -> np.ndarray:
