@@ -58,3 +58,68 @@ def test_joint_frames_of_many_joints_take_the_batched_path(rng):
     np.testing.assert_allclose(C @ Ci, np.broadcast_to(np.eye(4), C.shape), atol=1e-15)
     np.testing.assert_array_equal(AdC, se3.adjoint(C))
     np.testing.assert_array_equal(AdCi, se3.adjoint(Ci))
+
+
+@pytest.mark.parametrize("scale", [1e-9, 1e-3, 0.3, 1.0, 3.0, 10.0])
+def test_exp_of_a_few_twists_equals_the_batched_one(rng, monkeypatch, scale):
+    for trial in range(200):
+        m = int(rng.integers(1, se3._FEW_JOINTS + 1))
+        xi = rng.normal(size=(m, 6)) * scale
+        if trial % 3 == 0:
+            xi[rng.integers(m)] = 0.0  # exp(0) = I
+        if trial % 4 == 0:
+            xi[:, 3:] = 0.0  # pure translations
+        few = se3.exp(xi)
+        with monkeypatch.context() as mp:
+            mp.setattr(se3, "_FEW_JOINTS", -1)
+            batched = se3.exp(xi)
+        assert _bits(few) == _bits(batched)
+
+
+def test_moved_blocks_are_those_with_a_nonzero_coordinate(rng):
+    from kincal.params import ops
+    from kincal.params.layout import Block
+    from kincal.params.kinds import OFFSETS
+
+    sizes = [3, 0, 6, 1, 0, 4]
+    starts = np.cumsum([0] + sizes)
+    layout = type("L", (), {"blocks": tuple(Block(f"b{i}", OFFSETS, int(a), int(a + s))
+                                            for i, (a, s) in enumerate(zip(starts, sizes)))})()
+    for _ in range(200):
+        delta = rng.normal(size=starts[-1]) * (rng.random(starts[-1]) < 0.2)
+        delta[rng.integers(starts[-1])] = -0.0 if rng.random() < 0.5 else np.nan
+        want = [b for b in layout.blocks if delta[b.slice].any()]
+        assert ops._moved_blocks(layout, delta) == want
+    assert ops._moved_blocks(layout, np.zeros(starts[-1])) == []
+
+
+def test_constant_diagonal_is_the_whiteners_diagonal_exactly_when_nothing_else_is_nonzero():
+    from kincal.estimation.problem import _constant_diagonal
+
+    def before(W):  # the test it replaced
+        d = np.diagonal(W[0])
+        with np.errstate(invalid="ignore"):  # inf - inf
+            return d.copy() if not np.any(W[0] - np.diag(d)) else None
+
+    cases = [np.diag([1.0, 2.0, 3.0]), np.diag([1.0, 0.0, 3.0]), np.diag([1.0, np.inf, 3.0]),
+             np.diag([1.0, np.nan, 3.0]), np.array([[1.0, 0.0], [1e-300, 2.0]]), np.array([[1.0, np.nan], [0.0, 2.0]]),
+             np.array([[1.0, -0.0], [0.0, 2.0]]), np.zeros((2, 2))]
+    for D in cases:
+        W = np.broadcast_to(D, (4,) + D.shape)
+        got, want = _constant_diagonal(W), before(W)
+        assert (got is None) == (want is None)
+        if want is not None:
+            assert _bits(got) == _bits(want)
+    assert _constant_diagonal(np.stack([np.eye(2), np.eye(2)])) is None  # one per sample: the product
+
+
+def test_pose_gap_without_b_gives_the_same_gap_and_a_derivative(rng):
+    from kincal.experiments._kernel import pose_gap
+    from kincal.testing import random_pose
+
+    TA = np.stack([random_pose(rng) for _ in range(5)])
+    TB = np.stack([random_pose(rng) for _ in range(5)])
+    r, GA, GB = pose_gap(TA, TB)
+    r1, GA1, GB1 = pose_gap(TA, TB, of_b=False)
+    assert GB1 is None and GB is not None
+    assert _bits(r1) == _bits(r) and _bits(GA1) == _bits(GA)

@@ -362,8 +362,8 @@ def _constant_diagonal(W: np.ndarray) -> np.ndarray | None:
     if W.ndim != 3 or W.strides[0] != 0:
         return None
     D = W[0]
-    d = np.diagonal(D)
-    return d.copy() if not np.any(D - np.diag(d)) else None
+    d = np.diagonal(D)  # ``D - diag(d)`` all zeros: no nonzero (nor NaN) entry off the diagonal, d finite
+    return d.copy() if np.count_nonzero(D) == np.count_nonzero(d) and np.isfinite(d).all() else None
 
 
 def _noise_per_experiment(noise, exps) -> list[Noise]:

@@ -194,21 +194,24 @@ def _branch_blocks(state, ch, branches, parts, jq, dtheta, kin, out, jqs) -> Non
                 _add(out, f"{b.arm}.{p}", J)
 
 
-def pose_gap(TA: np.ndarray, TB: np.ndarray):
-    """r = [p_A - p_B, log(R_A R_B^T)] (N, 6) in world coordinates, and dr/d(left increment) of A and of B."""
+def pose_gap(TA: np.ndarray, TB: np.ndarray, of_b: bool = True):
+    """r = [p_A - p_B, log(R_A R_B^T)] (N, 6) in world coordinates, and dr/d(left increment) of A and of B
+    (None with ``of_b`` False: a fixed B, the measured pose)."""
     pA, pB = TA[..., :3, 3], TB[..., :3, 3]
     E = TA[..., :3, :3] @ np.swapaxes(TB[..., :3, :3], -1, -2)
     rw = so3.log(E)
     Ji = so3.left_jacobian_inv(rw)
     shape = TA.shape[:-2]
     GA = np.zeros(shape + (6, 6))
-    GB = np.zeros(shape + (6, 6))
     GA[..., :3, :3] = np.eye(3)
     GA[..., :3, 3:] = -so3.hat(pA)
     GA[..., 3:, 3:] = Ji
-    GB[..., :3, :3] = -np.eye(3)
-    GB[..., :3, 3:] = so3.hat(pB)
-    GB[..., 3:, 3:] = -Ji @ E
+    GB = None
+    if of_b:
+        GB = np.zeros(shape + (6, 6))
+        GB[..., :3, :3] = -np.eye(3)
+        GB[..., :3, 3:] = so3.hat(pB)
+        GB[..., 3:, 3:] = -Ji @ E
     return np.concatenate([pA - pB, rw], axis=-1), GA, GB
 
 
@@ -221,7 +224,7 @@ def pose_gap_in_b(TA: np.ndarray, TB: np.ndarray):
     null directions of noisy data, not residual-sized "weak" ones.
     """
     Bi = se3.inverse(TB)
-    r, G, _ = pose_gap(Bi @ TA, np.eye(4))
+    r, G, _ = pose_gap(Bi @ TA, np.eye(4), of_b=False)
     G = G @ se3.adjoint(Bi)
     return r, G, -G
 

@@ -22,19 +22,23 @@ _BERNOULLI_EVEN = (
 )
 
 
-def _series(k_term) -> np.ndarray:
-    return np.array([k_term(k) for k in range(_TERMS)], dtype=float)
+class _Series:
+    """Series coefficients in powers theta**(2k): the array, and below its top one, highest first, as Python
+    floats (``_horner_float``'s, made once)."""
+
+    def __init__(self, k_term):
+        self.values = np.array([k_term(k) for k in range(_TERMS)], dtype=float)
+        self.rest, self.top = self.values[-2::-1].tolist(), float(self.values[-1])
 
 
-# Series coefficients in powers theta**(2k).
-_SIN_OVER_T = _series(lambda k: (-1) ** k / factorial(2 * k + 1))
-_ONE_MINUS_COS = _series(lambda k: (-1) ** k / factorial(2 * k + 2))
-_T_MINUS_SIN = _series(lambda k: (-1) ** k / factorial(2 * k + 3))
-_LOG_D = _series(lambda k: (-1) ** k * _BERNOULLI_EVEN[k] / factorial(2 * k + 2))
-_A1 = _series(lambda k: (-1) ** (k + 1) * (k - 1) / factorial(2 * k + 2))
-_A2 = _series(lambda k: (-1) ** (k + 1) * (k - 1) / factorial(2 * k + 3))
-_A3 = _series(lambda k: (-1) ** k * (k + 1) / factorial(2 * k + 4))
-_A4 = _series(lambda k: (-1) ** k * (k + 1) / factorial(2 * k + 5))
+_SIN_OVER_T = _Series(lambda k: (-1) ** k / factorial(2 * k + 1))
+_ONE_MINUS_COS = _Series(lambda k: (-1) ** k / factorial(2 * k + 2))
+_T_MINUS_SIN = _Series(lambda k: (-1) ** k / factorial(2 * k + 3))
+_LOG_D = _Series(lambda k: (-1) ** k * _BERNOULLI_EVEN[k] / factorial(2 * k + 2))
+_A1 = _Series(lambda k: (-1) ** (k + 1) * (k - 1) / factorial(2 * k + 2))
+_A2 = _Series(lambda k: (-1) ** (k + 1) * (k - 1) / factorial(2 * k + 3))
+_A3 = _Series(lambda k: (-1) ** k * (k + 1) / factorial(2 * k + 4))
+_A4 = _Series(lambda k: (-1) ** k * (k + 1) / factorial(2 * k + 5))
 
 
 def _horner(coeffs: np.ndarray, t2: np.ndarray) -> np.ndarray:
@@ -56,21 +60,21 @@ def _horner_float(cs: list, out: float, t2: float) -> float:
     return out
 
 
-def _branch(theta: np.ndarray, coeffs: np.ndarray, closed_form) -> np.ndarray:
+def _branch(theta: np.ndarray, series: _Series, closed_form) -> np.ndarray:
     theta = np.asarray(theta, dtype=float)
     small = theta < _TAYLOR_BELOW
     if theta.ndim == 0:  # one angle: Horner on Python floats (the same IEEE operations, without array overhead)
         if not small:
             return closed_form(theta)
-        return np.float64(_horner_float(coeffs[-2::-1].tolist(), float(coeffs[-1]), float(theta * theta)))
+        return np.float64(_horner_float(series.rest, series.top, float(theta * theta)))
     if small.all():  # every angle below the branch point (joint screws' small steps): no masking
         if theta.size <= _FEW:  # a few angles (one per joint): Python floats, the same IEEE operations
-            cs = coeffs[-2::-1].tolist()
-            return np.array([_horner_float(cs, float(coeffs[-1]), t2) for t2 in (theta * theta).ravel().tolist()]
+            cs, top = series.rest, series.top
+            return np.array([_horner_float(cs, top, t2) for t2 in (theta * theta).ravel().tolist()]
                             ).reshape(theta.shape)
-        return _horner(coeffs, theta * theta)
+        return _horner(series.values, theta * theta)
     out = np.empty_like(theta)
-    out[small] = _horner(coeffs, theta[small] ** 2)
+    out[small] = _horner(series.values, theta[small] ** 2)
     large = ~small
     out[large] = closed_form(theta[large])
     return out

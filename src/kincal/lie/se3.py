@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from kincal.lie import so3
-from kincal.lie._coeffs import one_minus_cos_over_t2, se3_jl_coeffs, t_minus_sin_over_t3
+from kincal.lie._coeffs import one_minus_cos_over_t2, se3_jl_coeffs, sin_over_t, t_minus_sin_over_t3
 
 
 def split(xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -65,11 +65,30 @@ def exp(xi: np.ndarray) -> np.ndarray:
 
     J_l(w) v = v + (1 - cos t)/t^2 (w x v) + (t - sin t)/t^3 (w x (w x v)), without forming J_l.
     """
-    v, w = split(np.asarray(xi, dtype=float))
+    xi = np.asarray(xi, dtype=float)
+    v, w = split(xi)
     t = so3.angle(w)
+    if xi.ndim == 2 and len(xi) <= _FEW_JOINTS:  # a retraction's few twists: ``_few_exps``
+        return _few_exps(xi, t)
     wv = so3.cross(w, v)
     p = v + one_minus_cos_over_t2(t)[..., None] * wv + t_minus_sin_over_t3(t)[..., None] * so3.cross(w, wv)
     return make(so3.exp(w), p)
+
+
+def _few_exps(xi: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """``exp`` of a few twists (m, 6) at angles t (m,): the coefficients and cosines as arrays (numpy's own
+    functions), the rest twist by twist on Python floats with ``exp``'s and ``so3.exp``'s operations (one
+    coefficient each for both, as they compute the same)."""
+    a, b, c3 = (f(t).tolist() for f in (sin_over_t, one_minus_cos_over_t2, t_minus_sin_over_t3))
+    out = []
+    for (v0, v1, v2, x, y, z), ak, bk, ck, c in zip(xi.tolist(), a, b, c3, np.cos(t).tolist()):
+        wv = so3.cross_tuple((x, y, z), (v0, v1, v2))
+        wwv = so3.cross_tuple((x, y, z), wv)
+        bxy, bxz, byz = bk * x * y, bk * x * z, bk * y * z
+        out += [c + bk * x * x, bxy - ak * z, bxz + ak * y, v0 + bk * wv[0] + ck * wwv[0],
+                bxy + ak * z, c + bk * y * y, byz - ak * x, v1 + bk * wv[1] + ck * wwv[1],
+                bxz - ak * y, byz + ak * x, c + bk * z * z, v2 + bk * wv[2] + ck * wwv[2], 0.0, 0.0, 0.0, 1.0]
+    return np.array(out).reshape(len(xi), 4, 4)
 
 
 def exp_joint_screws(screws: np.ndarray, theta: np.ndarray) -> np.ndarray:

@@ -112,7 +112,7 @@ def _pose_offset(T, T0):
 
 
 def _translation_scale(T) -> np.ndarray:
-    return se3.join(T[:3, 3], np.zeros(3))
+    return np.array([*T[:3, 3].tolist(), 0.0, 0.0, 0.0])
 
 
 class _Offsets(ParamKind):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from bisect import bisect_right
+
 import numpy as np
 
 from kincal.lie import se3
@@ -18,10 +20,8 @@ def retract(state: State, layout: Layout, delta: np.ndarray, tangents: bool = Tr
     # the joint screws' rigid motions and the pose blocks that move: their exponentials in one batch (``exp(d) T``
     # for a pose, as ``kind.retract``; ``values.retract_twists`` for the screws)
     twists, poses = [], []
-    for b in layout.blocks:
+    for b in _moved_blocks(layout, delta):
         d = delta[b.slice]
-        if not d.any():
-            continue
         if b.kind.pose_of(b.value(state)) is not None:
             poses.append(b)
         elif b.kind is TWISTS:
@@ -47,6 +47,16 @@ def retract(state: State, layout: Layout, delta: np.ndarray, tangents: bool = Tr
     return state.replace(arms, extras)
 
 
+def _moved_blocks(layout: Layout, delta: np.ndarray) -> list:
+    """The blocks of ``layout`` (in order) where ``delta`` has a nonzero coordinate: one scan of ``delta``
+    instead of one per block (blocks are contiguous runs in order, ``Layout``)."""
+    hit = np.flatnonzero(delta).tolist()
+    if not hit:
+        return []
+    starts = [b.start for b in layout.blocks]
+    return [layout.blocks[k] for k in sorted({bisect_right(starts, i) - 1 for i in hit})]
+
+
 def recentre(state: State, conformed: bool = False) -> State:
     """The next linearization point: every kind re-centres its values (twists conformed, planes normalized,
     tangent bases recomputed). ``conformed``: the twists were conformed already (``conform``): their screws are
@@ -70,9 +80,8 @@ def pose_retraction_jacobians(layout: Layout, delta: np.ndarray) -> dict[str, np
     """Per block stepped away from its linearization point whose retraction is not additive (poses of arms and
     frames): the map from d(delta) to the kind's own increment there (``J_l(d)``: exact, not first order)."""
     out = {}
-    for b in layout.blocks:
-        d = delta[b.slice]
-        J = b.kind.retraction_jacobian(d) if d.any() else None
+    for b in _moved_blocks(layout, delta):
+        J = b.kind.retraction_jacobian(delta[b.slice])
         if J is not None:
             out[b.name] = J
     return out
