@@ -122,22 +122,30 @@ def _frame_prefixes(screws, theta, base, turns) -> np.ndarray:
     P = np.empty((n + 1, N, 4, 4))
     P[0] = np.broadcast_to(base, batch + (4, 4)).reshape(N, 4, 4)
     moves = np.any(flat, axis=0)
-    cos, sin = (t.reshape(-1, n) for t in turns)
+    cos, sin = (np.ascontiguousarray(t.reshape(-1, n).T)[:, :, None] for t in turns)  # per joint (N, 1)
     X = np.empty((N, 4, 4))
+    X2, P2 = X.reshape(4 * N, 4), P.reshape(n + 1, 4 * N, 4)  # the products' views, made once
+    x0, x1 = X[:, :3, 0], X[:, :3, 1]  # the columns a revolute joint turns (the last row stays (0, 0, 0, 1))
     for i in range(n):
         if not moves[i]:  # exp(0) = I
             P[i + 1] = P[i]
             continue
-        np.matmul(P[i].reshape(4 * N, 4), C[i], out=X.reshape(4 * N, 4))
-        if revolute[i]:  # X Rz(t): columns 0 and 1 turn
-            c, s = cos[:, i, None], sin[:, i, None]
-            x0, x1 = X[:, :3, 0].copy(), X[:, :3, 1].copy()  # the last row stays (0, 0, 0, 1)
-            X[:, :3, 0] = c * x0 + s * x1
-            X[:, :3, 1] = c * x1 - s * x0
+        np.matmul(P2[i], C[i], out=X2)
+        if revolute[i]:  # X Rz(t): columns 0 and 1 turn (c x0 + s x1, c x1 - s x0)
+            turn_columns(x0, x1, cos[i], sin[i])
         else:  # X Tz(t): the origin moves along z
             X[:, :3, 3] += flat[:, i, None] * X[:, :3, 2]
-        np.matmul(X.reshape(4 * N, 4), Ci[i], out=P[i + 1].reshape(4 * N, 4))
+        np.matmul(X2, Ci[i], out=P2[i + 1])
     return np.moveaxis(P, 0, 1).reshape(batch + (n + 1, 4, 4))
+
+
+def turn_columns(x0: np.ndarray, x1: np.ndarray, c: np.ndarray, s: np.ndarray) -> None:
+    """``x0, x1 = c x0 + s x1, c x1 - s x0`` in place (views of a buffer; c, s broadcast against them)."""
+    a = c * x0
+    a += s * x1
+    b = c * x1
+    b -= s * x0
+    x0[...], x1[...] = a, b
 
 
 def expanded_chain(screws, theta, base, home, tool, frames: bool = True) -> Kinematics:
