@@ -123,3 +123,31 @@ def test_pose_gap_without_b_gives_the_same_gap_and_a_derivative(rng):
     r1, GA1, GB1 = pose_gap(TA, TB, of_b=False)
     assert GB1 is None and GB is not None
     assert _bits(r1) == _bits(r) and _bits(GA1) == _bits(GA)
+
+
+def test_ad_is_the_two_hats(rng):
+    from kincal.lie import so3
+
+    for shape in [(6,), (1, 6), (5, 6), (3, 4, 6), (0, 6)]:
+        xi = rng.normal(size=shape)
+        xi[..., 1], xi[..., 4] = 0.0, -0.0  # signed zeros stay where they were
+        want = np.zeros(shape[:-1] + (6, 6))
+        want[..., :3, :3] = want[..., 3:, 3:] = so3.hat(xi[..., 3:])
+        want[..., :3, 3:] = so3.hat(xi[..., :3])
+        assert _bits(se3.ad(xi)) == _bits(want)
+
+
+def test_left_jacobian_coefficients_of_a_few_small_angles_are_the_series(rng):
+    from kincal.lie import _coeffs
+
+    series = (_coeffs._A1, _coeffs._A2, _coeffs._A3, _coeffs._A4)
+    for shape in [(), (1,), (3,), (2, 3), (0,)]:
+        theta = np.abs(rng.normal(size=shape)) * 0.3
+        got = _coeffs.se3_jl_coeffs(theta)
+        for g, c in zip(got, series):
+            want = np.vectorize(lambda t: _coeffs._horner_float(c.rest, c.top, t * t), otypes=[float])(theta)
+            assert _bits(g) == _bits(np.asarray(want, float))
+    theta = np.array([0.2, 1.5])  # one above the branch point: the closed form there, as before
+    a1 = _coeffs.se3_jl_coeffs(theta)[0]
+    t = 1.5
+    assert a1[1] == (4 - t * np.sin(t) - 4 * np.cos(t)) / (2 * t**2)

@@ -105,6 +105,11 @@ def se3_jl_coeffs(theta):
 
     These are the thesis' closed forms (eq. 2.44 with q = 1), theta = |w|.
     """
+    theta = np.asarray(theta, dtype=float)
+    if theta.size <= _FEW and bool(np.all(theta < _TAYLOR_BELOW)):  # ``_branch``'s series on floats, all four
+        t2 = (theta * theta).ravel().tolist()
+        return tuple(np.array([_horner_float(c.rest, c.top, x) for x in t2]).reshape(theta.shape)
+                     if theta.ndim else np.float64(_horner_float(c.rest, c.top, t2[0])) for c in (_A1, _A2, _A3, _A4))
     a1 = _branch(theta, _A1, lambda t: (4 - t * np.sin(t) - 4 * np.cos(t)) / (2 * t**2))
     a2 = _branch(theta, _A2, lambda t: (4 * t - 5 * np.sin(t) + t * np.cos(t)) / (2 * t**3))
     a3 = _branch(theta, _A3, lambda t: (2 - t * np.sin(t) - 2 * np.cos(t)) / (2 * t**4))

@@ -285,14 +285,27 @@ def adjoint_inv(T: np.ndarray) -> np.ndarray:
 
 
 def ad(xi: np.ndarray) -> np.ndarray:
-    """Small adjoint: ad(a) b is the Lie bracket [a, b]; (..., 6) -> (..., 6, 6)."""
-    v, w = split(np.asarray(xi, dtype=float))
-    out = np.zeros(np.shape(xi)[:-1] + (6, 6))
-    W = so3.hat(w)
-    out[..., :3, :3] = W
-    out[..., 3:, 3:] = W
-    out[..., :3, 3:] = so3.hat(v)
-    return out
+    """Small adjoint: ad(a) b is the Lie bracket [a, b]; (..., 6) -> (..., 6, 6): ``[[hat(w), hat(v)],
+    [0, hat(w)]]`` written entry by entry from the twist's coordinates (``_AD_PLUS``, ``_AD_MINUS``)."""
+    xi = np.asarray(xi, dtype=float)
+    out = np.zeros(xi.shape[:-1] + (36,))
+    out[..., _AD_PLUS[0]] = xi[..., _AD_PLUS[1]]
+    out[..., _AD_MINUS[0]] = -xi[..., _AD_MINUS[1]]
+    return out.reshape(xi.shape[:-1] + (6, 6))
+
+
+def _ad_entries(sign: int) -> tuple[np.ndarray, np.ndarray]:
+    """(flat indices in a 6 x 6 ``ad``, twist coordinates there) of the entries ``sign * coordinate``: ``hat(u)``
+    holds ``u_k`` at (k + 2, k + 1) (mod 3) and ``-u_k`` at the transposed place."""
+    places = []
+    for r0, c0, u in ((0, 0, 3), (3, 3, 3), (0, 3, 0)):  # hat(w) twice, hat(v) top right
+        for k in range(3):
+            r, c = ((k + 2) % 3, (k + 1) % 3) if sign > 0 else ((k + 1) % 3, (k + 2) % 3)
+            places.append((6 * (r0 + r) + c0 + c, u + k))
+    return np.array([p for p, _ in places]), np.array([k for _, k in places])
+
+
+_AD_PLUS, _AD_MINUS = _ad_entries(1), _ad_entries(-1)
 
 
 def left_jacobian(xi: np.ndarray) -> np.ndarray:
