@@ -151,3 +151,26 @@ def test_left_jacobian_coefficients_of_a_few_small_angles_are_the_series(rng):
     a1 = _coeffs.se3_jl_coeffs(theta)[0]
     t = 1.5
     assert a1[1] == (4 - t * np.sin(t) - 4 * np.cos(t)) / (2 * t**2)
+
+
+def test_vee_reads_the_skew_part_entry_by_entry(rng):
+    from kincal.lie import so3
+
+    for shape in [(3, 3), (4, 3, 3), (2, 5, 3, 3)]:
+        W = rng.normal(size=shape)
+        for X in (W, np.swapaxes(W, -1, -2)):  # contiguous or not
+            want = 0.5 * np.stack([X[..., 2, 1] - X[..., 1, 2], X[..., 0, 2] - X[..., 2, 0],
+                                   X[..., 1, 0] - X[..., 0, 1]], axis=-1)
+            assert _bits(so3.vee(X)) == _bits(want)
+
+
+@pytest.mark.parametrize("step,widths", [(1, (4, 4, 4)), (3, (4, 4)), (1, (4, 2, 4))])
+def test_twist_columns_in_one_product_equal_the_joint_by_joint_ones(rng, step, widths):
+    from kincal.kinematics.jacobians import _twist_columns
+
+    N, k = 7, 3
+    gens = tuple(rng.normal(size=(6, t)) for t in widths)
+    M = rng.normal(size=(step * len(gens) + 1, N * k, 6))
+    want = np.concatenate([((M[step * j] - M[step * (j + 1)]) @ G).reshape(N, k, -1) for j, G in enumerate(gens)],
+                          axis=-1)
+    assert _bits(_twist_columns(M, gens, step, N, k)) == _bits(want)

@@ -214,7 +214,12 @@ def _frame_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
 
 def _twist_columns(M: np.ndarray, generators, step: int, N: int, k: int) -> np.ndarray:
     """``(M_a - M_b) G_j`` (N, k, sum of the k_j) for the joints' groups ``[a, b)`` of ``step`` screws, written
-    joint by joint into the result's columns."""
+    joint by joint into the result's columns; joints of one width (an arm of one joint type) in one product."""
+    widths = {g.shape[1] for g in generators}
+    if len(widths) == 1:
+        n, t = len(generators), widths.pop()
+        D = M[0: step * n: step] - M[step: step * (n + 1): step]  # (n, N*k, 6)
+        return np.moveaxis((D @ np.stack(generators)).reshape(n, N, k, t), 0, 2).reshape(N, k, n * t)
     out = np.empty((N, k, sum(g.shape[1] for g in generators)))
     c = 0
     for j, Gj in enumerate(generators):

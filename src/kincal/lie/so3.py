@@ -33,9 +33,12 @@ def hat(w: np.ndarray) -> np.ndarray:
 def vee(W: np.ndarray) -> np.ndarray:
     """Inverse of hat, taking the skew part: (..., 3, 3) -> (..., 3)."""
     W = np.asarray(W, dtype=float)
-    return 0.5 * np.stack(
-        [W[..., 2, 1] - W[..., 1, 2], W[..., 0, 2] - W[..., 2, 0], W[..., 1, 0] - W[..., 0, 1]], axis=-1
-    )
+    flat = W.reshape(W.shape[:-2] + (9,))
+    return 0.5 * (flat[..., _SKEW_PLUS] - flat[..., _SKEW_MINUS])  # (W[2, 1] - W[1, 2], ...) / 2
+
+
+# Flat (row-major 3 x 3) indices of hat(w)'s entries w_k and -w_k.
+_SKEW_PLUS, _SKEW_MINUS = np.array([7, 2, 3]), np.array([5, 6, 1])
 
 
 def angle(w: np.ndarray) -> np.ndarray:
@@ -96,7 +99,7 @@ def log(R: np.ndarray) -> np.ndarray:
     R = np.asarray(R, dtype=float)
     s = vee(R)  # sin(t) * axis
     c = 0.5 * (np.trace(R, axis1=-2, axis2=-1) - 1.0)
-    sin_t = np.linalg.norm(s, axis=-1)
+    sin_t = np.sqrt(np.add.reduce(s * s, axis=-1))  # np.linalg.norm's own operations
     t = np.arctan2(sin_t, c)
     w_small = s / sin_over_t(t)[..., None]
     if (c >= 0.0) if R.ndim == 2 else bool(np.all(c >= 0.0)):  # every rotation below pi/2: the skew part
