@@ -174,3 +174,19 @@ def test_twist_columns_in_one_product_equal_the_joint_by_joint_ones(rng, step, w
     want = np.concatenate([((M[step * j] - M[step * (j + 1)]) @ G).reshape(N, k, -1) for j, G in enumerate(gens)],
                           axis=-1)
     assert _bits(_twist_columns(M, gens, step, N, k)) == _bits(want)
+
+
+def test_exactness_verdict_per_joint_equals_the_batched_one(rng, monkeypatch):
+    for trial in range(2000):
+        n = int(rng.integers(1, 9))
+        types = tuple("revolute" if rng.random() < 0.7 else "prismatic" for _ in range(n))
+        xi = conform_twists(rng.normal(size=(n, 6)), types)
+        if trial % 2:
+            xi = xi + rng.normal(size=xi.shape) * 10.0 ** rng.uniform(-16, -10)  # near the tolerance
+        if trial % 7 == 0:
+            xi[rng.integers(n), rng.integers(6)] = np.nan
+        tol = (1e-12, 1e-9, 0.0)[trial % 3]
+        few = se3._exact(xi, tol)
+        with monkeypatch.context() as m:
+            m.setattr(se3, "_FEW_JOINTS", -1)
+            assert se3._exact(xi, tol) is few

@@ -241,11 +241,21 @@ def clear_caches() -> None:
 
 
 def _exact(screws: np.ndarray, tol: float) -> bool:
+    if len(screws) <= _FEW_JOINTS:  # an arm's joints: the same sums on Python floats
+        return all(_exact_one(x, tol) for x in screws.tolist())
     v, w = np.asarray(screws[:, :3]), np.asarray(screws[:, 3:])
     ww, vv, wv = np.sum(w * w, axis=1), np.sum(v * v, axis=1), np.sum(w * v, axis=1)
     revolute = ww > 0.5
     return bool(np.all(np.where(revolute, np.abs(ww - 1) <= tol, (ww <= tol**2) & (np.abs(vv - 1) <= tol))
                        & (np.abs(wv) <= tol)))
+
+
+def _exact_one(x: list, tol: float) -> bool:
+    """``_exact`` of one screw (6 floats): the squares and products summed in order, as ``np.sum`` does."""
+    v0, v1, v2, w0, w1, w2 = x
+    ww, vv, wv = w0 * w0 + w1 * w1 + w2 * w2, v0 * v0 + v1 * v1 + v2 * v2, w0 * v0 + w1 * v1 + w2 * v2
+    unit = abs(ww - 1) <= tol if ww > 0.5 else ww <= tol**2 and abs(vv - 1) <= tol
+    return unit and abs(wv) <= tol
 
 
 def log(T: np.ndarray) -> np.ndarray:
