@@ -190,3 +190,20 @@ def test_exactness_verdict_per_joint_equals_the_batched_one(rng, monkeypatch):
         with monkeypatch.context() as m:
             m.setattr(se3, "_FEW_JOINTS", -1)
             assert se3._exact(xi, tol) is few
+
+
+@pytest.mark.parametrize("prismatic", [(), (1,)])
+def test_scale_directions_of_arms_with_and_without_prismatic_joints(rng, prismatic):
+    from kincal.params import ArmValues
+    from kincal.params.kinds import COMPLIANCE, OFFSETS, TWISTS
+    from kincal.testing import random_arm
+    from dataclasses import replace
+
+    a = ArmValues.from_model(random_arm(rng, 4, prismatic))
+    a = replace(a, offsets=rng.normal(size=4), compliance=rng.uniform(1e-6, 1e-5, 4))
+    rev = np.array(a.joint_types) == "revolute"
+    assert _bits(OFFSETS.scale(a)) == _bits(np.where(~rev, a.offsets, 0.0))
+    assert _bits(COMPLIANCE.scale(a)) == _bits(np.where(~rev, a.joint_compliance, -a.joint_compliance))
+    v = np.zeros_like(a.screws)
+    v[rev, :3] = a.screws[rev, :3]
+    assert _bits(TWISTS.scale(a)) == _bits(a.tangent_coordinates(v))

@@ -303,8 +303,8 @@ class Problem:
             rs.append(rc)
             if cols is not None:
                 Js.append(Jc)
-        r = _joined(rs)
-        return (r, _joined(Js)) if cols is not None else (r, None)
+        r = np.concatenate(rs)
+        return (r, np.concatenate(Js, axis=0)) if cols is not None else (r, None)
 
     def statistics(self, state: State, whiteners=None) -> list[ResidualStats]:
         """Per experiment: samples, position / orientation RMS and max (norm per sample), whitened chi^2."""
@@ -364,12 +364,6 @@ def _constant_diagonal(W: np.ndarray) -> np.ndarray | None:
     D = W[0]
     d = np.diagonal(D)  # ``D - diag(d)`` all zeros: no nonzero (nor NaN) entry off the diagonal, d finite
     return d.copy() if np.count_nonzero(D) == np.count_nonzero(d) and np.isfinite(d).all() else None
-
-
-def _joined(parts: list) -> np.ndarray:
-    """``np.concatenate(parts)`` of ``_stack``'s fresh arrays, without copying a single one (one experiment, no
-    prior or constraint rows)."""
-    return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
 def _noise_per_experiment(noise, exps) -> list[Noise]:

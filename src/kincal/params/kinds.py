@@ -129,6 +129,8 @@ class _Offsets(ParamKind):
         return a.offsets - a0.offsets, np.eye(a.dof)
 
     def scale(self, a):
+        if PRISMATIC not in a.joint_types:  # revolute offsets are angles: nothing scales
+            return np.zeros(len(a.offsets))
         return np.where(np.array(a.joint_types) == PRISMATIC, a.offsets, 0.0)
 
     def values(self, a):
@@ -171,8 +173,11 @@ class _Twists(ParamKind):
 
     def scale(self, a):
         v = np.zeros_like(a.screws)
-        rev = np.array(a.joint_types) == REVOLUTE
-        v[rev, :3] = a.screws[rev, :3]
+        if PRISMATIC not in a.joint_types:  # every joint revolute: its moment scales (``rev`` all true)
+            v[:, :3] = a.screws[:, :3]
+        else:
+            rev = np.array(a.joint_types) == REVOLUTE
+            v[rev, :3] = a.screws[rev, :3]
         return a.tangent_coordinates(v)
 
 
@@ -231,8 +236,10 @@ class _Compliance(ParamKind):
         return k - a0.joint_compliance, np.eye(len(k))
 
     def scale(self, a):  # same deflection under a pure force: torques scale with length
-        prismatic = np.array([a.joint_types[j] == PRISMATIC for j, _ in a.compliance_columns()])
         c = a.joint_compliance
+        if PRISMATIC not in a.joint_types:
+            return -c
+        prismatic = np.array([a.joint_types[j] == PRISMATIC for j, _ in a.compliance_columns()])
         return np.where(prismatic, c, -c)
 
     def values(self, a):
