@@ -207,3 +207,23 @@ def test_scale_directions_of_arms_with_and_without_prismatic_joints(rng, prismat
     v = np.zeros_like(a.screws)
     v[rev, :3] = a.screws[rev, :3]
     assert _bits(TWISTS.scale(a)) == _bits(a.tangent_coordinates(v))
+
+
+def test_twists_recentre_in_one_replace_is_conform_then_tangents(rng):
+    from dataclasses import fields, replace
+    from kincal.params import ArmValues
+    from kincal.params.kinds import TWISTS, with_arm_poses, HOME
+    from kincal.testing import random_arm
+
+    a = ArmValues.from_model(random_arm(rng, 5, (2,)))
+    a = replace(a, screws=a.screws + rng.normal(size=a.screws.shape) * 1e-9)  # off the exact screws
+    one, two = TWISTS.recentre(a), TWISTS.with_tangents(TWISTS.conform(a))
+    assert _bits(one.screws) == _bits(two.screws)
+    for name in ("bases", "generators"):
+        assert [_bits(u) for u in getattr(one, name)] == [_bits(v) for v in getattr(two, name)]
+    for f in fields(a):
+        if f.name not in ("screws", "bases", "generators"):
+            assert getattr(one, f.name) is getattr(a, f.name)
+    T = se3.exp(rng.normal(size=6))
+    moved = with_arm_poses(a, [(HOME, T)])
+    assert moved.home is T and moved.tool is a.tool and moved.screws is a.screws

@@ -154,7 +154,10 @@ class _Twists(ParamKind):
         return retract_twists(a, d)
 
     def recentre(self, a):
-        return self.with_tangents(self.conform(a))
+        """``with_tangents(conform(a))`` in one ``replace``."""
+        screws = conform_twists(a.screws, a.joint_types)
+        B, G = tangent_frames(screws, a.joint_types)
+        return replace(a, screws=screws, bases=B, generators=G)
 
     def conform(self, a):
         """The screws conformed (``conform_twists``: removes round-off only, the retraction is exact)."""
@@ -212,6 +215,12 @@ class _ArmPose(ParamKind):
 
     def retraction_jacobian(self, d):
         return se3.left_jacobian(d)
+
+
+def with_arm_poses(a, poses):
+    """``a`` with several of its poses replaced at once: ``poses`` [(arm pose kind, T)] (one ``replace``, the
+    same values as the kinds' ``with_pose`` one after the other)."""
+    return replace(a, **{kind.field: T for kind, T in poses})
 
 
 class _Compliance(ParamKind):

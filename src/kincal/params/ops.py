@@ -7,7 +7,7 @@ from bisect import bisect_right
 import numpy as np
 
 from kincal.lie import se3
-from kincal.params.kinds import ARM_KINDS, POSE_COORDS, TWISTS
+from kincal.params.kinds import ARM_KINDS, POSE_COORDS, TWISTS, with_arm_poses
 from kincal.params.layout import Layout
 from kincal.params.values import State, retract_twists, twist_motions
 
@@ -38,12 +38,14 @@ def retract(state: State, layout: Layout, delta: np.ndarray, tangents: bool = Tr
         a = arms[b.arm]  # the twists' fields only: the arm's other blocks changed others
         arms[b.arm] = retract_twists(a, delta[b.slice], tangents, (g, E[k: k + len(g)]))
         k += len(g)
-    if poses:
-        for b, Ek in zip(poses, E[k:]):
-            if b.arm is not None:
-                arms[b.arm] = b.kind.with_pose(arms[b.arm], Ek @ b.kind.pose_of(arms[b.arm]))
-            else:
-                extras[b.name] = b.kind.with_pose(extras[b.name], Ek @ extras[b.name])
+    moved = {}  # arm -> its moved poses, set in one replace
+    for b, Ek in zip(poses, E[k:]):
+        if b.arm is not None:
+            moved.setdefault(b.arm, []).append((b.kind, Ek @ b.kind.pose_of(arms[b.arm])))
+        else:
+            extras[b.name] = b.kind.with_pose(extras[b.name], Ek @ extras[b.name])
+    for arm, ps in moved.items():
+        arms[arm] = with_arm_poses(arms[arm], ps)
     return state.replace(arms, extras)
 
 
