@@ -122,7 +122,7 @@ def _frame_prefixes(screws, theta, base, turns) -> np.ndarray:
     P = np.empty((n + 1, N, 4, 4))
     P[0] = np.broadcast_to(base, batch + (4, 4)).reshape(N, 4, 4)
     moves = np.any(flat, axis=0)
-    cos, sin = (np.ascontiguousarray(t.reshape(-1, n).T)[:, :, None] for t in turns)  # per joint (N, 1)
+    cos, sin = (t.reshape(-1, n).T[:, :, None] for t in turns)  # per joint (N, 1)
     X = np.empty((N, 4, 4))
     X2, P2 = X.reshape(4 * N, 4), P.reshape(n + 1, 4 * N, 4)  # the products' views, made once
     x0, x1 = X[:, :3, 0], X[:, :3, 1]  # the columns a revolute joint turns (the last row stays (0, 0, 0, 1))

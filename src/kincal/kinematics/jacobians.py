@@ -193,7 +193,7 @@ def _frame_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
     else:
         M[0] = _project_prefixes(G, kin.prefixes[:, :1])[0]
     moves = np.any(theta, axis=0)
-    cos, sin = (np.ascontiguousarray(t.T)[:, :, None, None] for t in kin.turns)  # per joint (N, 1, 1)
+    cos, sin = (t.T[:, :, None, None] for t in kin.turns)  # per joint (N, 1, 1)
     K2 = np.empty((N * k, 6))
     K = K2.reshape(N, k, 6)
     x0, x1 = K[..., 0::3], K[..., 1::3]  # the columns a revolute joint turns: (0, 3) and (1, 4)
