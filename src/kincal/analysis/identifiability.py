@@ -26,10 +26,10 @@ import numpy as np
 
 from kincal.analysis.covariance import right_svd
 from kincal.analysis.factor import Factor
-from kincal.analysis.linalg import lstsq, norm, svd
+from kincal.analysis.linalg import lstsq, norm, norms, svd
 from kincal.analysis.linearization import Linearization, unit_columns
 from kincal.analysis.naming import context, degenerate, describer
-from kincal.analysis.symmetries import consistent_nulls, rotation_nulls, scale_null
+from kincal.analysis.symmetries import Structure, consistent_nulls, rotation_nulls, scale_null
 from kincal.params import Layout
 
 IDENTIFIABLE_TOL = 1e-6  # a parameter is identifiable when its row of the (scaled) null basis is below this
@@ -80,7 +80,8 @@ class Identifiability:
 
 def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol: float = 1e-9,
              priority: Sequence[int] | None = None, report: bool = True,
-             structural: np.ndarray | None = None, hold: np.ndarray | None = None) -> Identifiability:
+             structural: np.ndarray | None = None, hold: np.ndarray | None = None,
+             structure: Structure | None = None) -> Identifiability:
     """The identifiability of the free coordinates at one linearization: the one entry point of the solver.
 
     Rank and null space of ``lin``'s whitened Jacobian with the exact symmetries held (the scale without a
@@ -93,12 +94,16 @@ def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol:
     (``near_gauges``: a coupling of parallel axes, whose exact gauge at the nominal model the estimated tilts
     of the axes lift a little). ``hold`` (p, k): the exact gauges of the rigid model, which only the weight
     lifts (natural units, ``estimation.gauge.rigid_gauges``): held by pinning one coordinate per direction
-    (``pivot_rows`` in ``priority``), named, with a message saying why.
+    (``pivot_rows`` in ``priority``), named, with a message saying why. ``structure``: the solve's
+    (``symmetries.Structure``, what the symmetry tests read of the problem's structure alone), used where it
+    ``fits`` ``lin``.
     """
-    names = [layout.names[i] for i in lin.free]
-    scale = scale_null(lin, layout) if lin.every else None
-    held = rotation_nulls(lin, layout, experiments)
-    gauges = partial(consistent_nulls, lin, layout, experiments, rtol)
+    if structure is not None and not structure.fits(lin, layout, experiments, rtol):
+        structure = None
+    names = structure.names if structure is not None else [layout.names[i] for i in lin.free]
+    scale = scale_null(lin, layout, structure) if lin.every else None
+    held = rotation_nulls(lin, layout, experiments, structure)
+    gauges = partial(consistent_nulls, lin, layout, experiments, rtol, structure=structure)
     J, pins = lin.Rf, []
     if hold is not None:
         hold = _orth(hold)
@@ -297,12 +302,12 @@ def analyse(
         gauges = gauges(p - sv.rank)
     has_scale = scale is not None and norm(scale) > 0
     Ns, rank, lifted, held_scale = _hold(sv, ([scale] if has_scale else []) + list(held), has_scale, gauges)
-    identifiable = np.linalg.norm(Ns, axis=1) < IDENTIFIABLE_TOL
+    identifiable = norms(Ns, 1) < IDENTIFIABLE_TOL
     N, R = _null_and_range(Ns / sv.c[:, None])
     weak_idx = _weak_indices(sv, rank, rtol, weak_rtol, lifted)
     weak = tuple(_top_names(sv.Vt[i], names) for i in weak_idx)
     weak_vectors = sv.Vt[weak_idx].T / sv.c[:, None]
-    weak_vectors /= np.maximum(np.linalg.norm(weak_vectors, axis=0), 1e-300)
+    weak_vectors /= np.maximum(norms(weak_vectors, 0), 1e-300)
     messages: list[str] = []
     Nd, scale_null_found = N, False
     if has_scale and N.shape[1]:
@@ -340,7 +345,7 @@ def _spectrum(J: np.ndarray, rtol: float) -> _Spectrum:
     S_full = np.zeros(p)
     S_full[: len(S)] = S
     smax = S_full[0] if p else 0.0
-    rank = int(np.sum(S_full > rtol * smax)) if smax > 0 else 0
+    rank = int(np.count_nonzero(S_full > rtol * smax)) if smax > 0 else 0
     return _Spectrum(S_full, Vt, c_safe, smax, rank, U)
 
 

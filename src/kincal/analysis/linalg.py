@@ -58,3 +58,9 @@ def norm(x: np.ndarray) -> float:
     the raveled real array, bit for bit) without its dispatch, which costs more than the sum at these sizes."""
     x = np.ravel(x)
     return math.sqrt(x @ x)
+
+
+def norms(x: np.ndarray, axis: int) -> np.ndarray:
+    """The 2-norms along ``axis`` of a float array: ``numpy.linalg.norm(x, axis=axis)``'s arithmetic (``sqrt`` of
+    ``add.reduce`` of the squares, bit for bit) without its dispatch (the analysis asks at every linearization)."""
+    return np.sqrt(np.add.reduce(x * x, axis=axis))
