@@ -306,15 +306,14 @@ def analyse(
     N, R = _null_and_range(Ns / sv.c[:, None])
     weak_idx = _weak_indices(sv, rank, rtol, weak_rtol, lifted)
     weak = tuple(_top_names(sv.Vt[i], names) for i in weak_idx)
-    weak_vectors = sv.Vt[weak_idx].T / sv.c[:, None]
-    weak_vectors /= np.maximum(norms(weak_vectors, 0), 1e-300)
+    weak_vectors = _weak_vectors(sv, weak_idx)
     messages: list[str] = []
     Nd, scale_null_found = N, False
     if has_scale and N.shape[1]:
         Nd, scale_null_found, words = _scale_message(N, scale, names, held_scale)
         messages += words
-    order = list(range(p)) if priority is None else list(priority)
-    directions = _directions(Nd, order, names, describe, context) if name else []
+    order = list(range(p)) if priority is None else priority
+    directions = _directions(Nd, list(order), names, describe, context) if name else []
     messages += [d.words for d in directions]
     messages += _weak_messages(weak, sv, weak_idx)
     own = sv.U is not None and not lifted and rank == sv.rank  # the null space is the SVD's own
@@ -342,8 +341,7 @@ def _spectrum(J: np.ndarray, rtol: float) -> _Spectrum:
         U, S, Vt = svd(Js, full_matrices=False)
     else:
         S, Vt = right_svd(Js) if m >= p else svd(Js, full_matrices=True)[1:]  # all p rows of Vt
-    S_full = np.zeros(p)
-    S_full[: len(S)] = S
+    S_full = S if len(S) == p else np.concatenate([S, np.zeros(p - len(S))])  # zero-padded when J is wide
     smax = S_full[0] if p else 0.0
     rank = int(np.count_nonzero(S_full > rtol * smax)) if smax > 0 else 0
     return _Spectrum(S_full, Vt, c_safe, smax, rank, U)
@@ -392,6 +390,15 @@ def _weak_indices(sv: _Spectrum, rank: int, rtol: float, weak_rtol: float, lifte
     if lifted:  # directions lifted by the residuals are not weak directions but held
         weak_idx = np.array([i for i in weak_idx if max(abs(sv.Vt[i] @ h) for h in lifted) < 0.5], dtype=int)
     return weak_idx
+
+
+def _weak_vectors(sv: _Spectrum, weak_idx: np.ndarray) -> np.ndarray:
+    """(p, w) the weak directions in natural units, unit norm; (p, 0) without any (the common case, at once)."""
+    if not len(weak_idx):
+        return np.zeros((len(sv.c), 0))
+    v = sv.Vt[weak_idx].T / sv.c[:, None]
+    v /= np.maximum(norms(v, 0), 1e-300)
+    return v
 
 
 def _scale_message(N: np.ndarray, scale: np.ndarray, names, held_scale: bool):
