@@ -72,6 +72,17 @@ def test_a_solve_with_its_structure_gives_what_one_without_gives(monkeypatch, ur
         _same(shipped, plain)
 
 
+def test_a_solve_reads_its_structure_once(monkeypatch, ur10_sets):
+    """One ``Structure`` per solve, made at its first linearization and handed to every ``identify`` of it."""
+    nominal, markers, _ = ur10_sets
+    made, seen, real_of, real_identify = [], [], symmetries.Structure.of, ITERATE.identify
+    monkeypatch.setattr(ITERATE.Structure, "of", classmethod(lambda cls, *a: made.append(real_of(*a)) or made[-1]))
+    monkeypatch.setattr(ITERATE, "identify", lambda *a, **k: seen.append(k["structure"]) or real_identify(*a, **k))
+    res = calibrate(nominal, [markers], "kinematic", noise=NOISE)
+    assert res.iterations >= 2 and len(made) == 1 and len(seen) == res.iterations
+    assert all(s is made[0] for s in seen)
+
+
 def test_table1_repeats_with_their_structure_give_what_ones_without_give(monkeypatch):
     s = S.load("table1")
     fixed = S.fixed_parts(s)

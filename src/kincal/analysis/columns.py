@@ -49,8 +49,11 @@ def _plan(layout: Layout, cols: np.ndarray) -> tuple:
         elif sel.any():
             plan.append((b.name, _frozen(c[sel]), _frozen(sel)))
     plan = tuple(plan)
-    if len(_PLANS) >= PLAN_ENTRIES:  # tolerant of another thread (a Dask worker's) evicting the same entry
-        _PLANS.pop(next(iter(_PLANS), None), None)
+    if len(_PLANS) >= PLAN_ENTRIES:
+        try:  # tolerant of another thread (a Dask worker's) evicting or adding meanwhile
+            _PLANS.pop(next(iter(_PLANS)), None)
+        except (StopIteration, RuntimeError):
+            pass
     _PLANS[key] = plan
     return plan
 
