@@ -72,6 +72,24 @@ def test_a_solve_with_its_structure_gives_what_one_without_gives(monkeypatch, ur
         _same(shipped, plain)
 
 
+def test_a_solve_holding_the_rigid_gauges_with_its_structure_gives_what_one_without_gives(monkeypatch):
+    """The held gauges' basis and pinned rows, taken once per solve (``identifiability._held``): the sagging UR10
+    of tests/test_slow_path.py (kinematic and elastic, weights: the rigid model's gauges held)."""
+    from test_slow_path import _sagging_ur10
+    from kincal.simulate.generators import generate_markers
+
+    nominal, true, _ = _sagging_ur10()
+    ds = generate_markers(true, n=20, rng=1, markers=3, noise=Noise(position=2e-5), known_tracker=True,
+                          known_markers=True)[0]
+    ident = importlib.import_module("kincal.analysis.identifiability")
+    calls, real = [], ident.pivot_rows
+    monkeypatch.setattr(ident, "pivot_rows", lambda *a: calls.append(1) or real(*a))
+    shipped, plain = _both(monkeypatch, lambda: calibrate(nominal, [ds], ["kinematic", "elastic"], outliers="keep"))
+    assert shipped.held is not None and shipped.iterations >= 2
+    assert len(calls) == 1 + plain.iterations  # once in the solve with its structure, at every linearization without
+    _same(shipped, plain)
+
+
 def test_a_solve_reads_its_structure_once(monkeypatch, ur10_sets):
     """One ``Structure`` per solve, made at its first linearization and handed to every ``identify`` of it."""
     nominal, markers, _ = ur10_sets

@@ -106,8 +106,7 @@ def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol:
     gauges = partial(consistent_nulls, lin, layout, experiments, rtol, structure=structure)
     J, pins = lin.Rf, []
     if hold is not None:
-        hold = _orth(hold)
-        pins = pivot_rows(hold, range(len(names)) if priority is None else priority)
+        hold, pins = _held(hold, priority, len(names), structure)
         J = lin.Rf.copy()
         J[:, pins] = 0.0  # the pinned coordinates do not move: exact nulls, the rest analysed without them
         scale, held, gauges = _unpinned(hold, pins, scale, held, gauges)
@@ -115,6 +114,23 @@ def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol:
     if pins:
         ana = _pinned(ana, hold, pins)
     return named(ana, lin, layout, experiments, priority, structural) if report else ana
+
+
+def _held(hold: np.ndarray, priority, p: int, structure: Structure | None) -> tuple[np.ndarray, list[int]]:
+    """The orthonormal basis of ``hold`` and its pinned rows (``pivot_rows`` in ``priority``). Remembered on the
+    solve's ``structure`` by the values of ``hold`` and ``priority``, all they depend on: the solve holds the
+    same gauges at every linearization (``iterate`` takes them once, at the start)."""
+    order = range(p) if priority is None else priority
+    if structure is None:
+        H = _orth(hold)
+        return H, pivot_rows(H, order)
+    key = ("held", hold.dtype.str, hold.shape, hold.tobytes(), None if priority is None else tuple(priority))
+    hit = structure.derived.get(key)
+    if hit is None:
+        H = _orth(hold)
+        H.flags.writeable = False  # shared by the solve's linearizations
+        hit = structure.derived[key] = (H, pivot_rows(H, order))
+    return hit
 
 
 def pivot_rows(L: np.ndarray, order) -> list[int]:

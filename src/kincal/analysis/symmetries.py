@@ -8,7 +8,7 @@ from __future__ import annotations
 import hashlib
 import weakref
 from collections import OrderedDict
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
@@ -42,6 +42,9 @@ class Structure:
     free_length: bool
     rotations: tuple  # ``_rotation_candidates``
     key_start: object  # ``structure_key``'s digest so far (copied, then completed per linearization)
+    # what ``identify`` derives at every linearization from inputs fixed for the solve (the held gauges), by
+    # those inputs' values: ``identifiability._held``
+    derived: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def of(cls, lin: Linearization, layout: Layout, experiments: Sequence, rtol: float) -> "Structure":
