@@ -130,11 +130,11 @@ def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.nd
         recentre(retract(lin.state, problem.layout, problem.full_delta(delta)))
     if options.progress:
         options.progress(it, 2 * cost)
+    biggest = np.max(np.abs(delta), initial=0)
     log.debug("outer %d (%s): cost %.6g, whitened step %.3g, max |delta| %.3g", it,
-              "Gauss-Newton" if accepted else "inner solve", 2 * cost, step, np.max(np.abs(delta), initial=0))
+              "Gauss-Newton" if accepted else "inner solve", 2 * cost, step, biggest)
     # stop when the step is negligible against the residual (or, with noise, well below one sigma)
-    done = finished and (steps.converged(step, np.sqrt(lin.cost2), cost, len(lin.r) - V.shape[1])
-                         or np.max(np.abs(delta), initial=0) < 1e-13)
+    done = finished and (steps.converged(step, np.sqrt(lin.cost2), cost, len(lin.r) - V.shape[1]) or biggest < 1e-13)
     return state, done, fast, evaluations
 
 
