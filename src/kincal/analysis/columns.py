@@ -15,19 +15,58 @@ def scatter_columns(blocks: Mapping[str, np.ndarray], layout: Layout, cols: np.n
     columns of ``cols`` (layout indices) that fall in the block; columns of other coordinates stay zero.
     ``right``: per block, a (d, d) matrix multiplying its Jacobian first (retraction Jacobians of pose blocks
     stepped away from their linearization point)."""
-    col = np.full(layout.size, -1)
-    col[cols] = np.arange(len(cols))
     J = np.zeros(tuple(shape) + (len(cols),))
-    for b in layout.blocks:
-        Jb = blocks.get(b.name)
+    for name, dst, sel in _plan(layout, cols):
+        Jb = blocks.get(name)
         if Jb is None:
             continue
-        if right is not None and b.name in right:
-            Jb = Jb @ right[b.name]
+        if right is not None and name in right:
+            Jb = Jb @ right[name]
+        if sel is None:
+            J[..., dst] = Jb  # the whole block in consecutive columns: a slice, not fancy indexing
+        else:
+            J[..., dst] = Jb[..., sel]
+    return J
+
+
+def _plan(layout: Layout, cols: np.ndarray) -> tuple:
+    """Per layout block with a column in ``cols``: (name, destination columns, the block's selected coordinates or
+    None for all of them, in consecutive columns). Remembered by what it is made of, the blocks' names and
+    ranges, the layout's size and the bytes of ``cols``: the same for every evaluation of a solve and for every
+    calibration of the same structure (each builds its own layout)."""
+    key = (tuple((b.name, b.start, b.stop) for b in layout.blocks), layout.size, np.asarray(cols).tobytes())
+    plan = _PLANS.get(key)
+    if plan is not None:
+        return plan
+    col = np.full(layout.size, -1)
+    col[cols] = np.arange(len(cols))
+    plan = []
+    for b in layout.blocks:
         c = col[b.start: b.stop]
         sel = c >= 0
         if len(c) and c[0] >= 0 and c[-1] - c[0] == len(c) - 1 and (len(c) == 1 or (np.diff(c) == 1).all()):
-            J[..., c[0]: c[-1] + 1] = Jb  # the whole block in consecutive columns: a slice, not fancy indexing
+            plan.append((b.name, slice(int(c[0]), int(c[-1]) + 1), None))
         elif sel.any():
-            J[..., c[sel]] = Jb[..., sel]
-    return J
+            plan.append((b.name, _frozen(c[sel]), _frozen(sel)))
+    plan = tuple(plan)
+    if len(_PLANS) >= PLAN_ENTRIES:
+        try:  # tolerant of another thread (a Dask worker's) evicting or adding meanwhile
+            _PLANS.pop(next(iter(_PLANS)), None)
+        except (StopIteration, RuntimeError):
+            pass
+    _PLANS[key] = plan
+    return plan
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
+PLAN_ENTRIES = 64
+_PLANS: dict = {}
+
+
+def clear_plans() -> None:
+    """Forget every remembered plan (``symmetries.clear_structure_cache`` calls this)."""
+    _PLANS.clear()

@@ -26,10 +26,10 @@ import numpy as np
 
 from kincal.analysis.covariance import right_svd
 from kincal.analysis.factor import Factor
-from kincal.analysis.linalg import lstsq, norm, svd
+from kincal.analysis.linalg import lstsq, norm, norms, svd
 from kincal.analysis.linearization import Linearization, unit_columns
 from kincal.analysis.naming import context, degenerate, describer
-from kincal.analysis.symmetries import consistent_nulls, rotation_nulls, scale_null
+from kincal.analysis.symmetries import Structure, consistent_nulls, rotation_nulls, scale_null
 from kincal.params import Layout
 
 IDENTIFIABLE_TOL = 1e-6  # a parameter is identifiable when its row of the (scaled) null basis is below this
@@ -80,7 +80,8 @@ class Identifiability:
 
 def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol: float = 1e-9,
              priority: Sequence[int] | None = None, report: bool = True,
-             structural: np.ndarray | None = None, hold: np.ndarray | None = None) -> Identifiability:
+             structural: np.ndarray | None = None, hold: np.ndarray | None = None,
+             structure: Structure | None = None) -> Identifiability:
     """The identifiability of the free coordinates at one linearization: the one entry point of the solver.
 
     Rank and null space of ``lin``'s whitened Jacobian with the exact symmetries held (the scale without a
@@ -93,16 +94,19 @@ def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol:
     (``near_gauges``: a coupling of parallel axes, whose exact gauge at the nominal model the estimated tilts
     of the axes lift a little). ``hold`` (p, k): the exact gauges of the rigid model, which only the weight
     lifts (natural units, ``estimation.gauge.rigid_gauges``): held by pinning one coordinate per direction
-    (``pivot_rows`` in ``priority``), named, with a message saying why.
+    (``pivot_rows`` in ``priority``), named, with a message saying why. ``structure``: the solve's
+    (``symmetries.Structure``, what the symmetry tests read of the problem's structure alone), used where it
+    ``fits`` ``lin``.
     """
-    names = [layout.names[i] for i in lin.free]
-    scale = scale_null(lin, layout) if lin.every else None
-    held = rotation_nulls(lin, layout, experiments)
-    gauges = partial(consistent_nulls, lin, layout, experiments, rtol)
+    if structure is not None and not structure.fits(lin, layout, experiments, rtol):
+        structure = None
+    names = structure.names if structure is not None else [layout.names[i] for i in lin.free]
+    scale = scale_null(lin, layout, structure) if lin.every else None
+    held = rotation_nulls(lin, layout, experiments, structure)
+    gauges = partial(consistent_nulls, lin, layout, experiments, rtol, structure=structure)
     J, pins = lin.Rf, []
     if hold is not None:
-        hold = _orth(hold)
-        pins = pivot_rows(hold, range(len(names)) if priority is None else priority)
+        hold, pins = _held(hold, priority, len(names), structure)
         J = lin.Rf.copy()
         J[:, pins] = 0.0  # the pinned coordinates do not move: exact nulls, the rest analysed without them
         scale, held, gauges = _unpinned(hold, pins, scale, held, gauges)
@@ -110,6 +114,23 @@ def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol:
     if pins:
         ana = _pinned(ana, hold, pins)
     return named(ana, lin, layout, experiments, priority, structural) if report else ana
+
+
+def _held(hold: np.ndarray, priority, p: int, structure: Structure | None) -> tuple[np.ndarray, list[int]]:
+    """The orthonormal basis of ``hold`` and its pinned rows (``pivot_rows`` in ``priority``). Remembered on the
+    solve's ``structure`` by the values of ``hold`` and ``priority``, all they depend on: the solve holds the
+    same gauges at every linearization (``iterate`` takes them once, at the start)."""
+    order = range(p) if priority is None else priority
+    if structure is None:
+        H = _orth(hold)
+        return H, pivot_rows(H, order)
+    key = ("held", hold.dtype.str, hold.shape, hold.tobytes(), None if priority is None else tuple(priority))
+    hit = structure.derived.get(key)
+    if hit is None:
+        H = _orth(hold)
+        H.flags.writeable = False  # shared by the solve's linearizations
+        hit = structure.derived[key] = (H, pivot_rows(H, order))
+    return hit
 
 
 def pivot_rows(L: np.ndarray, order) -> list[int]:
@@ -297,19 +318,18 @@ def analyse(
         gauges = gauges(p - sv.rank)
     has_scale = scale is not None and norm(scale) > 0
     Ns, rank, lifted, held_scale = _hold(sv, ([scale] if has_scale else []) + list(held), has_scale, gauges)
-    identifiable = np.linalg.norm(Ns, axis=1) < IDENTIFIABLE_TOL
+    identifiable = norms(Ns, 1) < IDENTIFIABLE_TOL
     N, R = _null_and_range(Ns / sv.c[:, None])
     weak_idx = _weak_indices(sv, rank, rtol, weak_rtol, lifted)
     weak = tuple(_top_names(sv.Vt[i], names) for i in weak_idx)
-    weak_vectors = sv.Vt[weak_idx].T / sv.c[:, None]
-    weak_vectors /= np.maximum(np.linalg.norm(weak_vectors, axis=0), 1e-300)
+    weak_vectors = _weak_vectors(sv, weak_idx)
     messages: list[str] = []
     Nd, scale_null_found = N, False
     if has_scale and N.shape[1]:
         Nd, scale_null_found, words = _scale_message(N, scale, names, held_scale)
         messages += words
-    order = list(range(p)) if priority is None else list(priority)
-    directions = _directions(Nd, order, names, describe, context) if name else []
+    order = list(range(p)) if priority is None else priority
+    directions = _directions(Nd, list(order), names, describe, context) if name else []
     messages += [d.words for d in directions]
     messages += _weak_messages(weak, sv, weak_idx)
     own = sv.U is not None and not lifted and rank == sv.rank  # the null space is the SVD's own
@@ -337,10 +357,9 @@ def _spectrum(J: np.ndarray, rtol: float) -> _Spectrum:
         U, S, Vt = svd(Js, full_matrices=False)
     else:
         S, Vt = right_svd(Js) if m >= p else svd(Js, full_matrices=True)[1:]  # all p rows of Vt
-    S_full = np.zeros(p)
-    S_full[: len(S)] = S
+    S_full = S if len(S) == p else np.concatenate([S, np.zeros(p - len(S))])  # zero-padded when J is wide
     smax = S_full[0] if p else 0.0
-    rank = int(np.sum(S_full > rtol * smax)) if smax > 0 else 0
+    rank = int(np.count_nonzero(S_full > rtol * smax)) if smax > 0 else 0
     return _Spectrum(S_full, Vt, c_safe, smax, rank, U)
 
 
@@ -387,6 +406,15 @@ def _weak_indices(sv: _Spectrum, rank: int, rtol: float, weak_rtol: float, lifte
     if lifted:  # directions lifted by the residuals are not weak directions but held
         weak_idx = np.array([i for i in weak_idx if max(abs(sv.Vt[i] @ h) for h in lifted) < 0.5], dtype=int)
     return weak_idx
+
+
+def _weak_vectors(sv: _Spectrum, weak_idx: np.ndarray) -> np.ndarray:
+    """(p, w) the weak directions in natural units, unit norm; (p, 0) without any (the common case, at once)."""
+    if not len(weak_idx):
+        return np.zeros((len(sv.c), 0))
+    v = sv.Vt[weak_idx].T / sv.c[:, None]
+    v /= np.maximum(norms(v, 0), 1e-300)
+    return v
 
 
 def _scale_message(N: np.ndarray, scale: np.ndarray, names, held_scale: bool):

@@ -56,5 +56,11 @@ def lstsq(a, b) -> np.ndarray:
 def norm(x: np.ndarray) -> float:
     """The 2-norm of a vector (Frobenius of a matrix): ``numpy.linalg.norm(x)``'s arithmetic (``sqrt(x . x)`` over
     the raveled real array, bit for bit) without its dispatch, which costs more than the sum at these sizes."""
-    x = np.ravel(x)
+    x = x.ravel() if type(x) is np.ndarray else np.ravel(x)  # the method: without ``np.ravel``'s dispatch
     return math.sqrt(x @ x)
+
+
+def norms(x: np.ndarray, axis: int) -> np.ndarray:
+    """The 2-norms along ``axis`` of a float array: ``numpy.linalg.norm(x, axis=axis)``'s arithmetic (``sqrt`` of
+    ``add.reduce`` of the squares, bit for bit) without its dispatch (the analysis asks at every linearization)."""
+    return np.sqrt(np.add.reduce(x * x, axis=axis))

@@ -8,14 +8,14 @@ from __future__ import annotations
 import hashlib
 import weakref
 from collections import OrderedDict
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
 
-from kincal.analysis.columns import scatter_columns
+from kincal.analysis.columns import clear_plans, scatter_columns
 from kincal.analysis.covariance import right_svd
-from kincal.analysis.linalg import lstsq, norm, svd
+from kincal.analysis.linalg import lstsq, norm, norms, svd
 from kincal.analysis.linearization import Linearization, unit_columns
 from kincal.kinematics import REVOLUTE
 from kincal.kinematics.model import lineage
@@ -24,8 +24,43 @@ from kincal.params import Layout, scale_direction
 from kincal.schema import WORLD
 
 
+@dataclass(frozen=True, eq=False)
+class Structure:
+    """What the symmetry tests read of one problem's structure alone, worked out once per solve (``iterate``
+    makes one at its first linearization) instead of at every linearization: the free coordinates' names,
+    whether a length is free, the candidate rotations of ``rotation_nulls`` and the start of ``structure_key``'s
+    digest. A solve never changes its layout, experiments or free coordinates, and its steps change a state's
+    values only, never its arms, mounts or joint types: so these answers hold at every linearization of the
+    solve, which ``fits`` checks by identity (the same objects, not equal copies)."""
 
-def scale_null(lin: Linearization, layout: Layout) -> np.ndarray | None:
+    layout: Layout
+    experiments: tuple
+    free: np.ndarray
+    every: bool
+    rtol: float
+    names: tuple[str, ...]
+    free_length: bool
+    rotations: tuple  # ``_rotation_candidates``
+    key_start: object  # ``structure_key``'s digest so far (copied, then completed per linearization)
+    # what ``identify`` derives at every linearization from inputs fixed for the solve (the held gauges), by
+    # those inputs' values: ``identifiability._held``
+    derived: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def of(cls, lin: Linearization, layout: Layout, experiments: Sequence, rtol: float) -> "Structure":
+        return cls(layout, tuple(experiments), lin.free, lin.every, rtol,
+                   tuple(layout.names[i] for i in lin.free), bool(layout.lengths[lin.free].any()),
+                   tuple(_rotation_candidates(lin.state, layout, experiments, lin.free)),
+                   _key_start(layout, lin.free, rtol, lin.every))
+
+    def fits(self, lin: Linearization, layout: Layout, experiments: Sequence, rtol: float) -> bool:
+        """Whether ``lin`` is a linearization of this structure."""
+        return (lin.free is self.free and layout is self.layout and lin.every == self.every and rtol == self.rtol
+                and len(experiments) == len(self.experiments)
+                and all(a is b for a, b in zip(experiments, self.experiments)))
+
+
+def scale_null(lin: Linearization, layout: Layout, structure: Structure | None = None) -> np.ndarray | None:
     """The free direction equivalent to scaling every length, if the data cannot see scale; else None.
 
     Scale is unidentifiable when (1) no measured length enters the residuals: scaling every length, fixed ones
@@ -37,7 +72,7 @@ def scale_null(lin: Linearization, layout: Layout) -> np.ndarray | None:
     linearization's triangular factor.
     """
     p = lin.p
-    if not layout.lengths[lin.free].any():
+    if not (structure.free_length if structure is not None else layout.lengths[lin.free].any()):
         return None  # no free length, nothing to scale
     if not lin.every:
         raise AssertionError("the scale test needs a linearization with every column")
@@ -45,49 +80,75 @@ def scale_null(lin: Linearization, layout: Layout) -> np.ndarray | None:
     Ra = lin.Rall  # (q, p + len(fixed)): free first
     s_all = scale_direction(lin.state, layout) if lin.scale is None else lin.scale
     s = np.concatenate([s_all[lin.free], s_all[fixed]])
-    colnorm = np.linalg.norm(Ra, axis=0)
-    if norm(Ra @ s - lin.Rlen) > 1e-6 * (np.sum(colnorm * np.abs(s)) + norm(lin.Rlen)):
+    colnorm = norms(Ra, 0)
+    if norm(Ra @ s - lin.Rlen) > 1e-6 * (np.add.reduce(colnorm * np.abs(s)) + norm(lin.Rlen)):
         return None
     lengths = np.flatnonzero(layout.lengths[fixed] & (colnorm[p:] > 0))
     if len(lengths):
         # the part of a fixed length's column outside the free columns' range sits below row p of R
-        outside = np.linalg.norm(Ra[p:, p + lengths], axis=0) / colnorm[p + lengths]
-        if np.max(outside) > 1e-6:
+        outside = norms(Ra[p:, p + lengths], 0) / colnorm[p + lengths]
+        if outside.max() > 1e-6:
             return None
     u = lstsq(lin.Rf, Ra[:p, p:] @ s[p:])
     d = s[:p] + u
     return d if norm(d) > 0 else None
 
 
-def rotation_nulls(lin: Linearization, layout: Layout, experiments: Sequence) -> list[np.ndarray]:
+def rotation_nulls(lin: Linearization, layout: Layout, experiments: Sequence,
+                   structure: Structure | None = None) -> list[np.ndarray]:
     """Rotations about an arm's first joint axis that carry every world-side frame of its experiments along
     (``j1.offset + 1`` with the frames turned by the axis screw): exact symmetries of the cost wherever those
     frames are free. Residuals written in a frame that turns along are unchanged (clamp, plate, tracker); a
     socket's world-frame vector ``r`` turns, ``J g = w x r``, which residuals left would mistake for
     information. Returned (natural units, free coordinates) where the linearization confirms the symmetry:
-    ``J g`` equals the turned residuals."""
-    free = np.zeros(layout.size, bool)
-    free[lin.free] = True
+    ``J g`` equals the turned residuals. ``structure``: the candidates remembered for the solve."""
+    if structure is None:
+        candidates = _rotation_candidates(lin.state, layout, experiments, lin.free)
+    else:
+        candidates = structure.rotations
     out = []
-    for arm, a in lin.state.arms.items():
-        if arm in lin.state.mounts:
-            continue  # a mounted arm's first axis moves with the arm carrying it: the root's turns the world
-        exps = [e for e in experiments if _carries(lin.state, arm, e)]
+    for arm, i1, frames, free, turns in candidates:
+        a = lin.state.arms[arm]
+        xi = se3.adjoint(a.base) @ a.screws[0]  # joint 1's screw in world coordinates
+        g = np.zeros(layout.size)
+        g[i1] = 1.0
+        for name, b in frames:
+            g[b.slice] = b.kind.world_motion(lin.state.extras[name], xi)
+        if (g[~free] != 0).any():
+            continue
+        gf = g[lin.free]
+        # no residual turns: the target is zero (``_turned_residuals``' zeros, up to their sign: the test alike)
+        t = _turned_residuals(lin, experiments, arm, se3.split(xi)[1]) if turns else np.zeros(len(lin.r))
+        Jg = lin.J @ gf
+        colnorm = lin.colnorm  # J's column norms (R is J's triangular factor): J is not read whole
+        if norm(Jg - t) <= 1e-6 * (np.add.reduce(colnorm * np.abs(gf)) + norm(t)):
+            out.append(gf)
+    return out
+
+
+def _rotation_candidates(state, layout: Layout, experiments: Sequence, free_idx: np.ndarray) -> list:
+    """The arms whose first-joint rotation ``rotation_nulls`` tests, from the structure alone: (arm, index of
+    its joint 1 offset, its experiments' world-side frames as (name, block), the free mask, whether a residual
+    turns with it: a world-frame vector of an experiment it carries, ``_turned_residuals``). Not one mounted on
+    another arm (its first axis moves with the carrying arm: the root's turns the world), nor one whose
+    experiments have another arm in the loop (which does not turn along), nor one whose joint 1 is fixed or
+    prismatic, nor one with a known world-side frame (it anchors the rotation)."""
+    free = np.zeros(layout.size, bool)
+    free[free_idx] = True
+    out = []
+    for arm, a in state.arms.items():
+        if arm in state.mounts:
+            continue
+        exps = [e for e in experiments if _carries(state, arm, e)]
         if not exps or any(len(e.arms) > 1 for e in exps):
-            continue  # another arm in the loop does not turn along
+            continue
         i1 = layout.index(f"{arm}.{a.joint_names[0]}.offset")
         if not free[i1] or a.joint_types[0] != REVOLUTE:
             continue
-        xi = se3.adjoint(a.base) @ a.screws[0]  # joint 1's screw in world coordinates
-        g = _turned_frames(lin, layout, exps, xi, i1)
-        if g is None or (g[~free] != 0).any():
-            continue
-        gf = g[lin.free]
-        t = _turned_residuals(lin, experiments, arm, se3.split(xi)[1])
-        Jg = lin.J @ gf
-        colnorm = lin.colnorm  # J's column norms (R is J's triangular factor): J is not read whole
-        if norm(Jg - t) <= 1e-6 * (np.sum(colnorm * np.abs(gf)) + norm(t)):
-            out.append(gf)
+        frames = _world_frames(layout, exps)
+        if frames is not None:
+            turns = any(e.WORLD_VECTOR and _carries(state, arm, e) for e in experiments)
+            out.append((arm, i1, frames, free, turns))
     return out
 
 
@@ -96,21 +157,19 @@ def _carries(state, arm: str, e) -> bool:
     return any(arm in lineage(state.mounts, b) for b in e.arms)
 
 
-def _turned_frames(lin: Linearization, layout: Layout, exps, xi: np.ndarray, i1: int) -> np.ndarray | None:
-    """The layout direction (offset of joint 1 by 1, world-side frames turned by ``xi``), or None when a known
-    frame anchors the rotation."""
-    g = np.zeros(layout.size)
-    g[i1] = 1.0
-    ok = True
+def _world_frames(layout: Layout, exps) -> list | None:
+    """The world-side frames of ``exps`` as (name, block), which turn with the rotation, or None when one is
+    known (it anchors the rotation)."""
+    frames = []
     for e in exps:
         for role, name in e.frames.items():
             if e.SCHEMA.role(role).side != WORLD:
                 continue  # frames on the tool side or between arms do not turn with the world
             b = layout.block(name)
-            g[b.slice] = b.kind.world_motion(lin.state.extras[name], xi)
             if not layout.free[b.start: b.stop].all():
-                ok = False  # a known frame anchors the rotation
-    return g if ok else None
+                return None
+            frames.append((name, b))
+    return frames
 
 
 def _turned_residuals(lin: Linearization, experiments, arm: str, w: np.ndarray) -> np.ndarray:
@@ -132,7 +191,7 @@ _PROJECTIONS = 4  # Gauss-Newton steps of the joint readings onto the model (qua
 
 
 def consistent_nulls(lin: Linearization, layout: Layout, experiments: Sequence, rtol: float,
-                     plain: int | None = None) -> np.ndarray | None:
+                     plain: int | None = None, structure: Structure | None = None) -> np.ndarray | None:
     """A basis (p, k) of the exact null directions (natural units, free coordinates) of the noise-free problem
     at ``lin.state``, or None when the residuals are too small to lift any.
 
@@ -148,11 +207,12 @@ def consistent_nulls(lin: Linearization, layout: Layout, experiments: Sequence, 
     ``plain``: the dimension of ``lin``'s own null space (at ``rtol``), when known. Residuals only lift exact
     gauges out of it, so where it has as many dimensions as this structure's noise-free null space had, at a
     state where the residuals lifted none (the structure cache, below), it is that space: an empty basis is
-    returned (nothing to add) without the consistent linearization."""
+    returned (nothing to add) without the consistent linearization. ``structure``: the solve's (``Structure``),
+    for the start of the key."""
     enough = 0.1 * rtol * np.max(lin.colnorm, initial=0.0)
     if norm(lin.r) <= enough:
         return None
-    key = structure_key(lin, layout, experiments, rtol)
+    key = structure_key(lin, layout, experiments, rtol, structure)
     known = 0 if key in _FULL_RANK else _NULLITY.get(key)
     if known == 0 or (known == plain and plain):
         _remember(key, known)
@@ -192,16 +252,22 @@ def _remember(key: bytes, nullity: int) -> None:
 
 
 def clear_structure_cache() -> None:
+    """Forget every structure remembered here, and the column plans of ``columns.scatter_columns``."""
     _FULL_RANK.clear()
     _NULLITY.clear()
+    clear_plans()
 
 
-def structure_key(lin: Linearization, layout: Layout, experiments: Sequence, rtol: float) -> bytes:
+def structure_key(lin: Linearization, layout: Layout, experiments: Sequence, rtol: float,
+                  structure: Structure | None = None) -> bytes:
     """A digest of what the noise-free problem's null space depends on besides the measured values: the layout
     and free coordinates, each experiment's kind, frames, known values and joint readings, the prior and
-    constraint rows. Not the whitening's values: an invertible W leaves the null space of ``W J`` that of J."""
-    h = hashlib.blake2b(digest_size=20)
-    h.update(repr((layout.names, lin.free.tolist(), rtol, lin.every)).encode())
+    constraint rows. Not the whitening's values: an invertible W leaves the null space of ``W J`` that of J.
+    ``structure``: the solve's, whose digest of the layout and free coordinates is copied (the same bytes)."""
+    if structure is not None:
+        h = structure.key_start.copy()
+    else:
+        h = _key_start(layout, lin.free, rtol, lin.every)
     m = 0
     for e, W, r in zip(experiments, lin.W, lin.residuals):
         m += r.size
@@ -209,6 +275,13 @@ def structure_key(lin: Linearization, layout: Layout, experiments: Sequence, rto
         h.update(repr(np.shape(W)).encode())  # W is invertible: it moves no exact null direction
     h.update(np.ascontiguousarray(lin.J[m:]).tobytes())
     return h.digest()
+
+
+def _key_start(layout: Layout, free: np.ndarray, rtol: float, every: bool):
+    """``structure_key``'s digest of the layout's names, the free coordinates, ``rtol`` and ``every`` so far."""
+    h = hashlib.blake2b(digest_size=20)
+    h.update(repr((layout.names, free.tolist(), rtol, every)).encode())
+    return h
 
 
 # Each experiment's part of ``structure_key``, computed once per experiment object (a solve asks at every

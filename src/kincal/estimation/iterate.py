@@ -14,6 +14,7 @@ from kincal.analysis import Identifiability, Linearization, identify
 from kincal.analysis.identifiability import DeferredReport
 from kincal.analysis.covariance import right_svd
 from kincal.analysis.linalg import norm
+from kincal.analysis.symmetries import Structure
 from kincal.errors import DegenerateExperimentError
 from kincal.estimation import steps
 from kincal.estimation.gauge import gauge_basis, priority, rigid_gauges
@@ -56,7 +57,7 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
     """Run the outer loop from ``problem.start`` (module docstring)."""
     order = priority(problem, options.gauge)
     every = scale_test_needed(problem)
-    state, W, lin, ana, hold = problem.start, None, None, None, None
+    state, W, lin, ana, hold, structure = problem.start, None, None, None, None, None
     first, before = None, ()
     evaluations, status, it, fast = 0, "not converged", 0, True  # Gauss-Newton first while it converges fast
     for it in range(1, options.max_outer + 1):
@@ -68,8 +69,10 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
         lin = steps.linearize(problem, state, W, every)
         W = lin.W
         hold = rigid_gauges(problem, lin) if it == 1 else hold
+        # the problem's structure, read once: the same at every linearization of this solve (``Structure``)
+        structure = structure or Structure.of(lin, problem.layout, problem.experiments, options.rank_rtol)
         ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=order,
-                       report=False, hold=hold)
+                       report=False, hold=hold, structure=structure)
         if first is None:  # named only if a report asks for it (``Result.identifiability_before``)
             first = DeferredReport.of(ana, lin, problem.layout, problem.experiments, order)
             before = tuple(problem.statistics(state, W))
@@ -127,11 +130,11 @@ def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.nd
         recentre(retract(lin.state, problem.layout, problem.full_delta(delta)))
     if options.progress:
         options.progress(it, 2 * cost)
+    biggest = np.max(np.abs(delta), initial=0)
     log.debug("outer %d (%s): cost %.6g, whitened step %.3g, max |delta| %.3g", it,
-              "Gauss-Newton" if accepted else "inner solve", 2 * cost, step, np.max(np.abs(delta), initial=0))
+              "Gauss-Newton" if accepted else "inner solve", 2 * cost, step, biggest)
     # stop when the step is negligible against the residual (or, with noise, well below one sigma)
-    done = finished and (steps.converged(step, np.sqrt(lin.cost2), cost, len(lin.r) - V.shape[1])
-                         or np.max(np.abs(delta), initial=0) < 1e-13)
+    done = finished and (steps.converged(step, np.sqrt(lin.cost2), cost, len(lin.r) - V.shape[1]) or biggest < 1e-13)
     return state, done, fast, evaluations
 
 
