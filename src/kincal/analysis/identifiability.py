@@ -443,7 +443,8 @@ def _directions(Nd: np.ndarray, order, names, describe, context: str) -> list[Di
         return directions
     A = np.abs(np.array(rows))  # every row at once: pivots, partners by size, the ones worth naming
     pivots = order[np.argmax(A[:, order] > 0.5, axis=1)].tolist()
-    JS = np.argsort(-A, axis=1)
+    # partners by size, equal sizes (to 1e-9 of the row's largest) in layout order: round-off never reorders them
+    JS = np.argsort(-np.round(A / A.max(axis=1, keepdims=True) * 1e9), axis=1, kind="stable")
     keep = (JS != np.array(pivots)[:, None]) & (np.take_along_axis(A, JS, 1) > 1e-3 * A.max(axis=1, keepdims=True))
     for row, piv, js, kept in zip(rows, pivots, JS, keep):
         js = js[kept].tolist()

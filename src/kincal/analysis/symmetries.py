@@ -74,15 +74,10 @@ def scale_null(lin: Linearization, layout: Layout, structure: Structure | None =
     p = lin.p
     if not (structure.free_length if structure is not None else layout.lengths[lin.free].any()):
         return None  # no free length, nothing to scale
-    if not lin.every:
-        raise AssertionError("the scale test needs a linearization with every column")
-    fixed = lin.fixed  # the fixed coordinates that scale with the robot
-    Ra = lin.Rall  # (q, p + len(fixed)): free first
-    s_all = scale_direction(lin.state, layout) if lin.scale is None else lin.scale
-    s = np.concatenate([s_all[lin.free], s_all[fixed]])
-    colnorm = norms(Ra, 0)
-    if norm(Ra @ s - lin.Rlen) > 1e-6 * (np.add.reduce(colnorm * np.abs(s)) + norm(lin.Rlen)):
+    gap, tolerance, s, colnorm = _scale_gap(lin, layout)
+    if gap > tolerance:
         return None
+    fixed, Ra = lin.fixed, lin.Rall
     lengths = np.flatnonzero(layout.lengths[fixed] & (colnorm[p:] > 0))
     if len(lengths):
         # the part of a fixed length's column outside the free columns' range sits below row p of R
@@ -92,6 +87,36 @@ def scale_null(lin: Linearization, layout: Layout, structure: Structure | None =
     u = lstsq(lin.Rf, Ra[:p, p:] @ s[p:])
     d = s[:p] + u
     return d if norm(d) > 0 else None
+
+
+# Data that see the robot's scale by this factor over the scale test's tolerance at a solve's first
+# linearization are not tested again at its later ones (``scale_visible``).
+SCALE_VISIBLE_MARGIN = 1e4
+
+
+def _scale_gap(lin: Linearization, layout: Layout):
+    """The scale test's terms: (|J_all s_all - r_len|, the tolerance it is compared with, s, R's column norms),
+    all whitened, read off the linearization's triangular factor."""
+    if not lin.every:
+        raise AssertionError("the scale test needs a linearization with every column")
+    Ra = lin.Rall  # (q, p + len(fixed)): free first
+    s_all = scale_direction(lin.state, layout) if lin.scale is None else lin.scale
+    s = np.concatenate([s_all[lin.free], s_all[lin.fixed]])
+    colnorm = norms(Ra, 0)
+    return norm(Ra @ s - lin.Rlen), 1e-6 * (np.add.reduce(colnorm * np.abs(s)) + norm(lin.Rlen)), s, colnorm
+
+
+def scale_visible(lin: Linearization, layout: Layout) -> bool:
+    """Whether the data see the robot's scale by a wide margin at ``lin`` (a linearization with every column):
+    the scale test's gap is ``SCALE_VISIBLE_MARGIN`` times its tolerance. A solve then skips the test's fixed
+    columns at its later linearizations. The gap is what a measured length adds (markers, poses, distances:
+    ``W y_measured``, the same at every state) or the pull of a known length (smooth in the state); the
+    tolerance is 1e-6 of the whitened columns' size. Closing a margin of 1e4 would take a change of the robot's
+    size by that factor between linearizations of one solve, which is no calibration."""
+    if not layout.lengths[lin.free].any():
+        return False
+    gap, tolerance, _, _ = _scale_gap(lin, layout)
+    return bool(gap > SCALE_VISIBLE_MARGIN * tolerance)
 
 
 def rotation_nulls(lin: Linearization, layout: Layout, experiments: Sequence,

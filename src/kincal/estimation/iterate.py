@@ -14,7 +14,7 @@ from kincal.analysis import Identifiability, Linearization, identify
 from kincal.analysis.identifiability import DeferredReport
 from kincal.analysis.covariance import right_svd
 from kincal.analysis.linalg import norm
-from kincal.analysis.symmetries import Structure
+from kincal.analysis.symmetries import Structure, scale_visible
 from kincal.errors import DegenerateExperimentError
 from kincal.estimation import steps
 from kincal.estimation.gauge import gauge_basis, priority, rigid_gauges
@@ -70,9 +70,12 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
         W = lin.W
         hold = rigid_gauges(problem, lin) if it == 1 else hold
         # the problem's structure, read once: the same at every linearization of this solve (``Structure``)
-        structure = structure or Structure.of(lin, problem.layout, problem.experiments, options.rank_rtol)
+        if structure is None or structure.every != lin.every:
+            structure = Structure.of(lin, problem.layout, problem.experiments, options.rank_rtol)
         ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=order,
                        report=False, hold=hold, structure=structure)
+        if every and it == 1 and scale_visible(lin, problem.layout):
+            every = False  # the data measure lengths: later linearizations skip the scale test's columns
         if first is None:  # named only if a report asks for it (``Result.identifiability_before``)
             first = DeferredReport.of(ana, lin, problem.layout, problem.experiments, order)
             before = tuple(problem.statistics(state, W))
