@@ -36,7 +36,6 @@ class Structure:
     layout: Layout
     experiments: tuple
     free: np.ndarray
-    every: bool
     rtol: float
     names: tuple[str, ...]
     free_length: bool
@@ -48,14 +47,14 @@ class Structure:
 
     @classmethod
     def of(cls, lin: Linearization, layout: Layout, experiments: Sequence, rtol: float) -> "Structure":
-        return cls(layout, tuple(experiments), lin.free, lin.every, rtol,
+        return cls(layout, tuple(experiments), lin.free, rtol,
                    tuple(layout.names[i] for i in lin.free), bool(layout.lengths[lin.free].any()),
                    tuple(_rotation_candidates(lin.state, layout, experiments, lin.free)),
-                   _key_start(layout, lin.free, rtol, lin.every))
+                   _key_start(layout, lin.free, rtol))
 
     def fits(self, lin: Linearization, layout: Layout, experiments: Sequence, rtol: float) -> bool:
         """Whether ``lin`` is a linearization of this structure."""
-        return (lin.free is self.free and layout is self.layout and lin.every == self.every and rtol == self.rtol
+        return (lin.free is self.free and layout is self.layout and rtol == self.rtol
                 and len(experiments) == len(self.experiments)
                 and all(a is b for a, b in zip(experiments, self.experiments)))
 
@@ -292,7 +291,7 @@ def structure_key(lin: Linearization, layout: Layout, experiments: Sequence, rto
     if structure is not None:
         h = structure.key_start.copy()
     else:
-        h = _key_start(layout, lin.free, rtol, lin.every)
+        h = _key_start(layout, lin.free, rtol)
     m = 0
     for e, W, r in zip(experiments, lin.W, lin.residuals):
         m += r.size
@@ -302,10 +301,11 @@ def structure_key(lin: Linearization, layout: Layout, experiments: Sequence, rto
     return h.digest()
 
 
-def _key_start(layout: Layout, free: np.ndarray, rtol: float, every: bool):
-    """``structure_key``'s digest of the layout's names, the free coordinates, ``rtol`` and ``every`` so far."""
+def _key_start(layout: Layout, free: np.ndarray, rtol: float):
+    """``structure_key``'s digest of the layout's names, the free coordinates and ``rtol`` so far. Not whether
+    the linearization has the scale test's columns: the null space is the free columns' (``lin.J``) either way."""
     h = hashlib.blake2b(digest_size=20)
-    h.update(repr((layout.names, free.tolist(), rtol, every)).encode())
+    h.update(repr((layout.names, free.tolist(), rtol)).encode())
     return h
 
 

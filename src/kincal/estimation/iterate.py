@@ -70,8 +70,7 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
         W = lin.W
         hold = rigid_gauges(problem, lin) if it == 1 else hold
         # the problem's structure, read once: the same at every linearization of this solve (``Structure``)
-        if structure is None or structure.every != lin.every:
-            structure = Structure.of(lin, problem.layout, problem.experiments, options.rank_rtol)
+        structure = structure or Structure.of(lin, problem.layout, problem.experiments, options.rank_rtol)
         ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=order,
                        report=False, hold=hold, structure=structure)
         if every and it == 1 and scale_visible(lin, problem.layout):
