@@ -317,5 +317,7 @@ def _estimates(problem: Problem, state, std, ok, cov=None) -> list[Estimate]:
         if b.kind.absolute:  # the state's own value, bit for bit what the returned model carries
             nominal[b.slice] = b.kind.values(b.value(problem.nominal))
             value[b.slice] = b.kind.values(b.value(state))
-    return [Estimate(layout.names[i], float(value[i]), float(nominal[i]), float(std[k]),
-                     layout.units[i], bool(ok[k])) for k, i in enumerate(problem.free_idx.tolist())]
+    names, units = layout.names, layout.units  # Python floats and bools first: the same values, fewer conversions
+    return [Estimate(names[i], v, n, s, units[i], o) for i, v, n, s, o in
+            zip(free.tolist(), value[free].tolist(), nominal[free].tolist(), np.asarray(std, float).tolist(),
+                np.asarray(ok, bool).tolist())]
