@@ -262,7 +262,7 @@ def _joint_sensitivity(exp, state, comps, res=None) -> dict:
         jq = exp.residual(state, want=set(), jq=True).jq
     out = {}
     for q in dict.fromkeys(comps):
-        rows = np.array([c == q for c in comps], bool)
+        rows = np.array([c is q or c == q for c in comps], bool)
         out[q] = float(np.sqrt(np.mean([np.mean(j[:, rows] ** 2) for j in jq.values()]))) if jq else 0.0
     return out
 

@@ -93,10 +93,11 @@ def _check_finite(ds: Dataset) -> None:
     for group, store in (("measured", ds.measured), ("known", ds.known)):
         for key, value in store.items():
             v = np.asarray(value, dtype=float)
+            if np.isfinite(v).all():
+                continue
             bad = np.argwhere(~np.isfinite(v))
-            if len(bad):
-                where = f"sample {bad[0][0]} " if group == "measured" else ""
-                raise DataFormatError(
-                    f"data set '{ds.name}': {where}field {group}['{key}'] at index {tuple(int(i) for i in bad[0])} "
-                    f"is {v[tuple(bad[0])]}, expected a finite number"
-                )
+            where = f"sample {bad[0][0]} " if group == "measured" else ""
+            raise DataFormatError(
+                f"data set '{ds.name}': {where}field {group}['{key}'] at index {tuple(int(i) for i in bad[0])} "
+                f"is {v[tuple(bad[0])]}, expected a finite number"
+            )
