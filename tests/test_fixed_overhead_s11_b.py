@@ -2,7 +2,7 @@
 
 ``check_transform`` tests one transform without the batch machinery (the same verdicts and messages);
 ``ArmModel.replace`` keeps a transform equal bit for bit to its own instead of checking it again;
-``Result.twists`` and ``Result.correlated`` are computed on first read (``Deferred``), the values the eager
+``Result.after``, ``Result.twists`` and ``Result.correlated`` are computed on first read (``Deferred``), the values the eager
 computation gave, also after pickling, copying and ``dataclasses.replace``; ``residual_norms``,
 ``finalize._estimates`` and ``experiments._check_finite`` give what they gave."""
 
@@ -22,10 +22,10 @@ import pytest
 from kincal._validate import check_transform
 from kincal.data import Dataset
 from kincal.errors import DataFormatError, ManifoldError
-from kincal.estimation import calibrate
+from kincal.estimation import Problem, SolverOptions, calibrate, solve
 from kincal.estimation.result import Deferred
 from kincal.estimation.stats import residual_norms
-from kincal.experiments import checked
+from kincal.experiments import checked, remembered_kinematics
 from kincal.lie import se3
 from kincal.noise import ORIENTATION, PIXEL, POSITION
 from test_structure_cache import NOISE, ur10_sets  # noqa: F401  (the UR10 data sets, a fixture)
@@ -95,21 +95,35 @@ def test_replace_keeps_an_unchanged_transform_and_checks_a_changed_one(ur10_sets
 def test_deferred_fields_read_as_computed_eagerly(ur10_sets):
     nominal, markers, _ = ur10_sets
     res = calibrate(nominal, [markers], "kinematic", noise=NOISE)
-    assert isinstance(res.__dict__["twists"], Deferred) and isinstance(res.__dict__["correlated"], Deferred)
+    assert all(isinstance(res.__dict__[k], Deferred) for k in ("after", "correlated", "twists"))
     state = res.state
     frozen = res.covariance.copy()
     names = [res.layout.names[i] for i in res.problem.free_idx]
     ok = np.array([e.identifiable for e in res.estimates])
     want_twists = finalize_module._twists(res.problem, state, frozen)
     want_corr = tuple(finalize_module.correlated_pairs(frozen, names, 0.9, ok))
+    want_after = _pickled(tuple(res.problem.statistics(state, res.linearization.W)))
     pickled = pickle.loads(_pickled(res))  # before the first read: pickled computed
     copied = copy.copy(res)
     replaced = dataclasses.replace(res, status="converged")
     res.covariance[:] = 0.0  # a reader writing into the covariance changes neither
     for r in (res, pickled, copied, replaced):
         assert len(r.twists) == 36 and r.twists == want_twists
-        assert r.correlated == want_corr
+        assert r.correlated == want_corr and _pickled(r.after) == want_after
     assert not isinstance(res.__dict__["twists"], Deferred)  # kept once read
+
+
+def test_after_read_late_as_computed_at_the_solve(ur10_sets):
+    """``Result.after`` read after the problem was solved again (its residual cache moved on, its kinematics no
+    longer remembered) gives what the solve's own statistics gave, bit for bit."""
+    nominal, markers, pose = ur10_sets
+    problem = Problem.build(nominal, [markers, pose], "kinematic", noise=NOISE)
+    res = solve(problem)
+    assert isinstance(res.__dict__["after"], Deferred)
+    with remembered_kinematics(problem.experiments):
+        want = tuple(problem.statistics(res.state, res.linearization.W))
+    solve(problem, SolverOptions(loss="huber"))
+    assert _pickled(res.after) == _pickled(want) and len(want) == 2
 
 
 def _read_only(d: dict) -> MappingProxyType:

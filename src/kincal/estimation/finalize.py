@@ -85,7 +85,7 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
         layout=problem.layout, estimates=estimates, covariance=cov,
         correlated=Deferred(_correlated, frozen_cov, names, options.correlation_threshold, ok),
         identifiability=report, start_identifiability=run.first, before=run.before,
-        after=tuple(problem.statistics(run.state, lin.W)), sigma2=sigma2, status=status,
+        after=Deferred(_after, problem, run.state, lin.W), sigma2=sigma2, status=status,
         iterations=run.iterations, evaluations=run.evaluations, messages=report,
         extras=dict(run.state.extras), problem=problem, linearization=lin,
         twists=Deferred(_twists, problem, run.state, frozen_cov), weights=None if options.loss == "linear" else weights,
@@ -284,6 +284,11 @@ def offset_columns(exp, state, res) -> dict | None:
     plain = not state.mounts and a.weights is None and a.lateral is None and a.coupling is None
     J = res.jac.get(f"{arm}.offsets")
     return {arm: J} if plain and J is not None else None
+
+
+def _after(problem: Problem, state, whiteners) -> tuple:
+    """The residual statistics at ``state`` (pure: the same numbers whenever computed)."""
+    return tuple(problem.statistics(state, whiteners))
 
 
 def _correlated(cov: np.ndarray, names, threshold: float, ok) -> tuple:

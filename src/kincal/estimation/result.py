@@ -159,6 +159,10 @@ class _Lazy:
         obj.__dict__[self.name] = value
 
 
+# The fields ``finalize`` may leave ``Deferred``: computed for a pickle or a copy.
+_DEFERRED = ("after", "correlated", "twists")
+
+
 @dataclass(frozen=True, eq=False)
 class Result:
     """What ``solve`` returns. Reports, never raises, on non-convergence or rank deficiency (see ``status`` and
@@ -175,7 +179,7 @@ class Result:
     identifiability: Identifiability = _Named("report")  # after solving (named on first read: ``FinalReport``)
     start_identifiability: DeferredReport | None  # at the start; read as ``identifiability_before``
     before: tuple[ResidualStats, ...]  # per experiment at the start (the nominal values)
-    after: tuple[ResidualStats, ...]
+    after: tuple[ResidualStats, ...] = _Lazy()  # at ``state`` (computed on first read: ``Deferred``)
     sigma2: float  # residual variance factor (chi^2 / (m - rank)) that scales the covariance
     status: str  # converged | misfit | not converged | degenerate (docs/calibration.md "Statuses and exit codes")
     iterations: int  # outer iterations: linearizations, the one that confirmed convergence included
@@ -201,7 +205,7 @@ class Result:
         """Pickled and copied with the deferred fields computed: they compare parameter kinds by identity, which
         an unpickled problem's copies do not share."""
         state = dict(self.__dict__)
-        for name in ("correlated", "twists"):
+        for name in _DEFERRED:
             state[name] = getattr(self, name)
         return state
 
