@@ -21,7 +21,7 @@ import pytest
 
 from kincal._validate import check_transform
 from kincal.data import Dataset
-from kincal.errors import DataFormatError, ManifoldError
+from kincal.errors import DataFormatError, ManifoldError, ModelError
 from kincal.estimation import Problem, SolverOptions, calibrate, solve
 from kincal.estimation.result import Deferred
 from kincal.estimation.stats import residual_norms
@@ -31,6 +31,7 @@ from kincal.noise import ORIENTATION, PIXEL, POSITION
 from test_structure_cache import NOISE, ur10_sets  # noqa: F401  (the UR10 data sets, a fixture)
 
 finalize_module = importlib.import_module("kincal.estimation.finalize")
+base_module = importlib.import_module("kincal.experiments.base")
 
 
 def _message(fn, *args):
@@ -184,3 +185,27 @@ def test_not_finite_data_named_as_before(ur10_sets):
                      "measured": measured})
     with pytest.raises(DataFormatError, match=rf"sample 3 field measured\['{key}'\] at index \(3, 0, 1\) is nan"):
         checked(bad, {"tracker": "tracker", "markers": "markers"})
+
+
+def test_solve_reuses_the_kinematics_of_the_initial_guesses(ur10_sets, monkeypatch):
+    """``calibrate`` keeps the experiments' kinematics from the frames' initial guesses (the nominal forward
+    kinematics) for its solve: one forward kinematics fewer, the same result bit for bit, nothing kept after."""
+    nominal, markers, _ = ur10_sets
+    calls = []
+    fresh = base_module.Experiment._fresh_kin
+
+    def counted(self, state, arm):
+        calls.append(arm)
+        return fresh(self, state, arm)
+
+    monkeypatch.setattr(base_module.Experiment, "_fresh_kin", counted)
+    plain = solve(Problem.build(nominal, [markers], "kinematic", noise=NOISE))
+    without = len(calls)
+    calls.clear()
+    res = calibrate(nominal, [markers], "kinematic", noise=NOISE, outliers="keep")
+    assert len(calls) == without - 1
+    assert repr(res.estimates) == repr(plain.estimates) and res.covariance.tobytes() == plain.covariance.tobytes()
+    assert not base_module._KINEMATICS and res.problem.experiments  # closed with the call (res keeps them alive)
+    with pytest.raises(ModelError, match="cannot be fixed"):  # raised by the build, within the call
+        calibrate(nominal, [markers], [], fixed=["*"], noise=NOISE)
+    assert not base_module._KINEMATICS

@@ -11,6 +11,7 @@ closed chain stays positive definite.
 
 from __future__ import annotations
 
+from contextlib import ExitStack
 from dataclasses import dataclass, field, replace
 from typing import Mapping, Sequence
 
@@ -106,13 +107,14 @@ class Problem:
     def build(cls, robot: Robot, datasets: Sequence[Dataset], free: str | Sequence[str] = "offsets",
               fixed: Sequence[str] = (), priors: Mapping[str, Prior] | None = None,
               noise: Noise | Mapping[str, Noise] | None = None,
-              constraints: Sequence[FrameDistance] = ()) -> "Problem":
+              constraints: Sequence[FrameDistance] = (), *, keep: ExitStack | None = None) -> "Problem":
         """The problem of calibrating ``robot`` from ``datasets`` (arguments as ``calibrate``'s): experiments,
         frames shared between data sets, the layout of the free and fixed parameters, stated noise per data
-        set and the starting state."""
+        set and the starting state. ``keep``: the experiments' kinematics remembered until it closes
+        (``experiments.build``): a solve within it reuses the nominal ones the frames' initial guesses computed."""
         require_memory(datasets)  # before frames are guessed from the data (forward kinematics of every sample)
         nominal_arms = State.from_robot(robot)
-        exps, extras, unknown = build_experiments(datasets, nominal_arms)
+        exps, extras, unknown = build_experiments(datasets, nominal_arms, keep)
         arms = [a for a in robot.arms if any(a in robot.lineage(b) for e in exps for b in e.arms)]  # with ancestors
         nominal = State({a: nominal_arms.arms[a] for a in arms}, extras, frame_kinds(exps), robot.mounts)
         layout = build_layout(nominal, free, fixed=fixed, priors=priors, free_extras=unknown, arms=arms)
