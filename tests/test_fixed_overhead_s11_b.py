@@ -27,7 +27,7 @@ from kincal.estimation.result import Deferred
 from kincal.estimation.stats import residual_norms
 from kincal.experiments import checked, remembered_kinematics
 from kincal.lie import se3
-from kincal.noise import ORIENTATION, PIXEL, POSITION
+from kincal.noise import ORIENTATION, PIXEL, POSITION, Noise
 from test_structure_cache import NOISE, ur10_sets  # noqa: F401  (the UR10 data sets, a fixture)
 
 finalize_module = importlib.import_module("kincal.estimation.finalize")
@@ -209,3 +209,27 @@ def test_solve_reuses_the_kinematics_of_the_initial_guesses(ur10_sets, monkeypat
     with pytest.raises(ModelError, match="cannot be fixed"):  # raised by the build, within the call
         calibrate(nominal, [markers], [], fixed=["*"], noise=NOISE)
     assert not base_module._KINEMATICS
+
+
+def test_whiteners_without_encoder_noise_computed_once_per_problem(ur10_sets, monkeypatch):
+    """Without encoder noise the whiteners depend on the stated noise and the residuals' shapes alone: a problem
+    computes them once (its first linearization; the outlier screen reuses them), the same arrays as computed
+    afresh. With encoder noise they follow the state and are computed every time."""
+    nominal, markers, pose = ur10_sets
+    calls = []
+    at = Problem._whitened_at
+
+    def counted(self, residuals):
+        calls.append(self)
+        return at(self, residuals)
+
+    monkeypatch.setattr(Problem, "_whitened_at", counted)
+    res = calibrate(nominal, [markers, pose], "kinematic", noise=NOISE)
+    problem = res.problem
+    assert calls.count(problem) == 1
+    kept = problem.whiteners(res.state)
+    fresh = at(problem, problem.residuals(res.state))  # computed afresh
+    assert calls.count(problem) == 1 and all(a.tobytes() == b.tobytes() for a, b in zip(kept, fresh))
+    calls.clear()
+    noisy = calibrate(nominal, [markers], "kinematic", noise=Noise(position=1e-5, joint=1e-5), outliers="keep")
+    assert calls.count(noisy.problem) > 1  # not kept: each fresh whitening at its state

@@ -54,6 +54,7 @@ class ResidualCache:
         # nominal state and the last one (``kept``): the collapse test reads their offset columns (``finalize``)
         self.at_nominal: tuple | None = None
         self.linearized: tuple | None = None
+        self.whitening: tuple | None = None  # (residual shapes, whiteners) without encoder noise: state-free
 
     def keep(self, state: State, experiments: tuple, residuals: list, nominal: bool) -> None:
         if not self.keeps:
@@ -215,6 +216,16 @@ class Problem:
         return self._whiteners_of(self.residuals(state))
 
     def _whiteners_of(self, residuals) -> list[np.ndarray]:
+        shapes = tuple(res.r.shape for res in residuals)
+        kept = self.cache.whitening
+        if kept is not None and kept[0] == shapes and not self.joint_noise:  # not J_q: the state's own ones
+            return list(kept[1])
+        out = self._whitened_at(residuals)
+        if not self.joint_noise:  # from the experiments' noise and the residuals' shapes alone
+            self.cache.whitening = (shapes, tuple(out))
+        return out
+
+    def _whitened_at(self, residuals) -> list[np.ndarray]:
         out = []
         for exp, nz, res in zip(self.experiments, self.noise, residuals):
             own, sj = exp.covariance(), nz.joint_sigma()
