@@ -233,3 +233,32 @@ def test_whiteners_without_encoder_noise_computed_once_per_problem(ur10_sets, mo
     calls.clear()
     noisy = calibrate(nominal, [markers], "kinematic", noise=Noise(position=1e-5, joint=1e-5), outliers="keep")
     assert calls.count(noisy.problem) > 1  # not kept: each fresh whitening at its state
+
+
+def test_remembered_blocks_follow_the_structure(ur10_sets):
+    """``build_layout``'s blocks remembered per structure: the arms' values objects and the frames' names, kinds
+    and shapes; another marker count, another arm model or renamed joints get their own, and every hit equals
+    what ``_blocks`` computes."""
+    from kincal.params import POINTS, POSE, State, clear_caches, layout as layout_module
+    from kincal.robots import load
+
+    nominal = ur10_sets[0]
+
+    def state(robot, markers: int):
+        return State.from_robot(robot, {"tracker": np.eye(4), "markers": np.zeros((markers, 3))},
+                                {"tracker": POSE, "markers": POINTS})
+
+    renamed = load("ur10")
+    arm = next(iter(renamed.arms))
+    renamed = renamed.replace_arm(arm, dataclasses.replace(
+        renamed.arms[arm], joint_names=tuple(f"q{i}" for i in range(renamed.arms[arm].dof))))
+    clear_caches()
+    for robot, m in [(nominal, 1), (nominal, 2), (nominal, 1), (renamed, 1), (renamed, 2), (nominal, 2)]:
+        s = state(robot, m)
+        want = layout_module._blocks(s, list(s.arms))
+        got = layout_module._remembered_blocks(s, list(s.arms))
+        assert [tuple(x) for x in got[:3]] == [tuple(x) for x in want[:3]] and got[3] == want[3]
+        assert sum(n.startswith("markers.m") for n in got[0]) == 3 * m
+    assert len(layout_module._BLOCKS) == 4
+    clear_caches()
+    assert not layout_module._BLOCKS
