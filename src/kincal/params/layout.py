@@ -155,7 +155,10 @@ def _remembered_blocks(state: State, arms: Sequence[str]):
         return names, units, blocks, dict(twist_joint)
     names, units, blocks, twist_joint = _blocks(state, arms)
     if len(_BLOCKS) >= _SELECTION_ENTRIES:
-        _BLOCKS.pop(next(iter(_BLOCKS)))
+        try:  # the oldest out; another thread (a Dask worker's) may be evicting too
+            _BLOCKS.pop(next(iter(_BLOCKS)), None)
+        except (StopIteration, RuntimeError):
+            pass
     _BLOCKS[key] = (tuple(weakref.ref(v) for v in values), (tuple(names), tuple(units), tuple(blocks), twist_joint))
     return names, units, blocks, dict(twist_joint)
 
