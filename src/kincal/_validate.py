@@ -15,7 +15,7 @@ def as_array(x, name: str, tail: tuple[int, ...], *, finite: bool = True) -> np.
         raise ShapeError(f"{name}: expected a numeric array of shape (..., {_fmt(tail)}), got {type(x).__name__}") from exc
     if arr.ndim < len(tail) or arr.shape[arr.ndim - len(tail):] != tail:
         raise ShapeError(f"{name}: expected shape (..., {_fmt(tail)}), got {arr.shape}")
-    if finite and not np.all(np.isfinite(arr)):
+    if finite and not np.isfinite(arr).all():
         bad = np.argwhere(~np.isfinite(arr))[0]
         raise ShapeError(f"{name}: expected finite values, found {arr[tuple(bad)]} at index {tuple(int(i) for i in bad)}")
     return arr
@@ -44,8 +44,25 @@ def check_rotation(R: np.ndarray, name: str, tol: float = 1e-9) -> None:
 def check_transform(T: np.ndarray, name: str, tol: float = 1e-9) -> np.ndarray:
     """Validate homogeneous transforms (..., 4, 4): finite, last row (0, 0, 0, 1), orthonormal rotation."""
     T = as_array(T, name, (4, 4))
+    if T.ndim == 2 and _one_transform_ok(T, tol):  # the common case, without the batch machinery
+        return T
     last = T[..., 3, :]
     if np.any(np.abs(last - np.array([0.0, 0.0, 0.0, 1.0])) > tol):
         raise ManifoldError(f"{name}: last row must be (0, 0, 0, 1), got {np.asarray(last).reshape(-1, 4)[0].tolist()}")
     check_rotation(T[..., :3, :3], name, tol)
     return T
+
+
+_EYE3 = np.eye(3)
+_EYE3.setflags(write=False)
+
+
+def _one_transform_ok(T: np.ndarray, tol: float) -> bool:
+    """``check_transform``'s tests of one (finite) transform, the same numbers: False where one fails (the batch
+    path then raises with its message)."""
+    x, y, z, w = T[3].tolist()
+    if abs(x) > tol or abs(y) > tol or abs(z) > tol or abs(w - 1.0) > tol:
+        return False
+    R = T[:3, :3]
+    err = float(np.abs(R.T @ R - _EYE3).max())
+    return not (err > tol or abs(float(np.linalg.det(R)) - 1.0) > tol)

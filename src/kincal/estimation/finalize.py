@@ -13,7 +13,7 @@ from kincal.estimation.iterate import Iteration, scale_test_needed
 from kincal.estimation.options import SolverOptions
 from kincal.estimation.plausibility import negative_compliance_notes, negative_compliances
 from kincal.estimation.problem import SENSITIVITY_SAMPLES, Problem
-from kincal.estimation.result import Estimate, FinalReport, Result, TwistEstimate, low_redundancy
+from kincal.estimation.result import Deferred, Estimate, FinalReport, Result, TwistEstimate, low_redundancy
 from kincal.estimation.sandwich import Sandwich
 from kincal.experiments.markers import MarkersExperiment
 from kincal.experiments.pose import PoseExperiment
@@ -79,15 +79,16 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
                          coupling_gauges(run.state, run.first), tuple(messages[:k]), tuple(messages[k + 1:]))
     if named_now is not None:
         report.__dict__["report"] = named_now  # named already (the loop stopped at its start)
+    frozen_cov = cov.copy()  # what the deferred fields (read rarely) are computed from, whatever a reader does to cov
     return Result(
         robot=run.state.to_robot(problem.robot), nominal_robot=problem.robot, state=run.state,
         layout=problem.layout, estimates=estimates, covariance=cov,
-        correlated=tuple(correlated_pairs(cov, names, options.correlation_threshold, ok)),
+        correlated=Deferred(_correlated, frozen_cov, names, options.correlation_threshold, ok),
         identifiability=report, start_identifiability=run.first, before=run.before,
-        after=tuple(problem.statistics(run.state, lin.W)), sigma2=sigma2, status=status,
+        after=Deferred(_after, problem, run.state, lin.W), sigma2=sigma2, status=status,
         iterations=run.iterations, evaluations=run.evaluations, messages=report,
         extras=dict(run.state.extras), problem=problem, linearization=lin,
-        twists=_twists(problem, run.state, cov), weights=None if options.loss == "linear" else weights,
+        twists=Deferred(_twists, problem, run.state, frozen_cov), weights=None if options.loss == "linear" else weights,
         covariance_scale=scale, negative_compliances=negative, held=run.held,
     )
 
@@ -261,7 +262,7 @@ def _joint_sensitivity(exp, state, comps, res=None) -> dict:
         jq = exp.residual(state, want=set(), jq=True).jq
     out = {}
     for q in dict.fromkeys(comps):
-        rows = np.array([c == q for c in comps], bool)
+        rows = np.array([c is q or c == q for c in comps], bool)
         out[q] = float(np.sqrt(np.mean([np.mean(j[:, rows] ** 2) for j in jq.values()]))) if jq else 0.0
     return out
 
@@ -283,6 +284,15 @@ def offset_columns(exp, state, res) -> dict | None:
     plain = not state.mounts and a.weights is None and a.lateral is None and a.coupling is None
     J = res.jac.get(f"{arm}.offsets")
     return {arm: J} if plain and J is not None else None
+
+
+def _after(problem: Problem, state, whiteners) -> tuple:
+    """The residual statistics at ``state`` (pure: the same numbers whenever computed)."""
+    return tuple(problem.statistics(state, whiteners))
+
+
+def _correlated(cov: np.ndarray, names, threshold: float, ok) -> tuple:
+    return tuple(correlated_pairs(cov, names, threshold, ok))
 
 
 def _twists(problem: Problem, state, cov: np.ndarray) -> tuple[TwistEstimate, ...]:
@@ -312,5 +322,7 @@ def _estimates(problem: Problem, state, std, ok, cov=None) -> list[Estimate]:
         if b.kind.absolute:  # the state's own value, bit for bit what the returned model carries
             nominal[b.slice] = b.kind.values(b.value(problem.nominal))
             value[b.slice] = b.kind.values(b.value(state))
-    return [Estimate(layout.names[i], float(value[i]), float(nominal[i]), float(std[k]),
-                     layout.units[i], bool(ok[k])) for k, i in enumerate(problem.free_idx.tolist())]
+    names, units = layout.names, layout.units  # Python floats and bools first: the same values, fewer conversions
+    return [Estimate(names[i], v, n, s, units[i], o) for i, v, n, s, o in
+            zip(free.tolist(), value[free].tolist(), nominal[free].tolist(), np.asarray(std, float).tolist(),
+                np.asarray(ok, bool).tolist())]

@@ -11,6 +11,7 @@ closed chain stays positive definite.
 
 from __future__ import annotations
 
+from contextlib import ExitStack
 from dataclasses import dataclass, field, replace
 from typing import Mapping, Sequence
 
@@ -53,6 +54,7 @@ class ResidualCache:
         # nominal state and the last one (``kept``): the collapse test reads their offset columns (``finalize``)
         self.at_nominal: tuple | None = None
         self.linearized: tuple | None = None
+        self.whitening: tuple | None = None  # (residual shapes, whiteners) without encoder noise: state-free
 
     def keep(self, state: State, experiments: tuple, residuals: list, nominal: bool) -> None:
         if not self.keeps:
@@ -106,13 +108,14 @@ class Problem:
     def build(cls, robot: Robot, datasets: Sequence[Dataset], free: str | Sequence[str] = "offsets",
               fixed: Sequence[str] = (), priors: Mapping[str, Prior] | None = None,
               noise: Noise | Mapping[str, Noise] | None = None,
-              constraints: Sequence[FrameDistance] = ()) -> "Problem":
+              constraints: Sequence[FrameDistance] = (), *, keep: ExitStack | None = None) -> "Problem":
         """The problem of calibrating ``robot`` from ``datasets`` (arguments as ``calibrate``'s): experiments,
         frames shared between data sets, the layout of the free and fixed parameters, stated noise per data
-        set and the starting state."""
+        set and the starting state. ``keep``: the experiments' kinematics remembered until it closes
+        (``experiments.build``): a solve within it reuses the nominal ones the frames' initial guesses computed."""
         require_memory(datasets)  # before frames are guessed from the data (forward kinematics of every sample)
         nominal_arms = State.from_robot(robot)
-        exps, extras, unknown = build_experiments(datasets, nominal_arms)
+        exps, extras, unknown = build_experiments(datasets, nominal_arms, keep)
         arms = [a for a in robot.arms if any(a in robot.lineage(b) for e in exps for b in e.arms)]  # with ancestors
         nominal = State({a: nominal_arms.arms[a] for a in arms}, extras, frame_kinds(exps), robot.mounts)
         layout = build_layout(nominal, free, fixed=fixed, priors=priors, free_extras=unknown, arms=arms)
@@ -213,6 +216,16 @@ class Problem:
         return self._whiteners_of(self.residuals(state))
 
     def _whiteners_of(self, residuals) -> list[np.ndarray]:
+        shapes = tuple(res.r.shape for res in residuals)
+        kept = self.cache.whitening
+        if kept is not None and kept[0] == shapes and not self.joint_noise:  # not J_q: the state's own ones
+            return list(kept[1])
+        out = self._whitened_at(residuals)
+        if not self.joint_noise:  # from the experiments' noise and the residuals' shapes alone
+            self.cache.whitening = (shapes, tuple(out))
+        return out
+
+    def _whitened_at(self, residuals) -> list[np.ndarray]:
         out = []
         for exp, nz, res in zip(self.experiments, self.noise, residuals):
             own, sj = exp.covariance(), nz.joint_sigma()

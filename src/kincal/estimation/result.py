@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from functools import cached_property
+from functools import cached_property, partial
 from typing import Mapping
 
 import numpy as np
@@ -127,6 +127,42 @@ class _Named:
         obj.__dict__[self.name] = value
 
 
+class Deferred(partial):
+    """A ``Result`` field's value computed when first read (``_Lazy``): a call of a module-level function on
+    values the result holds anyway (it pickles as such)."""
+
+
+_REQUIRED = object()
+
+
+class _Lazy:
+    """A ``Result`` field that may hold a ``Deferred``: computed on first read and kept, as ``_Named`` (stored in
+    the instance's ``__dict__``; ``dataclasses.replace``, pickling and copying see the same value)."""
+
+    def __init__(self, default=_REQUIRED):
+        self.default = default
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:  # the dataclass field's default (none: required)
+            if self.default is _REQUIRED:
+                raise AttributeError(self.name)
+            return self.default
+        value = obj.__dict__[self.name]
+        if isinstance(value, Deferred):
+            value = obj.__dict__[self.name] = value()
+        return value
+
+    def __set__(self, obj, value) -> None:
+        obj.__dict__[self.name] = value
+
+
+# The fields ``finalize`` may leave ``Deferred``: computed for a pickle or a copy.
+_DEFERRED = ("after", "correlated", "twists")
+
+
 @dataclass(frozen=True, eq=False)
 class Result:
     """What ``solve`` returns. Reports, never raises, on non-convergence or rank deficiency (see ``status`` and
@@ -139,11 +175,11 @@ class Result:
     layout: Layout
     estimates: tuple[Estimate, ...]
     covariance: np.ndarray  # (p_free, p_free) in local coordinates, gauge-fixed
-    correlated: tuple[tuple[str, str, float], ...]
+    correlated: tuple[tuple[str, str, float], ...] = _Lazy()  # computed on first read (``Deferred``)
     identifiability: Identifiability = _Named("report")  # after solving (named on first read: ``FinalReport``)
     start_identifiability: DeferredReport | None  # at the start; read as ``identifiability_before``
     before: tuple[ResidualStats, ...]  # per experiment at the start (the nominal values)
-    after: tuple[ResidualStats, ...]
+    after: tuple[ResidualStats, ...] = _Lazy()  # at ``state`` (computed on first read: ``Deferred``)
     sigma2: float  # residual variance factor (chi^2 / (m - rank)) that scales the covariance
     status: str  # converged | misfit | not converged | degenerate (docs/calibration.md "Statuses and exit codes")
     iterations: int  # outer iterations: linearizations, the one that confirmed convergence included
@@ -152,7 +188,7 @@ class Result:
     extras: Mapping[str, object] = field(default_factory=dict)  # final experiment frames
     problem: Problem | None = None
     linearization: Linearization | None = None  # at ``state``
-    twists: tuple[TwistEstimate, ...] = ()  # derived twist coordinates of every arm with free twists
+    twists: tuple[TwistEstimate, ...] = _Lazy(())  # derived twist coordinates of every arm with free twists (lazy)
     validation: tuple[ValidationStats, ...] = ()
     predictions: tuple[tuple[str, Prediction], ...] = ()  # (validation set, prediction) per arm
     weights: np.ndarray | None = None  # robust loss: per whitened residual row, the weight the loss gave it
@@ -164,6 +200,14 @@ class Result:
     stages: tuple[StageRecord, ...] = ()  # a staged solve's stages, the last one's being this result
     negative_compliances: tuple[NegativeCompliance, ...] = ()  # compliances estimated below 0 (``physical``)
     held: np.ndarray | None = None  # the rigid model's gauges the solve held (``estimation.gauge.rigid_gauges``)
+
+    def __getstate__(self) -> dict:
+        """Pickled and copied with the deferred fields computed: they compare parameter kinds by identity, which
+        an unpickled problem's copies do not share."""
+        state = dict(self.__dict__)
+        for name in _DEFERRED:
+            state[name] = getattr(self, name)
+        return state
 
     @property
     def identifiability_before(self) -> Identifiability | None:

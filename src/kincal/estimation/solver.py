@@ -10,6 +10,7 @@ Jacobian, then re-centre (conform twists, re-linearize tangent bases). ``estimat
 
 from __future__ import annotations
 
+from contextlib import ExitStack
 from dataclasses import replace
 from functools import partial
 from typing import Callable, Mapping, Sequence
@@ -106,12 +107,15 @@ def _fit(robot: Robot, datasets: Sequence[Dataset], *, free, fixed, priors, nois
         problems = stage_problems(robot, datasets, stages, priors, noise, constraints)
         return solve_stages(problems, stages, options, solve)
     free = "offsets" if free is None else free
-    problem = Problem.build(robot, datasets, free, fixed, priors, noise, constraints)
-    if len(problem.free_idx) == 0:
-        raise DegenerateExperimentError(
-            f"every parameter is fixed: nothing to estimate (free={free!r}, fixed={list(fixed)!r})"
-        )
-    return solve(problem, options)
+    with ExitStack() as keep:  # the nominal kinematics of the frames' initial guesses, for the solve's first step
+        problem = Problem.build(robot, datasets, free, fixed, priors, noise, constraints, keep=keep)
+        if len(problem.free_idx) == 0:
+            raise DegenerateExperimentError(
+                f"every parameter is fixed: nothing to estimate (free={free!r}, fixed={list(fixed)!r})"
+            )
+        if problem.blocked:  # solved by blocks: nothing of the data's size kept (``solve``)
+            keep.close()
+        return solve(problem, options)
 
 
 def _without_outliers(result: Result, options: SolverOptions, threshold: float, refit) -> Result:

@@ -44,15 +44,18 @@ def residual_norms(r: np.ndarray, components) -> dict:
     """RMS and max over samples of the position-part and orientation-part norms (m, rad):
     ``{position_rms, position_max, orientation_rms, orientation_max}``, None for a part the residual lacks."""
     st = dict.fromkeys(("position_rms", "position_max", "orientation_rms", "orientation_max", "pixel_rms", "pixel_max"))
+    components = tuple(components)
     for key, q in (("position", POSITION), ("orientation", ORIENTATION), ("pixel", PIXEL)):
-        mask = np.array([c == q for c in components], bool)
-        if mask.any():
-            if mask.sum() % 3 == 0 and key == "position" and mask.sum() > 1:
-                e = np.linalg.norm(r[:, mask].reshape(len(r), -1, 3), axis=-1).ravel()
-            elif key in ("orientation", "pixel"):
-                e = np.linalg.norm(r[:, mask], axis=-1)
-            else:
-                e = np.abs(r[:, mask]).ravel()
-            st[f"{key}_rms"] = float(np.sqrt(np.mean(e**2)))
-            st[f"{key}_max"] = float(np.max(e))
+        if q not in components:  # (``in`` tries identity first: the quantities are module constants)
+            continue
+        mask = np.array([c is q or c == q for c in components], bool)
+        count = int(np.count_nonzero(mask))
+        if count % 3 == 0 and key == "position" and count > 1:
+            e = np.linalg.norm(r[:, mask].reshape(len(r), -1, 3), axis=-1).ravel()
+        elif key in ("orientation", "pixel"):
+            e = np.linalg.norm(r[:, mask], axis=-1)
+        else:
+            e = np.abs(r[:, mask]).ravel()
+        st[f"{key}_rms"] = float(np.sqrt(np.mean(e**2)))
+        st[f"{key}_max"] = float(np.max(e))
     return st

@@ -14,6 +14,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 from collections import Counter
+from contextlib import ExitStack
 from typing import Sequence
 
 import numpy as np
@@ -64,10 +65,13 @@ def check_joints(ds: Dataset, state: State) -> None:
                 )
 
 
-def build(datasets: Sequence[Dataset], state: State) -> tuple[list[Experiment], dict[str, object], list[str]]:
+def build(datasets: Sequence[Dataset], state: State, keep: ExitStack | None = None
+          ) -> tuple[list[Experiment], dict[str, object], list[str]]:
     """(experiments, extras, names of unknown extras). Frame names are the role (``fixture``) when only one
     data set has that role, else ``<data set>.<role>``, unless ``Dataset.frames`` names them; data sets naming
-    the same frame share it (``kincal.experiments.sharing``)."""
+    the same frame share it (``kincal.experiments.sharing``). ``keep``: the experiments' kinematics are
+    remembered (``remembered_kinematics``) until it closes, from the initial guesses of unknown frames on (forward
+    kinematics at ``state``, which a solve from there reuses)."""
     names = [d.name for d in datasets]
     dup = [n for n, c in Counter(names).items() if c > 1]
     if dup:
@@ -76,6 +80,8 @@ def build(datasets: Sequence[Dataset], state: State) -> tuple[list[Experiment], 
     for ds, frames in zip(datasets, frame_names(datasets, tuple(state.arms))):
         check_joints(ds, state)
         experiments.append(checked(ds, frames))
+    if keep is not None:
+        keep.enter_context(remembered_kinematics(experiments))
     extras, unknown = frame_values(experiments, state)
     return experiments, extras, unknown
 
@@ -93,10 +99,11 @@ def _check_finite(ds: Dataset) -> None:
     for group, store in (("measured", ds.measured), ("known", ds.known)):
         for key, value in store.items():
             v = np.asarray(value, dtype=float)
+            if np.isfinite(v).all():
+                continue
             bad = np.argwhere(~np.isfinite(v))
-            if len(bad):
-                where = f"sample {bad[0][0]} " if group == "measured" else ""
-                raise DataFormatError(
-                    f"data set '{ds.name}': {where}field {group}['{key}'] at index {tuple(int(i) for i in bad[0])} "
-                    f"is {v[tuple(bad[0])]}, expected a finite number"
-                )
+            where = f"sample {bad[0][0]} " if group == "measured" else ""
+            raise DataFormatError(
+                f"data set '{ds.name}': {where}field {group}['{key}'] at index {tuple(int(i) for i in bad[0])} "
+                f"is {v[tuple(bad[0])]}, expected a finite number"
+            )

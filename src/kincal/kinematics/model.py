@@ -190,8 +190,9 @@ class ArmModel:
             set_("screws", _frozen(screws))
             _check_joint_screws(screws, new.joint_types, new.joint_names, where)
         for key in ("home", "base", "tool"):
-            if key in changes:
-                set_(key, _checked_transform(new, key, where))
+            if key in changes:  # a transform bit for bit this model's passed its checks: its frozen copy is kept
+                set_(key, getattr(self, key) if _same_bits(changes[key], getattr(self, key))
+                     else _checked_transform(new, key, where))
         for key, default in (("offsets", 0.0), ("compliance", 0.0)):
             if key in changes:
                 set_(key, _joint_vector(new, key, default, new.dof, where))
@@ -232,6 +233,12 @@ class ArmModel:
 
 # The fields ``ArmModel.replace`` validates on their own (``_with_geometry``).
 _GEOMETRY = frozenset({"screws", "offsets", "base", "home", "tool", "compliance"})
+
+
+def _same_bits(x, frozen: np.ndarray) -> bool:
+    """Whether ``x`` is a float array equal to ``frozen`` bit for bit (shape and bytes: -0.0 is not 0.0)."""
+    return isinstance(x, np.ndarray) and x.dtype == frozen.dtype and x.shape == frozen.shape and \
+        x.tobytes() == frozen.tobytes()
 
 
 def _checked_transform(arm: ArmModel, key: str, where: str) -> np.ndarray:

@@ -9,6 +9,7 @@ joint's twist, which is always estimated as a whole in its minimal parametrizati
 from __future__ import annotations
 
 import fnmatch
+import weakref
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Mapping, Sequence
@@ -17,7 +18,8 @@ import numpy as np
 
 from kincal.errors import ModelError
 from kincal.params import values
-from kincal.params.kinds import ARM_KINDS, COMPLIANCE, HOME, LATERAL, OFFSETS, POSE_COORDS, TWISTS, ParamKind
+from kincal.params.kinds import (ARM_KINDS, COMPLIANCE, HOME, LATERAL, OFFSETS, PLANE, POINT, POINTS, POSE,
+                                 POSE_COORDS, TWISTS, ParamKind)
 from kincal.params.values import State
 
 LEVELS = ("offsets", "kinematic", "elastic", "lateral")  # lateral: opt-in, the arms that declare it
@@ -137,6 +139,30 @@ def _blocks(state: State, arms: Sequence[str]):
     return names, units, blocks, twist_joint
 
 
+def _remembered_blocks(state: State, arms: Sequence[str]):
+    """``_blocks``, remembered per structure: the arms' values objects (immutable; a problem's nominal arms are
+    ``ArmValues.from_model``'s, the same object per model) and each frame's name, kind and value shape, which
+    are all a frame kind's coordinates read (``FRAME_KINDS``: a pose or plane its name, points their count)."""
+    frames = tuple((n, state.kinds[n], np.shape(v) if state.kinds[n] in _SHAPED else None)
+                   for n, v in state.extras.items())
+    if any(k not in _SHAPED and k not in _NAMED for _, k, _ in frames):
+        return _blocks(state, arms)
+    values = [state.arms[a] for a in arms]
+    key = (tuple(arms), tuple(id(v) for v in values), frames)
+    hit = _BLOCKS.get(key)
+    if hit is not None and all(r() is v for r, v in zip(hit[0], values)):
+        names, units, blocks, twist_joint = hit[1]
+        return names, units, blocks, dict(twist_joint)
+    names, units, blocks, twist_joint = _blocks(state, arms)
+    if len(_BLOCKS) >= _SELECTION_ENTRIES:
+        try:  # the oldest out; another thread (a Dask worker's) may be evicting too
+            _BLOCKS.pop(next(iter(_BLOCKS)), None)
+        except (StopIteration, RuntimeError):
+            pass
+    _BLOCKS[key] = (tuple(weakref.ref(v) for v in values), (tuple(names), tuple(units), tuple(blocks), twist_joint))
+    return names, units, blocks, dict(twist_joint)
+
+
 def build_layout(
     state: State,
     free: str | Sequence[str] = "offsets",
@@ -153,7 +179,7 @@ def build_layout(
     prior is free. Every pattern must match at least one coordinate.
     """
     arms = list(state.arms) if arms is None else list(arms)
-    names, units, blocks, twist_joint = _blocks(state, arms)
+    names, units, blocks, twist_joint = _remembered_blocks(state, arms)
     extras = list(state.extras) if free_extras is None else list(free_extras)
     key = _selection_key(names, blocks, free, fixed, priors, extras)
     hit = _SELECTIONS.get(key) if key is not None else None
@@ -173,9 +199,17 @@ _SELECTIONS: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 _SELECTION_ENTRIES = 256
 
 
+# _remembered_blocks' memory: (arm names, ids of their values, frames) -> (weak references to the values, blocks)
+_BLOCKS: dict[tuple, tuple] = {}
+# Frame kinds whose coordinates follow from the frame's name alone, and from its name and value shape.
+_NAMED = (POSE, PLANE)
+_SHAPED = (POINT, POINTS)
+
+
 def clear_caches() -> None:
     """Forget what ``build_layout`` and ``ArmValues.from_model`` remembered (tests, cold-start timings)."""
     _SELECTIONS.clear()
+    _BLOCKS.clear()
     values._FROM_MODEL.clear()
 
 
