@@ -7,6 +7,8 @@ from functools import cached_property
 
 import numpy as np
 
+from kincal.analysis.linalg import norms
+
 from kincal.params import State
 
 
@@ -57,7 +59,7 @@ class Linearization:
     @cached_property
     def colnorm(self) -> np.ndarray:
         """Column norms of ``Rf``: those of the whitened Jacobian ``J`` (its triangular factor), computed once."""
-        return np.linalg.norm(self.Rf, axis=0)
+        return norms(self.Rf, 0)
 
     @property
     def qtr(self) -> np.ndarray:
@@ -76,7 +78,7 @@ ZERO_COLUMN_RTOL = 1e-10
 def unit_columns(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(Js, c)``: J with every column scaled to unit norm, columns zero up to round-off (``ZERO_COLUMN_RTOL``)
     set exactly to zero, and the scale ``c`` (1 for those), so that ``J ~ Js * c``."""
-    c = np.linalg.norm(J, axis=0)
+    c = norms(J, 0)
     zero = c <= ZERO_COLUMN_RTOL * (c.max() if c.size else 0.0)
     c = np.where(zero, 1.0, c)
     Js = J / c

@@ -251,8 +251,7 @@ class Problem:
         cols = self.free_idx if cols is None else np.asarray(cols)
         want = self.cache.wants.get(cols.tobytes())
         if want is None:
-            want = self.cache.wants[cols.tobytes()] = frozenset(
-                b.name for b in self.layout.blocks if np.any((cols >= b.start) & (cols < b.stop)))
+            want = self.cache.wants[cols.tobytes()] = _blocks_of(self.layout, cols)
         fresh = whiteners is None
         res = [exp.residual(state, want=want, jq=fresh and self.joint_noise) for exp in self.experiments]
         W = self._whiteners_of(res) if fresh else whiteners
@@ -365,7 +364,19 @@ def triangular_factor(columns: Sequence[np.ndarray]) -> np.ndarray:
     qr, _, _, info = dgeqrf(A, lwork=max(1, 64 * n), overwrite_a=1)
     if info != 0:  # an argument LAPACK rejects: numpy's error
         return np.linalg.qr(np.column_stack(columns), mode="r")
-    return np.ascontiguousarray(np.triu(qr[: min(m, n)]))
+    k = min(m, n)
+    R = np.zeros((k, n))  # C-ordered; the upper triangle copied in, the zeros below as ``np.triu``'s
+    np.copyto(R, qr[:k], where=~np.tri(k, n, -1, dtype=bool))
+    return R
+
+
+def _blocks_of(layout, cols: np.ndarray) -> frozenset:
+    """The names of the blocks holding a column of ``cols``: one search of the blocks' starts (contiguous runs in
+    order, ``Layout``; an empty block shares its start with the next and is never found) instead of a scan per
+    block."""
+    blocks = layout.blocks
+    starts = np.array([b.start for b in blocks])
+    return frozenset(blocks[k].name for k in np.unique(np.searchsorted(starts, cols, side="right") - 1).tolist())
 
 
 def _constant_diagonal(W: np.ndarray) -> np.ndarray | None:

@@ -35,7 +35,7 @@ def linearize(problem: Problem, state: State, W, every: bool) -> Linearization:
     if problem.blocked:
         return _linearize_blocks(problem, state, W, cols, every)
     r, J, W, raw = problem.linearize(state, W, cols)
-    if not np.all(np.isfinite(r)) or not np.all(np.isfinite(J)):
+    if not np.isfinite(r).all() or not np.isfinite(J).all():
         raise DegenerateExperimentError(NOT_FINITE)
     if every:
         R = triangular_factor([J, problem.length_part(raw, W), r])
