@@ -57,12 +57,6 @@ class Kinematics:
         """``(cos theta, sin theta)``, each (..., n) (the chain's own when it computed them)."""
         return np.cos(self.theta), np.sin(self.theta)
 
-    @cached_property
-    def rotors(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per joint, ``(c, c)`` and ``(s, -s)`` of ``turns`` (n, N, 2) over the flattened batch: what
-        ``turn_pairs`` multiplies a pair of columns and the swapped pair by (made once, read by every turn)."""
-        return _rotors(*self.turns)
-
 
 def _exponentials(screws, theta) -> np.ndarray:
     if se3.exact_joint_screws(screws):
@@ -88,15 +82,13 @@ def chain(screws, theta, base, home, tool, frames: bool = True) -> Kinematics:
     turns = None
     if frames and se3.exact_joint_screws(screws):
         turns = np.cos(theta), np.sin(theta)
-        rotors = _rotors(*turns)
-        prefixes = _frame_prefixes(screws, theta, base, rotors)
+        prefixes = _frame_prefixes(screws, theta, base, turns)
     else:
         prefixes = _product_prefixes(screws, theta, base)
     flange = _times(prefixes[..., -1, :, :], home)
     kin = Kinematics(theta, screws, prefixes, flange, _times(flange, tool))
     if turns is not None:
-        kin.__dict__["turns"] = turns  # the cached properties' values: the Jacobians turn by the same
-        kin.__dict__["rotors"] = rotors
+        kin.__dict__["turns"] = turns  # the cached property's value: the Jacobians turn by the same
     return kin
 
 
@@ -119,7 +111,7 @@ def _product_prefixes(screws, theta, base) -> np.ndarray:
     return prefixes
 
 
-def _frame_prefixes(screws, theta, base, rotors) -> np.ndarray:
+def _frame_prefixes(screws, theta, base, turns) -> np.ndarray:
     """The prefixes of exact joint screws through their joint frames (``chain``), computed joint by joint in one
     buffer (joint first) and returned as its (..., n + 1, 4, 4) view."""
     C, Ci, revolute, _, _ = se3.joint_frames(screws)
@@ -130,37 +122,30 @@ def _frame_prefixes(screws, theta, base, rotors) -> np.ndarray:
     P = np.empty((n + 1, N, 4, 4))
     P[0] = np.broadcast_to(base, batch + (4, 4)).reshape(N, 4, 4)
     moves = flat.any(axis=0)
-    cc, ss = (r[:, :, None] for r in rotors)  # per joint (N, 1, 2)
+    cos, sin = (t.reshape(-1, n).T[:, :, None] for t in turns)  # per joint (N, 1)
     X = np.empty((N, 4, 4))
     X2, P2 = X.reshape(4 * N, 4), P.reshape(n + 1, 4 * N, 4)  # the products' views, made once
-    # the columns a revolute joint turns, as they are and swapped (the last row stays (0, 0, 0, 1))
-    pair, swapped, work = X[:, :3, :2], X[:, :3, 1::-1], np.empty((2, N, 3, 2))
+    x0, x1 = X[:, :3, 0], X[:, :3, 1]  # the columns a revolute joint turns (the last row stays (0, 0, 0, 1))
     for i in range(n):
         if not moves[i]:  # exp(0) = I
             P[i + 1] = P[i]
             continue
         np.matmul(P2[i], C[i], out=X2)
         if revolute[i]:  # X Rz(t): columns 0 and 1 turn (c x0 + s x1, c x1 - s x0)
-            turn_pairs(pair, swapped, cc[i], ss[i], work)
+            turn_columns(x0, x1, cos[i], sin[i])
         else:  # X Tz(t): the origin moves along z
             X[:, :3, 3] += flat[:, i, None] * X[:, :3, 2]
         np.matmul(X2, Ci[i], out=P2[i + 1])
     return np.moveaxis(P, 0, 1).reshape(batch + (n + 1, 4, 4))
 
 
-def _rotors(cos: np.ndarray, sin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(c, c) and (s, -s) per joint (n, N, 2) of the turns (..., n) over their flattened batch."""
-    c, s = (t.reshape(-1, t.shape[-1]).T for t in (cos, sin))
-    return np.stack([c, c], axis=-1), np.stack([s, -s], axis=-1)
-
-
-def turn_pairs(pair: np.ndarray, swapped: np.ndarray, cc: np.ndarray, ss: np.ndarray, work: np.ndarray) -> None:
-    """Columns ``x0, x1 = c x0 + s x1, c x1 - s x0`` in place: ``pair`` (..., 2) the views of ``(x0, x1)`` in a
-    buffer, ``swapped`` of ``(x1, x0)``, ``cc`` = (c, c) and ``ss`` = (s, -s) broadcast against them, ``work`` two
-    scratch arrays of ``pair``'s shape. ``x1 c + x0 (-s)`` is ``c x1 - s x0`` bit for bit (negation is exact)."""
-    np.multiply(pair, cc, out=work[0])
-    np.multiply(swapped, ss, out=work[1])
-    np.add(work[0], work[1], out=pair)
+def turn_columns(x0: np.ndarray, x1: np.ndarray, c: np.ndarray, s: np.ndarray) -> None:
+    """``x0, x1 = c x0 + s x1, c x1 - s x0`` in place (views of a buffer; c, s broadcast against them)."""
+    a = c * x0
+    a += s * x1
+    b = c * x1
+    b -= s * x0
+    x0[...], x1[...] = a, b
 
 
 def expanded_chain(screws, theta, base, home, tool, frames: bool = True) -> Kinematics:

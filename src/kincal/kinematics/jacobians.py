@@ -35,7 +35,7 @@ from typing import Sequence
 import numpy as np
 
 from kincal.kinematics.elastic import LoadedKinematics, compliance_columns, deflection_map
-from kincal.kinematics.fk import Kinematics, turn_pairs
+from kincal.kinematics.fk import Kinematics, turn_columns
 from kincal.kinematics.gravity import _Projected, gravity_torque_derivatives
 from kincal.lie import se3
 
@@ -193,19 +193,17 @@ def _frame_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
     else:
         M[0] = _project_prefixes(G, kin.prefixes[:, :1])[0]
     moves = theta.any(axis=0)
-    cc, ss = (r[:, :, None, None] for r in kin.rotors)  # per joint (N, 1, 1, 2)
+    cos, sin = (t.T[:, :, None, None] for t in kin.turns)  # per joint (N, 1, 1)
     K2 = np.empty((N * k, 6))
     K = K2.reshape(N, k, 6)
-    # the columns a revolute joint turns, (0, 1) and (3, 4), as they are and swapped
-    halves = K.reshape(N, k, 2, 3)
-    pair, swapped, work = halves[..., :2], halves[..., 1::-1], np.empty((2, N, k, 2, 2))
+    x0, x1 = K[..., 0::3], K[..., 1::3]  # the columns a revolute joint turns: (0, 3) and (1, 4)
     for i in range(n):
         if not moves[i]:
             M[i + 1] = M[i]
             continue
         np.matmul(M[i], AdC[i], out=K2)
         if revolute[i]:  # Ad(Rz(t)) = diag(Rz, Rz): c x0 + s x1, c x1 - s x0
-            turn_pairs(pair, swapped, cc[i], ss[i], work)
+            turn_columns(x0, x1, cos[i], sin[i])
         else:  # Ad(Tz(t)) = [[I, hat(t e_z)], [0, I]]: g^T hat(t e_z) = (g x t e_z)^T
             t = theta[:, i, None]
             K[..., 3] += t * K[..., 1]
