@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 from types import MappingProxyType
 from typing import Mapping
@@ -265,12 +266,7 @@ def _check_compliance(arm: ArmModel, where: str) -> None:
 def _check_joint_screws(screws: np.ndarray, types, names, where: str) -> None:
     """Revolute joints: a unit axis with zero pitch; prismatic: w = 0 and a unit v (every joint at once; the
     first one that fails is named)."""
-    v, w = screws[:, :3], screws[:, 3:]
-    nw, nv, pitch = np.linalg.norm(w, axis=1), np.linalg.norm(v, axis=1), np.abs(np.einsum("ij,ij->i", w, v))
-    rev = np.array([t == REVOLUTE for t in types])
-    bad_rev = rev & ((np.abs(nw - 1) > _UNIT_TOL) | (pitch > _UNIT_TOL))
-    bad_pri = ~rev & ((nw > _UNIT_TOL) | (np.abs(nv - 1) > _UNIT_TOL))
-    if not (bad_rev.any() or bad_pri.any()):
+    if all(_joint_screw_ok(x, t == REVOLUTE) for x, t in zip(screws.tolist(), types)):
         return
     for i, t in enumerate(types):
         v, w = screws[i, :3], screws[i, 3:]
@@ -284,6 +280,15 @@ def _check_joint_screws(screws: np.ndarray, types, names, where: str) -> None:
                 f"{where}: joint {names[i]} is prismatic and needs w = 0 and a unit v; "
                 f"got |w| = {np.linalg.norm(w):.3g}, |v| = {np.linalg.norm(v):.12g}"
             )
+
+
+def _joint_screw_ok(x: list, revolute: bool) -> bool:
+    """``_check_joint_screws``' test of one screw (v, w) on Python floats (an arm's few joints: no numpy calls)."""
+    v0, v1, v2, w0, w1, w2 = x
+    nw = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    if revolute:
+        return not (abs(nw - 1) > _UNIT_TOL or abs(w0 * v0 + w1 * v1 + w2 * v2) > _UNIT_TOL)
+    return not (nw > _UNIT_TOL or abs(math.sqrt(v0 * v0 + v1 * v1 + v2 * v2) - 1) > _UNIT_TOL)
 
 
 def _lateral_fields(arm: ArmModel, where: str) -> dict:

@@ -97,14 +97,8 @@ def displacement(state: State, nominal: State, layout: Layout, only: np.ndarray 
     fixed frames)."""
     disp = np.zeros(layout.size)
     D = np.zeros((layout.size, layout.size)) if jacobian else None
-    wanted = np.ones(layout.size, bool)
-    if only is not None:
-        wanted[:] = False
-        wanted[np.asarray(only, dtype=int)] = True
     poses = []  # (block, pose, nominal pose) of the pose kinds: their logarithms in one batch
-    for b in layout.blocks:
-        if not wanted[b.slice].any():
-            continue
+    for b in layout.blocks if only is None else _blocks_holding(layout, only):
         value, value0 = b.value(state), b.value(nominal)
         T = b.kind.pose_of(value)
         if T is not None:
@@ -122,6 +116,15 @@ def displacement(state: State, nominal: State, layout: Layout, only: np.ndarray 
             if jacobian:
                 D[b.slice, b.slice] = Jinv[k]
     return disp, D
+
+
+def _blocks_holding(layout: Layout, idx) -> list:
+    """The blocks of ``layout`` (in order) holding any of the indices ``idx``: one pass over the indices as
+    Python ints instead of a mask tested block by block (blocks are contiguous runs in order, ``Layout``)."""
+    starts = [b.start for b in layout.blocks]
+    idx = np.arange(layout.size)[np.asarray(idx, dtype=int)].ravel()  # negative ones counted from the end
+    held = {bisect_right(starts, i) - 1 for i in idx.tolist()}
+    return [layout.blocks[k] for k in sorted(held)]
 
 
 def scale_direction(state: State, layout: Layout) -> np.ndarray:
