@@ -6,6 +6,7 @@ from typing import Mapping
 
 import numpy as np
 
+from kincal._memo import remember
 from kincal.params import Layout
 
 
@@ -48,14 +49,7 @@ def _plan(layout: Layout, cols: np.ndarray) -> tuple:
             plan.append((b.name, slice(int(c[0]), int(c[-1]) + 1), None))
         elif sel.any():
             plan.append((b.name, _frozen(c[sel]), _frozen(sel)))
-    plan = tuple(plan)
-    if len(_PLANS) >= PLAN_ENTRIES:
-        try:  # tolerant of another thread (a Dask worker's) evicting or adding meanwhile
-            _PLANS.pop(next(iter(_PLANS)), None)
-        except (StopIteration, RuntimeError):
-            pass
-    _PLANS[key] = plan
-    return plan
+    return remember(_PLANS, key, tuple(plan), PLAN_ENTRIES)
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from kincal._memo import remember
 from kincal.lie import so3
 from kincal.lie._coeffs import one_minus_cos_over_t2, se3_jl_coeffs, sin_over_t, t_minus_sin_over_t3
 
@@ -124,9 +125,7 @@ def _remembered(cache: dict, screws: np.ndarray, compute) -> tuple:
         hit = compute(screws)
         for a in hit:
             a.flags.writeable = False
-        if len(cache) >= _TERMS_ENTRIES:  # tolerant of another thread (a Dask worker's) evicting the same entry
-            cache.pop(next(iter(cache), None), None)
-        cache[key] = hit
+        remember(cache, key, hit, _TERMS_ENTRIES)
     return hit
 
 
@@ -224,9 +223,7 @@ def exact_joint_screws(screws: np.ndarray, tol: float = 1e-12) -> bool:
     key = (screws.dtype.str, screws.shape, screws.tobytes(), tol)
     hit = _EXACT.get(key)
     if hit is None:
-        if len(_EXACT) >= _TERMS_ENTRIES:
-            _EXACT.pop(next(iter(_EXACT)))
-        hit = _EXACT[key] = _exact(screws, tol)
+        hit = remember(_EXACT, key, _exact(screws, tol), _TERMS_ENTRIES)
     return hit
 
 

@@ -16,6 +16,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from kincal._memo import remember
 from kincal.errors import ModelError
 from kincal.params import values
 from kincal.params.kinds import (ARM_KINDS, COMPLIANCE, HOME, LATERAL, OFFSETS, PLANE, POINT, POINTS, POSE,
@@ -154,12 +155,8 @@ def _remembered_blocks(state: State, arms: Sequence[str]):
         names, units, blocks, twist_joint = hit[1]
         return names, units, blocks, dict(twist_joint)
     names, units, blocks, twist_joint = _blocks(state, arms)
-    if len(_BLOCKS) >= _SELECTION_ENTRIES:
-        try:  # the oldest out; another thread (a Dask worker's) may be evicting too
-            _BLOCKS.pop(next(iter(_BLOCKS)), None)
-        except (StopIteration, RuntimeError):
-            pass
-    _BLOCKS[key] = (tuple(weakref.ref(v) for v in values), (tuple(names), tuple(units), tuple(blocks), twist_joint))
+    remember(_BLOCKS, key, (tuple(weakref.ref(v) for v in values), (tuple(names), tuple(units), tuple(blocks),
+                                                                   twist_joint)), _SELECTION_ENTRIES)
     return names, units, blocks, dict(twist_joint)
 
 
@@ -186,9 +183,7 @@ def build_layout(
     if hit is None:
         hit = _selection(names, blocks, twist_joint, _patterns(free, arms), extras, fixed, priors)
         if key is not None:
-            if len(_SELECTIONS) >= _SELECTION_ENTRIES:
-                _SELECTIONS.pop(next(iter(_SELECTIONS)))
-            _SELECTIONS[key] = hit
+            remember(_SELECTIONS, key, hit, _SELECTION_ENTRIES)
     mask, mean, sigma = (a.copy() for a in hit)
     return Layout(tuple(names), tuple(units), tuple(blocks), mask, mean, sigma, twist_joint)
 

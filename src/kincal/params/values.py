@@ -14,6 +14,7 @@ from typing import Mapping
 
 import numpy as np
 
+from kincal._memo import remember
 from kincal.errors import ModelError
 from kincal.kinematics import ArmModel, Robot, conform_twists, tangent_frames
 from kincal.kinematics.couplings import coupling_map
@@ -115,9 +116,7 @@ class ArmValues:
                   *values.bases, *values.generators):
             if isinstance(a, np.ndarray):
                 a.flags.writeable = False  # shared by every problem built from this model: never changed in place
-        if len(_FROM_MODEL) >= _FROM_MODEL_ENTRIES:
-            _FROM_MODEL.pop(next(iter(_FROM_MODEL)))
-        _FROM_MODEL[id(model)] = (weakref.ref(model), values)
+        remember(_FROM_MODEL, id(model), (weakref.ref(model), values), _FROM_MODEL_ENTRIES)
         return values
 
     @staticmethod
