@@ -13,7 +13,7 @@ from kincal.estimation.iterate import Iteration, scale_test_needed
 from kincal.estimation.options import SolverOptions
 from kincal.estimation.plausibility import negative_compliance_notes, negative_compliances
 from kincal.estimation.problem import SENSITIVITY_SAMPLES, Problem
-from kincal.estimation.result import Deferred, Estimate, FinalReport, Result, TwistEstimate, low_redundancy
+from kincal.estimation.result import Deferred, FinalReport, Result, TwistEstimate, estimates_of, low_redundancy
 from kincal.estimation.sandwich import Sandwich
 from kincal.experiments.markers import MarkersExperiment
 from kincal.experiments.pose import PoseExperiment
@@ -70,7 +70,7 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
             f"and their standard deviations assume a model that fits. {_misfit_advice(problem)}"))
     elif sigma2 > NOISE_NOTE_FACTOR and dof >= NOISE_NOTE_DOF:
         messages.append(_noise_note(sigma2))
-    names = [problem.layout.names[i] for i in problem.free_idx]
+    names = [problem.layout.names[i] for i in problem.free_idx.tolist()]
     estimates = tuple(_estimates(problem, run.state, std, ok, cov))
     negative = negative_compliances(problem.layout, estimates)
     messages[:0] = negative_compliance_notes(negative)
@@ -155,8 +155,8 @@ def noise_variance_factor(problem: Problem, lin: Linearization, ana: Identifiabi
 def variance_factor(r: np.ndarray, weights: np.ndarray, slopes: np.ndarray, rank: int) -> float:
     """``sum psi^2 / (sum psi' - rank)`` (Huber's scale of an M-estimate; ``chi^2 / (m - rank)`` for the linear
     loss): rows a robust loss discounts neither inflate it nor count as degrees of freedom. nan without any."""
-    dof = float(np.sum(slopes)) - rank
-    return float(np.sum((weights * r) ** 2)) / dof if dof > 0 else float("nan")
+    dof = float(slopes.sum()) - rank
+    return float(((weights * r) ** 2).sum()) / dof if dof > 0 else float("nan")
 
 
 def _status(problem: Problem, run: Iteration, options: SolverOptions, sigma2: float) -> tuple[str, list[str]]:
@@ -207,7 +207,7 @@ def _uncertainty(lin: Linearization, ana: Identifiability, options: SolverOption
         cov = ana.factor.covariance(V, s2)
     else:
         cov = covariance(Rf, V, s2)
-    std = np.sqrt(np.clip(np.diag(cov), 0, None))
+    std = np.sqrt(np.maximum(cov.diagonal(), 0))  # np.clip(x, 0, None) is np.maximum(x, 0), without its wrapper
     ok = ana.identifiable & (status != "degenerate")
     return cov, np.where(ok, std, np.nan), ok
 
@@ -263,7 +263,9 @@ def _joint_sensitivity(exp, state, comps, res=None) -> dict:
     out = {}
     for q in dict.fromkeys(comps):
         rows = np.array([c is q or c == q for c in comps], bool)
-        out[q] = float(np.sqrt(np.mean([np.mean(j[:, rows] ** 2) for j in jq.values()]))) if jq else 0.0
+        means = [(j[:, rows] ** 2).mean() for j in jq.values()]
+        # the mean of one mean is itself (x / 1): np.mean's list conversion only where there are more
+        out[q] = float(np.sqrt(means[0] if len(means) == 1 else np.mean(means))) if jq else 0.0
     return out
 
 
@@ -313,9 +315,9 @@ def _estimates(problem: Problem, state, std, ok, cov=None) -> list[Estimate]:
     free = problem.free_idx
     disp, D = displacement(state, problem.nominal, layout, free, jacobian=cov is not None)
     if cov is not None:
-        Df = D[np.ix_(free, free)]
-        var = np.sum((Df @ cov) * Df, axis=1)  # diag(Df cov Df^T) (a three-operand einsum loops in p^3 steps)
-        std = np.where(ok, np.sqrt(np.clip(var, 0, None)), np.nan)
+        Df = D[free[:, None], free]
+        var = ((Df @ cov) * Df).sum(axis=1)  # diag(Df cov Df^T) (a three-operand einsum loops in p^3 steps)
+        std = np.where(ok, np.sqrt(np.maximum(var, 0)), np.nan)
     nominal = np.zeros(layout.size)  # absolute kinds (offsets, compliance) report values, the others changes
     value = disp.copy()
     for b in layout.blocks:
@@ -323,6 +325,5 @@ def _estimates(problem: Problem, state, std, ok, cov=None) -> list[Estimate]:
             nominal[b.slice] = b.kind.values(b.value(problem.nominal))
             value[b.slice] = b.kind.values(b.value(state))
     names, units = layout.names, layout.units  # Python floats and bools first: the same values, fewer conversions
-    return [Estimate(names[i], v, n, s, units[i], o) for i, v, n, s, o in
-            zip(free.tolist(), value[free].tolist(), nominal[free].tolist(), np.asarray(std, float).tolist(),
-                np.asarray(ok, bool).tolist())]
+    return estimates_of(names, units, free.tolist(), value[free].tolist(), nominal[free].tolist(),
+                        np.asarray(std, float).tolist(), np.asarray(ok, bool).tolist())

@@ -56,7 +56,7 @@ def row_chi2(problem, state) -> list[np.ndarray]:
     """Per experiment of ``problem``, the whitened chi^2 of each configuration (N,) at ``state``."""
     out = []
     for W, res in zip(problem.whiteners(state), problem.residuals(state)):
-        out.append(np.sum(np.einsum("nij,nj->ni", W, res.r) ** 2, axis=1))
+        out.append((np.einsum("nij,nj->ni", W, res.r) ** 2).sum(axis=1))
     return out
 
 
@@ -65,8 +65,21 @@ def scaled_chi2(c: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     scale of the module doc (the median row over the chi^2 median at ``k`` dof, at least 1)."""
     # here, not at the top: scipy.special (through scipy's array-API layer) costs more than importing kincal
     from scipy.special import chdtrc, chdtri
-    scale = max(float(np.median(c)) / chdtri(k, 0.5), 1.0) if len(c) else 1.0  # chi^2 median at k dof
-    return c / scale, chdtrc(k, c / scale)  # upper tail probability
+    scale = max(median(c) / chdtri(k, 0.5), 1.0) if len(c) else 1.0  # chi^2 median at k dof
+    scaled = c / scale
+    return scaled, chdtrc(k, scaled)  # upper tail probability
+
+
+def median(c: np.ndarray) -> float:
+    """``float(np.median(c))`` of a 1-d ``c`` (not empty), by numpy's own rule without its wrapper: the middle
+    element(s) of one partition (the last position too: a nan sorts last and makes the median nan), the mean of
+    two as ``(a + b) / 2``."""
+    n = len(c)
+    h = n // 2
+    part = np.partition(c, [h - 1, h, n - 1] if n % 2 == 0 else [h, n - 1])
+    if part[-1] != part[-1]:
+        return float("nan")
+    return float(part[h] if n % 2 else (part[h - 1] + part[h]) / 2)
 
 
 def row_threshold(threshold: float, n: int) -> float:
@@ -108,7 +121,7 @@ def states_noise(ds, noise) -> bool:
 
 def any_beyond(problem, state, threshold: float) -> bool:
     """Whether any row is beyond ``threshold`` at ``state`` (the screen before a robust pass)."""
-    return any(bool(np.any(p < row_threshold(threshold, len(p)))) for _, p in standardized(problem, state))
+    return any(bool((p < row_threshold(threshold, len(p))).any()) for _, p in standardized(problem, state))
 
 
 def kept(datasets, outliers: list[Outlier]):

@@ -209,15 +209,16 @@ def _absurd_cell(key: str, arm: str, x: np.ndarray, tool: float) -> Implausible 
 
 def _within(flat: np.ndarray, bound: float) -> bool:
     """Every column of ``flat`` spans at most ``bound`` and holds no value near overflow (a median of two values
-    then stays between them): every value is within ``bound`` of its column's median, in floating point too."""
-    with np.errstate(invalid="ignore"):
-        hi, lo = flat.max(axis=0), flat.min(axis=0)
-        return bool(np.all(hi - lo <= bound) and np.all(np.abs(hi) <= 1e300) and np.all(np.abs(lo) <= 1e300))
+    then stays between them): every value is within ``bound`` of its column's median, in floating point too.
+    The span is taken last, of finite columns only: it cannot overflow (no errstate needed)."""
+    hi, lo = flat.max(axis=0), flat.min(axis=0)
+    return bool((np.abs(hi) <= 1e300).all() and (np.abs(lo) <= 1e300).all() and (hi - lo <= bound).all())
 
 
 def spread(x: np.ndarray) -> float:
-    """RMS distance of points (N, ..., 3) from their mean over the samples."""
-    return float(np.sqrt(np.mean(np.sum((x - x.mean(axis=0)) ** 2, axis=-1))))
+    """RMS distance of points (N, ..., 3) from their mean over the samples (method calls: numpy's functions'
+    reductions without their wrappers; ``math.sqrt`` and ``np.sqrt`` both round correctly)."""
+    return math.sqrt(((x - x.mean(axis=0)) ** 2).sum(axis=-1).mean())
 
 
 # A compliance estimated more than this many standard deviations below 0 is no chance scatter of a stiff joint:
@@ -254,7 +255,7 @@ def negative_compliances(layout: Layout, estimates) -> tuple[NegativeCompliance,
     names = {layout.names[i] for b in layout.blocks if b.kind in (COMPLIANCE, LATERAL)
              for i in range(b.start, b.stop)}
     return tuple(NegativeCompliance(e.name, e.value, e.std, e.unit) for e in estimates
-                 if e.name in names and e.value < -ROUND_OFF_COMPLIANCE)
+                 if e.value < -ROUND_OFF_COMPLIANCE and e.name in names)
 
 
 def negative_compliance_notes(found) -> list[str]:

@@ -39,6 +39,18 @@ class Estimate:
     identifiable: bool
 
 
+def estimates_of(names, units, idx, values, nominals, stds, identifiable) -> list[Estimate]:
+    """``Estimate(names[i], value, nominal, std, units[i], ok)`` per layout index ``i`` of ``idx`` with the matching
+    items of the other lists: the instances' fields set at once (a frozen dataclass' ``__init__`` sets them one
+    ``object.__setattr__`` call each; equal instances)."""
+    new, out = object.__new__, []
+    for i, v, n, s, o in zip(idx, values, nominals, stds, identifiable):
+        e = new(Estimate)
+        e.__dict__.update(name=names[i], value=v, nominal=n, std=s, unit=units[i], identifiable=o)
+        out.append(e)
+    return out
+
+
 @dataclass(frozen=True)
 class TwistEstimate:
     """One derived coordinate of a joint twist (``arm.joint.xi.v_x`` .. ``w_z``): value and standard deviation,

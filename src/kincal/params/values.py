@@ -174,8 +174,8 @@ def _compliance_fields(a: ArmValues) -> dict:
     is kept (``allow_negative_compliance``), so the model predicts what the solver fitted; the calibration's
     verdict reports it (``kincal.estimation.plausibility.negative_compliances``)."""
     k = a.joint_compliance
-    lat = np.zeros(0) if a.lateral is None else a.lateral
-    negative = {"allow_negative_compliance": True} if np.any(k < 0) or np.any(lat < 0) else {}
+    below = bool((k < 0).any()) or (a.lateral is not None and bool((a.lateral < 0).any()))
+    negative = {"allow_negative_compliance": True} if below else {}
     if a.lateral is not None:
         negative.update(lateral=a.lateral, lateral_axes=a.lateral_axes)
     if not a.compliance_nodes:
