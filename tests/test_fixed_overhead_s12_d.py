@@ -185,3 +185,45 @@ def test_calibrate_with_an_outlier_finds_it():
     res = calibrate(nominal, [dataclasses.replace(ds, measured=measured)], "kinematic", noise=stated)
     assert [o.sample for o in res.outliers] == [7]
     assert calibrate(nominal, [ds], "kinematic", noise=stated).outliers == ()
+
+
+def _effective_chained(explicit, stated):
+    from kincal.noise import DEFAULT, NONE
+    return (explicit or NONE).over(Noise.from_si(stated or {})).over(DEFAULT)
+
+
+@pytest.mark.parametrize("explicit", [None, Noise(), Noise(position=5e-5, joint=0.0),
+                                      Noise(orientation=1e-3, backlash=1e-4, other={"pixel": 0.5, "force": 2.0})])
+@pytest.mark.parametrize("stated", [None, {}, {"position_m": 1e-4}, {"joint_rad": 0.0, "pixel_px": 1.0},
+                                    {"backlash_rad": 2e-4, "force_si": 3.0, "orientation_rad": 0.0}])
+def test_effective_is_the_chained_rule(explicit, stated):
+    from kincal.noise import effective
+    got, want = effective(explicit, stated), _effective_chained(explicit, stated)
+    assert got == want and list(got.other.items()) == list(want.other.items())
+
+
+@pytest.mark.parametrize("stated", [{"position_m": -1.0}, {"joint_rad": float("nan")}])
+def test_effective_refuses_a_bad_stated_noise_as_before(stated):
+    from kincal.errors import ModelError
+    from kincal.noise import effective
+    with pytest.raises(ModelError) as want:
+        _effective_chained(None, stated)
+    with pytest.raises(ModelError) as got:
+        effective(None, stated)
+    assert str(got.value) == str(want.value)
+
+
+def test_residual_norms_are_numpys():
+    from kincal.estimation.stats import residual_norms
+    from kincal.noise import ORIENTATION, PIXEL, POSITION
+    rng = np.random.default_rng(8)
+    comps = (POSITION,) * 6 + (ORIENTATION,) * 3 + (PIXEL,) * 2
+    for r in (rng.normal(size=(17, 11)), rng.normal(size=(1, 11)) * 1e-7):
+        got = residual_norms(r, comps)
+        e = np.linalg.norm(r[:, :6].reshape(len(r), -1, 3), axis=-1).ravel()
+        o, p = np.linalg.norm(r[:, 6:9], axis=-1), np.linalg.norm(r[:, 9:], axis=-1)
+        for key, x in (("position", e), ("orientation", o), ("pixel", p)):
+            assert _bits(got[f"{key}_rms"]) == _bits(float(np.sqrt(np.mean(x**2))))
+            assert _bits(got[f"{key}_max"]) == _bits(float(np.max(x)))
+    one = residual_norms(r[:, :1], (POSITION,))  # a lone length component: its absolute values
+    assert _bits(one["position_rms"]) == _bits(float(np.sqrt(np.mean(np.abs(r[:, :1]).ravel() ** 2))))

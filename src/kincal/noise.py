@@ -98,7 +98,10 @@ NONE = Noise()
 def effective(explicit: Noise | None, stated: Mapping[str, float] | None) -> Noise:
     """The one noise rule (API, job files, CLI): per quantity, the ``explicit`` noise (a ``calibrate`` argument,
     a job file's ``noise:``) where it states one, else the data set's own stated noise (``stated``: SI keys, as
-    ``Dataset.meta["noise"]`` holds a manifest's or a generator's), else ``DEFAULT``."""
-    return (explicit or NONE).over(Noise.from_si(stated or {})).over(DEFAULT)
+    ``Dataset.meta["noise"]`` holds a manifest's or a generator's), else ``DEFAULT``. One ``Noise`` built from
+    the three: ``explicit.over(stated).over(DEFAULT)`` without the one between (valid, its parts being so)."""
+    layers = (explicit or NONE, Noise.from_si(stated or {}), DEFAULT)
+    named = {k: next((v for v in (getattr(n, k) for n in layers) if v is not None), None) for k in _NAMED}
+    return Noise(**named, other={**DEFAULT.other, **layers[1].other, **layers[0].other})
 
 __all__ = ["DEFAULT", "NONE", "Noise", "ORIENTATION", "PIXEL", "POSITION", "Quantity", "effective"]
