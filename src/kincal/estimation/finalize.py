@@ -13,7 +13,8 @@ from kincal.estimation.iterate import Iteration, scale_test_needed
 from kincal.estimation.options import SolverOptions
 from kincal.estimation.plausibility import negative_compliance_notes, negative_compliances
 from kincal.estimation.problem import SENSITIVITY_SAMPLES, Problem
-from kincal.estimation.result import Deferred, FinalReport, Result, TwistEstimate, estimates_of, low_redundancy
+from kincal.estimation.result import (Deferred, Estimate, FinalReport, Result, TwistEstimate, estimates_of,
+                                      low_redundancy)
 from kincal.estimation.sandwich import Sandwich
 from kincal.experiments.markers import MarkersExperiment
 from kincal.experiments.pose import PoseExperiment
@@ -56,7 +57,7 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
     sigma2, sw = noise_variance_factor(problem, lin, ana, weights, slopes)
     status, messages = _status(problem, run, options, sigma2)
     scale = covariance_scale(sigma2, dof, ana.rank)
-    cov, std, ok = _uncertainty(lin, ana, options, run.order, scale, status, weights, sw)
+    cov, ok = _uncertainty(lin, ana, options, run.order, scale, status, weights, sw)
     messages.append(_REPORT)  # where the final report's messages go (``FinalReport``: named when read)
     if low_redundancy(dof, ana.rank):
         messages.append(low_redundancy_note(len(lin.r), ana.rank, sigma2))
@@ -71,7 +72,7 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
     elif sigma2 > NOISE_NOTE_FACTOR and dof >= NOISE_NOTE_DOF:
         messages.append(_noise_note(sigma2))
     names = [problem.layout.names[i] for i in problem.free_idx.tolist()]
-    estimates = tuple(_estimates(problem, run.state, std, ok, cov))
+    estimates = tuple(_estimates(problem, run.state, None, ok, cov))  # std from cov through the displacement
     negative = negative_compliances(problem.layout, estimates)
     messages[:0] = negative_compliance_notes(negative)
     k = messages.index(_REPORT)
@@ -193,8 +194,8 @@ def _collapse_message(name: str, before_q: float, after_q: float) -> str:
 def _uncertainty(lin: Linearization, ana: Identifiability, options: SolverOptions, order, sigma2: float,
                  status: str, weights: np.ndarray, sw: Sandwich | None = None):
     """Covariance (p, p) in the solve's gauge (of the robustly weighted problem with a robust loss) scaled by
-    ``sigma2`` (the sandwich ``sw`` where the fit is not weighted by the noise), standard deviations (nan where
-    not identifiable) and the mask of identifiable coordinates."""
+    ``sigma2`` (the sandwich ``sw`` where the fit is not weighted by the noise) and the mask of identifiable
+    coordinates (the standard deviations are ``_estimates``': of the reported displacements)."""
     p = lin.p
     Rf = lin.Rf if options.loss == "linear" else weighted_factor(lin.J, weights)
     V = gauge_basis(Rf, ana, options.gauge, list(order))
@@ -207,9 +208,7 @@ def _uncertainty(lin: Linearization, ana: Identifiability, options: SolverOption
         cov = ana.factor.covariance(V, s2)
     else:
         cov = covariance(Rf, V, s2)
-    std = np.sqrt(np.maximum(cov.diagonal(), 0))  # np.clip(x, 0, None) is np.maximum(x, 0), without its wrapper
-    ok = ana.identifiable & (status != "degenerate")
-    return cov, np.where(ok, std, np.nan), ok
+    return cov, ana.identifiable & (status != "degenerate")
 
 
 def _noise_note(sigma2: float) -> str:
@@ -317,7 +316,7 @@ def _estimates(problem: Problem, state, std, ok, cov=None) -> list[Estimate]:
     if cov is not None:
         Df = D[free[:, None], free]
         var = ((Df @ cov) * Df).sum(axis=1)  # diag(Df cov Df^T) (a three-operand einsum loops in p^3 steps)
-        std = np.where(ok, np.sqrt(np.maximum(var, 0)), np.nan)
+        std = np.where(ok, np.sqrt(np.maximum(var, 0)), np.nan)  # np.clip(x, 0, None) is np.maximum(x, 0)
     nominal = np.zeros(layout.size)  # absolute kinds (offsets, compliance) report values, the others changes
     value = disp.copy()
     for b in layout.blocks:
