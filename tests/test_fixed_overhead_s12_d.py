@@ -226,3 +226,32 @@ def test_residual_norms_are_numpys():
             assert _bits(got[f"{key}_max"]) == _bits(float(np.max(x)))
     one = residual_norms(r[:, :1], (POSITION,))  # a lone length component: its absolute values
     assert _bits(one["position_rms"]) == _bits(float(np.sqrt(np.mean(np.abs(r[:, :1]).ravel() ** 2))))
+
+
+def test_spread_of_every_row_needs_no_copy():
+    """``implausible_units`` takes a C-contiguous set of at most ``SPREAD_ROWS`` rows as it is: the copy by
+    ``_spread_rows`` (every row) holds the same values in the same layout, so the spread is the same bits; a strided
+    view (pose translations) is still copied."""
+    rng = np.random.default_rng(9)
+    for n in (1, 2, 50, plausibility.SPREAD_ROWS):
+        x = rng.normal(size=(n, 2, 3))
+        assert np.array_equal(plausibility._spread_rows(n), np.arange(n))
+        assert _bits(plausibility.spread(x)) == _bits(plausibility.spread(x[plausibility._spread_rows(n)]))
+    poses = rng.normal(size=(50, 4, 4))
+    view = poses[:, :3, 3]
+    assert not view.flags.c_contiguous
+
+
+def test_implausible_units_verdicts_are_unchanged(ur10_sets):
+    nominal, markers, pose = ur10_sets
+    for ds in (markers, pose):
+        assert plausibility.implausible_units(nominal, ds) is None
+        key = next(iter(plausibility._measured_lengths(ds)))
+        measured = {k: v.copy() for k, v in ds.measured.items()}
+        scaled = dataclasses.replace(ds, measured={**measured, key: measured[key] * 1000.0})  # mm read as m
+        bad = plausibility.implausible_units(nominal, scaled)
+        assert bad is not None and bad.field == key
+        lengths = plausibility._measured_lengths(scaled)[key]
+        if bad.column < 0:  # a spread verdict: the ratio of the copied rows' spread
+            x = lengths[plausibility._spread_rows(len(lengths))]
+            assert _bits(bad.spread) == _bits(plausibility.spread(x))

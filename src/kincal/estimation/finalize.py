@@ -130,6 +130,8 @@ def robust_weights(r: np.ndarray, loss: str, f_scale: float) -> tuple[np.ndarray
     (at the optimum the robust fit is the least-squares fit weighted by ``w``) and the slope of the influence
     ``psi = w r``, ``psi' = rho'(z) + 2 z rho''(z)`` (clipped at 0): how much each row still informs the fit.
     Both 1 for ``linear``."""
+    if loss == "linear":
+        return np.ones_like(r), np.ones_like(r)
     z = (r / f_scale) ** 2
     if loss == "huber":
         w = np.where(z <= 1, 1.0, 1.0 / np.sqrt(np.maximum(z, 1.0)))

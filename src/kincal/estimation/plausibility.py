@@ -86,7 +86,8 @@ def implausible_units(robot: Robot, ds: Dataset) -> Implausible | None:
     if tool < MIN_TOOL_SPREAD:
         return None
     for key, x in lengths.items():
-        x = x[_spread_rows(len(x))]
+        if len(x) > SPREAD_ROWS or not x.flags.c_contiguous:  # else every row, laid out as the copy would be
+            x = x[_spread_rows(len(x))]
         ratio = spread(x) / tool
         if not 1 / SPREAD_FACTOR <= ratio <= SPREAD_FACTOR:
             return Implausible(key, a, ratio, spread=spread(x), tool=tool)
