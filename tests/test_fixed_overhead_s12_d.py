@@ -255,3 +255,11 @@ def test_implausible_units_verdicts_are_unchanged(ur10_sets):
         if bad.column < 0:  # a spread verdict: the ratio of the copied rows' spread
             x = lengths[plausibility._spread_rows(len(lengths))]
             assert _bits(bad.spread) == _bits(plausibility.spread(x))
+
+
+def test_mean_square_is_numpys_mean():
+    rng = np.random.default_rng(10)
+    big = rng.normal(size=(40, 7, 9))
+    for x in (big, big[:, ::2, 1:], big[::3].transpose(2, 0, 1), rng.normal(size=(1, 1)) * 1e-200, big[:, [0, 3]]):
+        assert _bits(finalize_module._mean_square(x)) == _bits(np.mean(x ** 2))
+        assert _bits(math.sqrt(finalize_module._mean_square(x))) == _bits(float(np.sqrt(np.mean(x ** 2))))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from kincal.analysis import Identifiability, Linearization, correlated_pairs, covariance, identify
@@ -264,10 +266,16 @@ def _joint_sensitivity(exp, state, comps, res=None) -> dict:
     out = {}
     for q in dict.fromkeys(comps):
         rows = np.array([c is q or c == q for c in comps], bool)
-        means = [(j[:, rows] ** 2).mean() for j in jq.values()]
+        means = [_mean_square(j[:, rows]) for j in jq.values()]
         # the mean of one mean is itself (x / 1): np.mean's list conversion only where there are more
-        out[q] = float(np.sqrt(means[0] if len(means) == 1 else np.mean(means))) if jq else 0.0
+        out[q] = math.sqrt(means[0] if len(means) == 1 else np.mean(means)) if jq else 0.0
     return out
+
+
+def _mean_square(x: np.ndarray):
+    """``np.mean(x ** 2)``: numpy's own sum of the squares over their count, without its wrapper (``math.sqrt`` of
+    it is ``np.sqrt``'s: both round correctly)."""
+    return np.add.reduce(x * x, axis=None) / x.size
 
 
 # Kinds whose ``dr/dq`` is exactly their arm's offset columns (readings enter only as ``q + offset`` of one
