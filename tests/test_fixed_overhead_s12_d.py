@@ -79,10 +79,11 @@ def test_within_gives_the_verdict_it_gave_without_warnings():
     rng = np.random.default_rng(5)
     base = rng.normal(size=(30, 6))
     cases = [base, base * 1e3]
-    for value in (np.nan, np.inf, -np.inf, 1e301, -1e301, 1e300, 99.0, 101.0):
+    for value in (np.nan, np.inf, -np.inf, 1e301, -1e301, 1e300, -1e300, 99.0, 101.0):
         x = base.copy()
         x[4, 2] = value
         cases.append(x)
+        cases.append(np.full_like(base, value))  # every value of a column beyond (or at) the limit
     big = base.copy()
     big[:, 1] = [1e300, -1e300] * 15  # finite, span 2e300: no overflow on the way
     cases.append(big)
@@ -263,3 +264,13 @@ def test_mean_square_is_numpys_mean():
     for x in (big, big[:, ::2, 1:], big[::3].transpose(2, 0, 1), rng.normal(size=(1, 1)) * 1e-200, big[:, [0, 3]]):
         assert _bits(finalize_module._mean_square(x)) == _bits(np.mean(x ** 2))
         assert _bits(math.sqrt(finalize_module._mean_square(x))) == _bits(float(np.sqrt(np.mean(x ** 2))))
+
+
+def test_stats_mean_is_numpys():
+    from kincal.estimation.stats import mean
+    rng = np.random.default_rng(11)
+    big = rng.normal(size=(33, 5, 3))
+    for x in (big, big[:, 1:4], big.transpose(1, 2, 0), big[:, 0, 0], rng.normal(size=1) * 1e300):
+        assert _bits(mean(x)) == _bits(np.mean(x))
+        for axis in range(x.ndim):
+            assert _bits(mean(x, axis)) == _bits(np.mean(x, axis=axis))

@@ -18,6 +18,7 @@ from kincal.estimation.problem import SENSITIVITY_SAMPLES, Problem
 from kincal.estimation.result import (Deferred, Estimate, FinalReport, Result, TwistEstimate, estimates_of,
                                       low_redundancy)
 from kincal.estimation.sandwich import Sandwich
+from kincal.estimation.stats import mean
 from kincal.experiments.markers import MarkersExperiment
 from kincal.experiments.pose import PoseExperiment
 from kincal.params import HOME, TWISTS, displacement, twist_coordinates
@@ -273,9 +274,8 @@ def _joint_sensitivity(exp, state, comps, res=None) -> dict:
 
 
 def _mean_square(x: np.ndarray):
-    """``np.mean(x ** 2)``: numpy's own sum of the squares over their count, without its wrapper (``math.sqrt`` of
-    it is ``np.sqrt``'s: both round correctly)."""
-    return np.add.reduce(x * x, axis=None) / x.size
+    """``np.mean(x ** 2)`` (``stats.mean``; ``math.sqrt`` of it is ``np.sqrt``'s: both round correctly)."""
+    return mean(x * x)
 
 
 # Kinds whose ``dr/dq`` is exactly their arm's offset columns (readings enter only as ``q + offset`` of one

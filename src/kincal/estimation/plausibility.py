@@ -22,6 +22,7 @@ from functools import lru_cache
 import numpy as np
 
 from kincal.data import Dataset
+from kincal.estimation.stats import mean
 from kincal.kinematics import PRISMATIC, Robot
 from kincal.kinematics.tree import tip_pose
 from kincal.params import COMPLIANCE, LATERAL, Layout
@@ -211,15 +212,17 @@ def _absurd_cell(key: str, arm: str, x: np.ndarray, tool: float) -> Implausible 
 def _within(flat: np.ndarray, bound: float) -> bool:
     """Every column of ``flat`` spans at most ``bound`` and holds no value near overflow (a median of two values
     then stays between them): every value is within ``bound`` of its column's median, in floating point too.
-    The span is taken last, of finite columns only: it cannot overflow (no errstate needed)."""
+    Every |hi| and |lo| within 1e300 is ``max(hi) <= 1e300 and min(lo) >= -1e300`` (lo <= hi; a nan fails both);
+    the span is taken last, of such columns only: it cannot overflow (no errstate needed)."""
     hi, lo = flat.max(axis=0), flat.min(axis=0)
-    return bool((np.abs(hi) <= 1e300).all() and (np.abs(lo) <= 1e300).all() and (hi - lo <= bound).all())
+    return bool(hi.max() <= 1e300 and lo.min() >= -1e300 and (hi - lo <= bound).all())
 
 
 def spread(x: np.ndarray) -> float:
-    """RMS distance of points (N, ..., 3) from their mean over the samples (method calls: numpy's functions'
-    reductions without their wrappers; ``math.sqrt`` and ``np.sqrt`` both round correctly)."""
-    return math.sqrt(((x - x.mean(axis=0)) ** 2).sum(axis=-1).mean())
+    """RMS distance of points (N, ..., 3) from their mean over the samples (numpy's reductions without their
+    wrappers, ``stats.mean``; ``math.sqrt`` and ``np.sqrt`` both round correctly)."""
+    d = x - mean(x, 0)
+    return math.sqrt(mean(np.add.reduce(d * d, axis=-1)))
 
 
 # A compliance estimated more than this many standard deviations below 0 is no chance scatter of a stiff joint:
