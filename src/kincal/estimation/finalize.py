@@ -324,7 +324,7 @@ def _estimates(problem: Problem, state, std, ok, cov=None) -> list[Estimate]:
     free = problem.free_idx
     disp, D = displacement(state, problem.nominal, layout, free, jacobian=cov is not None)
     if cov is not None:
-        Df = D[free[:, None], free]
+        Df = D.take(free, 0).take(free, 1)  # D[np.ix_(free, free)], copied by take without fancy indexing
         var = ((Df @ cov) * Df).sum(axis=1)  # diag(Df cov Df^T) (a three-operand einsum loops in p^3 steps)
         std = np.where(ok, np.sqrt(np.maximum(var, 0)), np.nan)  # np.clip(x, 0, None) is np.maximum(x, 0)
     nominal = np.zeros(layout.size)  # absolute kinds (offsets, compliance) report values, the others changes
