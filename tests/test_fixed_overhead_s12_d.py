@@ -274,3 +274,34 @@ def test_stats_mean_is_numpys():
         assert _bits(mean(x)) == _bits(np.mean(x))
         for axis in range(x.ndim):
             assert _bits(mean(x, axis)) == _bits(np.mean(x, axis=axis))
+
+
+def _batch_ok(T, tol) -> bool:
+    from kincal._validate import check_rotation
+    try:
+        check_rotation(T[None, :3, :3], "T", tol)
+    except Exception:  # noqa: BLE001
+        return False
+    return bool(np.all(np.abs(T[3] - [0.0, 0.0, 0.0, 1.0]) <= tol))
+
+
+@pytest.mark.parametrize("tol", [1e-9, 1e-6])
+def test_one_transform_passes_only_what_lapacks_determinant_passes(tol):
+    """The closed-form determinant passes a transform only where ``np.linalg.det`` (the batch path) does, also
+    at the tolerance's edge; what it leaves to the batch path gets the batch path's verdict."""
+    from kincal._validate import _one_transform_ok, check_transform
+    from kincal.lie import se3
+    rng = np.random.default_rng(12)
+    for _ in range(400):
+        T = se3.exp(rng.standard_normal(6))
+        f = rng.choice([0.0, 0.5, 1.0 - 1e-5, 1.0 - 1e-9, 1.0, 1.0 + 1e-9, 1.0 + 1e-5, 2.0])
+        T[:3, :3] *= (1 + f * tol * rng.choice([-1.0, 1.0])) ** (1 / 3)  # det 1 +- f tol, |R^T R - I| ~ 2/3 f tol
+        if _one_transform_ok(T, tol):
+            assert _batch_ok(T, tol)
+            assert abs(np.linalg.det(T[:3, :3]) - 1.0) <= tol
+        ok = _batch_ok(T, tol)
+        try:
+            check_transform(T, "T", tol)
+            assert ok
+        except Exception:  # noqa: BLE001
+            assert not ok
