@@ -256,10 +256,12 @@ class NegativeCompliance:
 def negative_compliances(layout: Layout, estimates) -> tuple[NegativeCompliance, ...]:
     """The compliance ``estimates`` (``kincal.estimation.result.Estimate``; joint and lateral) below 0 (below
     ``-ROUND_OFF_COMPLIANCE``), in layout order."""
+    below = [e for e in estimates if e.value < -ROUND_OFF_COMPLIANCE]
+    if not below:  # the usual case: no compliance names needed
+        return ()
     names = {layout.names[i] for b in layout.blocks if b.kind in (COMPLIANCE, LATERAL)
              for i in range(b.start, b.stop)}
-    return tuple(NegativeCompliance(e.name, e.value, e.std, e.unit) for e in estimates
-                 if e.value < -ROUND_OFF_COMPLIANCE and e.name in names)
+    return tuple(NegativeCompliance(e.name, e.value, e.std, e.unit) for e in below if e.name in names)
 
 
 def negative_compliance_notes(found) -> list[str]:
