@@ -86,7 +86,7 @@ def test_within_gives_the_verdict_it_gave_without_warnings():
         cases.append(np.full_like(base, value))  # every value of a column beyond (or at) the limit
     big = base.copy()
     big[:, 1] = [1e300, -1e300] * 15  # finite, span 2e300: no overflow on the way
-    cases.append(big)
+    cases += [big, np.zeros((5, 0))]  # and no column at all
     with np.errstate(all="raise"):  # the span is taken of finite columns only
         for x in cases:
             assert plausibility._within(x, 100.0) == _within_reference(x, 100.0)

@@ -215,7 +215,7 @@ def _within(flat: np.ndarray, bound: float) -> bool:
     Every |hi| and |lo| within 1e300 is ``max(hi) <= 1e300 and min(lo) >= -1e300`` (lo <= hi; a nan fails both);
     the span is taken last, of such columns only: it cannot overflow (no errstate needed)."""
     hi, lo = flat.max(axis=0), flat.min(axis=0)
-    return bool(hi.max() <= 1e300 and lo.min() >= -1e300 and (hi - lo <= bound).all())
+    return bool(hi.max(initial=-np.inf) <= 1e300 and lo.min(initial=np.inf) >= -1e300 and (hi - lo <= bound).all())
 
 
 def spread(x: np.ndarray) -> float:
