@@ -74,7 +74,6 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
             f"and their standard deviations assume a model that fits. {_misfit_advice(problem)}"))
     elif sigma2 > NOISE_NOTE_FACTOR and dof >= NOISE_NOTE_DOF:
         messages.append(_noise_note(sigma2))
-    names = [problem.layout.names[i] for i in problem.free_idx.tolist()]
     estimates = tuple(_estimates(problem, run.state, None, ok, cov))  # std from cov through the displacement
     negative = negative_compliances(problem.layout, estimates)
     messages[:0] = negative_compliance_notes(negative)
@@ -87,7 +86,7 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
     return Result(
         robot=run.state.to_robot(problem.robot), nominal_robot=problem.robot, state=run.state,
         layout=problem.layout, estimates=estimates, covariance=cov,
-        correlated=Deferred(_correlated, frozen_cov, names, options.correlation_threshold, ok),
+        correlated=Deferred(_correlated, frozen_cov, estimates, options.correlation_threshold, ok),
         identifiability=report, start_identifiability=run.first, before=run.before,
         after=Deferred(_after, problem, run.state, lin.W), sigma2=sigma2, status=status,
         iterations=run.iterations, evaluations=run.evaluations, messages=report,
@@ -302,8 +301,9 @@ def _after(problem: Problem, state, whiteners) -> tuple:
     return tuple(problem.statistics(state, whiteners))
 
 
-def _correlated(cov: np.ndarray, names, threshold: float, ok) -> tuple:
-    return tuple(correlated_pairs(cov, names, threshold, ok))
+def _correlated(cov: np.ndarray, estimates, threshold: float, ok) -> tuple:
+    """The pairs of ``estimates`` (the free coordinates, in order) correlated beyond ``threshold``."""
+    return tuple(correlated_pairs(cov, [e.name for e in estimates], threshold, ok))
 
 
 def _twists(problem: Problem, state, cov: np.ndarray) -> tuple[TwistEstimate, ...]:
