@@ -13,6 +13,12 @@ import math
 
 import numpy as np
 
+try:  # numpy's own LAPACK QR kernels (``numpy.linalg.qr``'s calls, without its checks and its unused R)
+    from numpy.linalg import _umath_linalg as _qr_kernels
+    _qr_kernels.qr_r_raw, _qr_kernels.qr_complete
+except (ImportError, AttributeError):  # pragma: no cover - another numpy: ``numpy.linalg.qr`` itself
+    _qr_kernels = None
+
 
 def svd(a, full_matrices: bool = True, compute_uv: bool = True):
     """``numpy.linalg.svd(a, full_matrices, compute_uv)`` (``(U, S, Vt)``, or ``S`` without ``compute_uv``),
@@ -64,3 +70,18 @@ def norms(x: np.ndarray, axis: int) -> np.ndarray:
     """The 2-norms along ``axis`` of a float array: ``numpy.linalg.norm(x, axis=axis)``'s arithmetic (``sqrt`` of
     ``add.reduce`` of the squares, bit for bit) without its dispatch (the analysis asks at every linearization)."""
     return np.sqrt(np.add.reduce(x * x, axis=axis))
+
+
+def complete_q(a: np.ndarray) -> np.ndarray:
+    """``numpy.linalg.qr(a, mode="complete")[0]`` for a real (m, n) array with m > n, bit for bit: numpy's two
+    LAPACK calls (``geqrf``, ``orgqr``) without building R, which a caller wanting Q only discards."""
+    if _qr_kernels is None or a.ndim != 2 or not a.shape[0] > a.shape[1]:
+        return np.linalg.qr(a, mode="complete")[0]
+    a = a.astype(float, copy=True)  # overwritten by the kernels, as in numpy
+    with np.errstate(call=_qr_error, invalid="call", over="ignore", divide="ignore", under="ignore"):
+        tau = _qr_kernels.qr_r_raw(a, signature="d->d")
+        return _qr_kernels.qr_complete(a, tau, signature="dd->d")
+
+
+def _qr_error(err, flag):
+    raise np.linalg.LinAlgError("Incorrect argument found while performing QR factorization")

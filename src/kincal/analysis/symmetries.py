@@ -131,29 +131,51 @@ def rotation_nulls(lin: Linearization, layout: Layout, experiments: Sequence,
     else:
         candidates = structure.rotations
     out = []
-    for arm, i1, frames, free, turns in candidates:
+    for arm, i1, frames, outside, turns in candidates:
         a = lin.state.arms[arm]
-        xi = se3.adjoint(a.base) @ a.screws[0]  # joint 1's screw in world coordinates
+        xi = _adjoint(a.base, structure) @ a.screws[0]  # joint 1's screw in world coordinates
         g = np.zeros(layout.size)
         g[i1] = 1.0
         for name, b in frames:
             g[b.slice] = b.kind.world_motion(lin.state.extras[name], xi)
-        if (g[~free] != 0).any():
+        if len(outside) and (g[outside] != 0).any():
             continue
         gf = g[lin.free]
-        # no residual turns: the target is zero (``_turned_residuals``' zeros, up to their sign: the test alike)
-        t = _turned_residuals(lin, experiments, arm, se3.split(xi)[1]) if turns else np.zeros(len(lin.r))
         Jg = lin.J @ gf
-        colnorm = lin.colnorm  # J's column norms (R is J's triangular factor): J is not read whole
-        if norm(Jg - t) <= 1e-6 * (np.add.reduce(colnorm * np.abs(gf)) + norm(t)):
+        size = np.add.reduce(lin.colnorm * np.abs(gf))  # J's column norms (R is J's triangular factor)
+        if turns:
+            t = _turned_residuals(lin, experiments, arm, se3.split(xi)[1])
+            confirmed = norm(Jg - t) <= 1e-6 * (size + norm(t))
+        else:  # no residual turns: the target is zero (``Jg - 0`` is ``Jg``, ``size + 0`` is ``size``)
+            confirmed = norm(Jg) <= 1e-6 * size
+        if confirmed:
             out.append(gf)
     return out
 
 
+def _adjoint(T: np.ndarray, structure: Structure | None) -> np.ndarray:
+    """``se3.adjoint(T)``, remembered on the solve's ``structure`` by T's values: an arm's base changes only
+    where it is free, so most solves turn the same base at every linearization."""
+    if structure is None:
+        return se3.adjoint(T)
+    key = ("adjoint", T.dtype.str, T.shape, T.tobytes())
+    hit = structure.derived.get(key)
+    if hit is None:
+        hit = se3.adjoint(T)
+        hit.flags.writeable = False
+        if len(structure.derived) < _DERIVED_ENTRIES:  # a free base: a new key at every linearization
+            structure.derived[key] = hit
+    return hit
+
+
+_DERIVED_ENTRIES = 64
+
+
 def _rotation_candidates(state, layout: Layout, experiments: Sequence, free_idx: np.ndarray) -> list:
     """The arms whose first-joint rotation ``rotation_nulls`` tests, from the structure alone: (arm, index of
-    its joint 1 offset, its experiments' world-side frames as (name, block), the free mask, whether a residual
-    turns with it: a world-frame vector of an experiment it carries, ``_turned_residuals``). Not one mounted on
+    its joint 1 offset, its experiments' world-side frames as (name, block), the coordinates the rotation moves
+    that are not free (layout indices), whether a residual turns with it: a world-frame vector of an experiment
+    it carries, ``_turned_residuals``). Not one mounted on
     another arm (its first axis moves with the carrying arm: the root's turns the world), nor one whose
     experiments have another arm in the loop (which does not turn along), nor one whose joint 1 is fixed or
     prismatic, nor one with a known world-side frame (it anchors the rotation)."""
@@ -172,7 +194,8 @@ def _rotation_candidates(state, layout: Layout, experiments: Sequence, free_idx:
         frames = _world_frames(layout, exps)
         if frames is not None:
             turns = any(e.WORLD_VECTOR and _carries(state, arm, e) for e in experiments)
-            out.append((arm, i1, frames, free, turns))
+            moved = np.concatenate([np.arange(b.start, b.stop) for _, b in frames] + [np.zeros(0, int)])
+            out.append((arm, i1, frames, moved[~free[moved]], turns))
     return out
 
 
@@ -233,7 +256,7 @@ def consistent_nulls(lin: Linearization, layout: Layout, experiments: Sequence, 
     state where the residuals lifted none (the structure cache, below), it is that space: an empty basis is
     returned (nothing to add) without the consistent linearization. ``structure``: the solve's (``Structure``),
     for the start of the key."""
-    enough = 0.1 * rtol * np.max(lin.colnorm, initial=0.0)
+    enough = 0.1 * rtol * (lin.colnorm.max() if lin.colnorm.size else 0.0)  # column norms are not negative
     if norm(lin.r) <= enough:
         return None
     key = structure_key(lin, layout, experiments, rtol, structure)
