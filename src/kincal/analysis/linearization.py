@@ -33,7 +33,7 @@ class Linearization:
     fixed: np.ndarray | None = None  # layout indices of the fixed columns in R (with the length part), or None
     scale: np.ndarray | None = None  # the layout's scale direction at ``state`` (``params.scale_direction``), or None
 
-    @property
+    @cached_property  # asked at every step of a solve: read from the instance once known
     def p(self) -> int:
         return len(self.free)
 
@@ -52,7 +52,7 @@ class Linearization:
         """The residual's length part (``every`` only)."""
         return self.R[:, -2]
 
-    @property
+    @cached_property
     def Rf(self) -> np.ndarray:
         return self.R[: self.p, : self.p]
 

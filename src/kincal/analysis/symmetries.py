@@ -13,6 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
+from kincal._memo import remember
 from kincal.analysis.columns import clear_plans, scatter_columns
 from kincal.analysis.covariance import right_svd
 from kincal.analysis.linalg import lstsq, norm, norms, svd
@@ -48,7 +49,7 @@ class Structure:
     @classmethod
     def of(cls, lin: Linearization, layout: Layout, experiments: Sequence, rtol: float) -> "Structure":
         return cls(layout, tuple(experiments), lin.free, rtol,
-                   tuple(layout.names[i] for i in lin.free), bool(layout.lengths[lin.free].any()),
+                   tuple(map(layout.names.__getitem__, lin.free.tolist())), bool(layout.lengths[lin.free].any()),
                    tuple(_rotation_candidates(lin.state, layout, experiments, lin.free)),
                    _key_start(layout, lin.free, rtol))
 
@@ -73,7 +74,7 @@ def scale_null(lin: Linearization, layout: Layout, structure: Structure | None =
     p = lin.p
     if not (structure.free_length if structure is not None else layout.lengths[lin.free].any()):
         return None  # no free length, nothing to scale
-    gap, tolerance, s, colnorm = _scale_gap(lin, layout)
+    gap, tolerance, s, colnorm = _scale_gap(lin, layout, structure)
     if gap > tolerance:
         return None
     fixed, Ra = lin.fixed, lin.Rall
@@ -93,11 +94,22 @@ def scale_null(lin: Linearization, layout: Layout, structure: Structure | None =
 SCALE_VISIBLE_MARGIN = 1e4
 
 
-def _scale_gap(lin: Linearization, layout: Layout):
+def _scale_gap(lin: Linearization, layout: Layout, structure: Structure | None = None):
     """The scale test's terms: (|J_all s_all - r_len|, the tolerance it is compared with, s, R's column norms),
-    all whitened, read off the linearization's triangular factor."""
+    all whitened, read off the linearization's triangular factor. ``structure``: the solve's, which keeps the
+    terms of its last linearization (``scale_null`` and ``scale_visible`` both ask at a solve's first)."""
     if not lin.every:
         raise AssertionError("the scale test needs a linearization with every column")
+    last = structure.derived.get("scale gap") if structure is not None else None
+    if last is not None and last[0] is lin and last[1] is layout:
+        return last[2]
+    terms = _scale_terms(lin, layout)
+    if structure is not None:
+        structure.derived["scale gap"] = (lin, layout, terms)
+    return terms
+
+
+def _scale_terms(lin: Linearization, layout: Layout):
     Ra = lin.Rall  # (q, p + len(fixed)): free first
     s_all = scale_direction(lin.state, layout) if lin.scale is None else lin.scale
     s = np.concatenate([s_all[lin.free], s_all[lin.fixed]])
@@ -105,16 +117,17 @@ def _scale_gap(lin: Linearization, layout: Layout):
     return norm(Ra @ s - lin.Rlen), 1e-6 * (np.add.reduce(colnorm * np.abs(s)) + norm(lin.Rlen)), s, colnorm
 
 
-def scale_visible(lin: Linearization, layout: Layout) -> bool:
+def scale_visible(lin: Linearization, layout: Layout, structure: Structure | None = None) -> bool:
     """Whether the data see the robot's scale by a wide margin at ``lin`` (a linearization with every column):
     the scale test's gap is ``SCALE_VISIBLE_MARGIN`` times its tolerance. A solve then skips the test's fixed
     columns at its later linearizations. The gap is what a measured length adds (markers, poses, distances:
     ``W y_measured``, the same at every state) or the pull of a known length (smooth in the state); the
     tolerance is 1e-6 of the whitened columns' size. Closing a margin of 1e4 would take a change of the robot's
-    size by that factor between linearizations of one solve, which is no calibration."""
+    size by that factor between linearizations of one solve, which is no calibration. ``structure``: the
+    solve's (the test's terms of ``scale_null`` at ``lin``)."""
     if not layout.lengths[lin.free].any():
         return False
-    gap, tolerance, _, _ = _scale_gap(lin, layout)
+    gap, tolerance, _, _ = _scale_gap(lin, layout, structure)
     return bool(gap > SCALE_VISIBLE_MARGIN * tolerance)
 
 
@@ -302,6 +315,7 @@ def clear_structure_cache() -> None:
     """Forget every structure remembered here, and the column plans of ``columns.scatter_columns``."""
     _FULL_RANK.clear()
     _NULLITY.clear()
+    _KEY_STARTS.clear()
     clear_plans()
 
 
@@ -327,9 +341,20 @@ def structure_key(lin: Linearization, layout: Layout, experiments: Sequence, rto
 def _key_start(layout: Layout, free: np.ndarray, rtol: float):
     """``structure_key``'s digest of the layout's names, the free coordinates and ``rtol`` so far. Not whether
     the linearization has the scale test's columns: the null space is the free columns' (``lin.J``) either way."""
-    h = hashlib.blake2b(digest_size=20)
-    h.update(repr((layout.names, free.tolist(), rtol)).encode())
-    return h
+    key = (layout.names, free.dtype.str, free.tobytes(), type(rtol), rtol)  # all that the repr reads
+    h = _KEY_STARTS.get(key)
+    if h is None:
+        h = hashlib.blake2b(digest_size=20)
+        h.update(repr((layout.names, free.tolist(), rtol)).encode())
+        remember(_KEY_STARTS, key, h, KEY_START_ENTRIES)
+    return h.copy()  # the caller completes its own
+
+
+# ``_key_start``'s digests by what they digest (the names, the free coordinates' values, ``rtol`` and its type):
+# a new solve of a structure seen before (a Monte Carlo repeat) has a new layout with the same names. Emptied with
+# the others (``clear_structure_cache``).
+KEY_START_ENTRIES = 64
+_KEY_STARTS: dict = {}
 
 
 # Each experiment's part of ``structure_key``, computed once per experiment object (a solve asks at every

@@ -73,7 +73,7 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
         structure = structure or Structure.of(lin, problem.layout, problem.experiments, options.rank_rtol)
         ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=order,
                        report=False, hold=hold, structure=structure)
-        if every and it == 1 and scale_visible(lin, problem.layout):
+        if every and it == 1 and scale_visible(lin, problem.layout, structure):
             every = False  # the data measure lengths: later linearizations skip the scale test's columns
         if first is None:  # named only if a report asks for it (``Result.identifiability_before``)
             first = DeferredReport.of(ana, lin, problem.layout, problem.experiments, order)
