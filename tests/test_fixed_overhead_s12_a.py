@@ -245,7 +245,7 @@ def test_priority_and_degenerate_are_their_earlier_forms(ur10_sets):
 
 def _earlier_forms(m):
     """Every fast path of this session swapped for its earlier form."""
-    m.setattr(ident, "complete_q", lambda a: np.linalg.qr(a, mode="complete")[0])
+    m.setattr(ident, "complete_q", lambda a, overwrite=False: np.linalg.qr(a, mode="complete")[0])
     m.setattr(ident, "unit_columns", lambda J, c=None: _unit_columns_before(J))
     m.setattr(ident, "_weak_limit", _weak_limit_before)
     m.setattr(ident, "_weak_indices", _weak_indices_before)
@@ -295,3 +295,12 @@ def test_an_elastic_solve_holding_gauges_with_the_fast_paths_gives_what_the_earl
         plain = run()
     assert shipped.held is not None
     _same(shipped, plain)
+
+
+def test_complete_q_on_scratch_is_numpys():
+    A = np.random.default_rng(4).normal(size=(45, 18))
+    ref = np.linalg.qr(A, mode="complete")[0]
+    assert complete_q(A.copy(), overwrite=True).tobytes() == ref.tobytes()
+    assert complete_q(np.asfortranarray(A), overwrite=True).tobytes() == ref.tobytes()
+    low = A.astype(np.float32)  # another dtype: numpy's own call
+    assert complete_q(low, overwrite=True).tobytes() == np.linalg.qr(low, mode="complete")[0].tobytes()

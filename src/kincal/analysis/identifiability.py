@@ -323,7 +323,7 @@ def analyse(
     has_scale = scale is not None and norm(scale) > 0
     Ns, rank, lifted, held_scale = _hold(sv, ([scale] if has_scale else []) + list(held), has_scale, gauges)
     identifiable = norms(Ns, 1) < IDENTIFIABLE_TOL
-    N, R = _null_and_range(Ns / sv.c[:, None])
+    N, R = _null_and_range(Ns / sv.c[:, None], scratch=True)
     weak_idx = _weak_indices(sv, rank, rtol, weak_rtol, lifted)
     weak = tuple(_top_names(sv.Vt[i], names) for i in weak_idx)
     weak_vectors = _weak_vectors(sv, weak_idx)
@@ -560,13 +560,14 @@ def _orth(A: np.ndarray, drop: int = 0) -> np.ndarray:
     return U[:, :k]
 
 
-def _null_and_range(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _null_and_range(A: np.ndarray, scratch: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Orthonormal bases of span(A) (p, k independent columns) and of its complement (p, p - k), from one complete
-    QR (Householder: as accurate as an SVD for independent columns, half its cost at p = 45, k = 18)."""
+    QR (Householder: as accurate as an SVD for independent columns, half its cost at p = 45, k = 18). ``scratch``:
+    A is the caller's to overwrite."""
     p, k = A.shape
     if k == 0:
         return A, np.eye(p)
-    Q = complete_q(A)
+    Q = complete_q(A, overwrite=scratch)
     return Q[:, :k], Q[:, k:]
 
 

@@ -72,12 +72,14 @@ def norms(x: np.ndarray, axis: int) -> np.ndarray:
     return np.sqrt(np.add.reduce(x * x, axis=axis))
 
 
-def complete_q(a: np.ndarray) -> np.ndarray:
-    """``numpy.linalg.qr(a, mode="complete")[0]`` for a real (m, n) array with m > n, bit for bit: numpy's two
-    LAPACK calls (``geqrf``, ``orgqr``) without building R, which a caller wanting Q only discards."""
-    if _qr_kernels is None or a.ndim != 2 or not a.shape[0] > a.shape[1]:
+def complete_q(a: np.ndarray, overwrite: bool = False) -> np.ndarray:
+    """``numpy.linalg.qr(a, mode="complete")[0]``, bit for bit: for a float64 (m, n) array with m > n, numpy's two
+    LAPACK calls (``geqrf``, ``orgqr``) without building R, which a caller wanting Q only discards (else numpy's
+    call itself). ``overwrite``: ``a`` is the caller's scratch, used by the kernels instead of a copy."""
+    if _qr_kernels is None or a.dtype != np.float64 or a.ndim != 2 or not a.shape[0] > a.shape[1]:
         return np.linalg.qr(a, mode="complete")[0]
-    a = a.astype(float, copy=True)  # overwritten by the kernels, as in numpy
+    if not overwrite:
+        a = a.copy()  # overwritten by the kernels, as numpy's copy is
     with np.errstate(call=_qr_error, invalid="call", over="ignore", divide="ignore", under="ignore"):
         tau = _qr_kernels.qr_r_raw(a, signature="d->d")
         return _qr_kernels.qr_complete(a, tau, signature="dd->d")

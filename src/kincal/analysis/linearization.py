@@ -64,11 +64,11 @@ class Linearization:
         c.flags.writeable = False
         return c
 
-    @property
+    @cached_property
     def qtr(self) -> np.ndarray:
         return self.R[: self.p, -1]
 
-    @property
+    @cached_property  # asked at every step, the convergence test and the rank analysis: computed once
     def cost2(self) -> float:
         return float(self.r @ self.r)
 

@@ -6,6 +6,7 @@ e.g. turning a last joint together with a clamp's fixture). Each is confirmed st
 from __future__ import annotations
 
 import hashlib
+import math
 import weakref
 from collections import OrderedDict
 from dataclasses import dataclass, field, replace
@@ -207,9 +208,16 @@ def _rotation_candidates(state, layout: Layout, experiments: Sequence, free_idx:
         frames = _world_frames(layout, exps)
         if frames is not None:
             turns = any(e.WORLD_VECTOR and _carries(state, arm, e) for e in experiments)
-            moved = np.concatenate([np.arange(b.start, b.stop) for _, b in frames] + [np.zeros(0, int)])
-            out.append((arm, i1, frames, moved[~free[moved]], turns))
+            out.append((arm, i1, frames, _outside(frames, free), turns))
     return out
+
+
+def _outside(frames, free: np.ndarray) -> np.ndarray:
+    """The layout indices of the frames' coordinates that are not free (none, as a rule)."""
+    if all(free[b.start: b.stop].all() for _, b in frames):
+        return np.zeros(0, int)
+    moved = np.concatenate([np.arange(b.start, b.stop) for _, b in frames])
+    return moved[~free[moved]]
 
 
 def _carries(state, arm: str, e) -> bool:
@@ -270,7 +278,7 @@ def consistent_nulls(lin: Linearization, layout: Layout, experiments: Sequence, 
     returned (nothing to add) without the consistent linearization. ``structure``: the solve's (``Structure``),
     for the start of the key."""
     enough = 0.1 * rtol * (lin.colnorm.max() if lin.colnorm.size else 0.0)  # column norms are not negative
-    if norm(lin.r) <= enough:
+    if math.sqrt(lin.cost2) <= enough:  # ``norm(lin.r)``: the same sum of squares
         return None
     key = structure_key(lin, layout, experiments, rtol, structure)
     known = 0 if key in _FULL_RANK else _NULLITY.get(key)

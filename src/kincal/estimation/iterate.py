@@ -132,7 +132,7 @@ def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.nd
         recentre(retract(lin.state, problem.layout, problem.full_delta(delta)))
     if options.progress:
         options.progress(it, 2 * cost)
-    biggest = np.max(np.abs(delta), initial=0)
+    biggest = np.abs(delta).max(initial=0.0)  # the method: without np.max's dispatch
     log.debug("outer %d (%s): cost %.6g, whitened step %.3g, max |delta| %.3g", it,
               "Gauss-Newton" if accepted else "inner solve", 2 * cost, step, biggest)
     # stop when the step is negligible against the residual (or, with noise, well below one sigma)
