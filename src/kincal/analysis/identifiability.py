@@ -495,7 +495,7 @@ WEAK_GAP = 100.0
 
 def _weak_limit(s: np.ndarray, weak_rtol: float) -> float:
     """Relative singular value below which identifiable directions count as weak (see the module docstring)."""
-    if len(s) < 2 or s[0] <= 0:
+    if len(s) < 2 or s[0] <= 0 or s[-1] / s[0] >= 1e-3:  # rel descends: no gap below 1e-3 then
         return weak_rtol
     rel = (s / s[0]).tolist()  # Python floats: the same divisions and comparisons, without numpy's calls
     for a, b in zip(rel, rel[1:]):
