@@ -20,7 +20,7 @@ from kincal import robots
 from kincal.analysis import symmetries
 from kincal.analysis import identifiability as ident
 from kincal.analysis.covariance import right_svd
-from kincal.analysis.linalg import complete_q, norms
+from kincal.analysis.linalg import complete_q, norms, thin_svd
 from kincal.analysis.linearization import ZERO_COLUMN_RTOL, unit_columns
 from kincal.analysis.naming import blocks_of, degenerate
 from kincal.estimation import Problem, calibrate, steps
@@ -247,6 +247,7 @@ def test_priority_and_degenerate_are_their_earlier_forms(ur10_sets):
 def _earlier_forms(m):
     """Every fast path of this session swapped for its earlier form."""
     m.setattr(ident, "complete_q", lambda a, overwrite=False: np.linalg.qr(a, mode="complete")[0])
+    m.setattr(ident, "thin_svd", lambda a: tuple(np.linalg.svd(a, full_matrices=False)))
     m.setattr(ident, "unit_columns", lambda J, c=None: _unit_columns_before(J))
     m.setattr(ident, "_weak_limit", _weak_limit_before)
     m.setattr(ident, "_weak_indices", _weak_indices_before)
@@ -305,3 +306,27 @@ def test_complete_q_on_scratch_is_numpys():
     assert complete_q(np.asfortranarray(A), overwrite=True).tobytes() == ref.tobytes()
     low = A.astype(np.float32)  # another dtype: numpy's own call
     assert complete_q(low, overwrite=True).tobytes() == np.linalg.qr(low, mode="complete")[0].tobytes()
+
+
+@pytest.mark.parametrize("shape", [(45, 45), (53, 45), (10, 4), (3, 1)])
+def test_thin_svd_is_numpys(shape, monkeypatch):
+    rng = np.random.default_rng(shape[0] + 7 * shape[1])
+    A = rng.normal(size=shape)
+    A[:, -1] = A[:, 0]  # rank deficient
+    for a in (A, np.asfortranarray(A), A[::-1]):
+        got, ref = thin_svd(a), np.linalg.svd(a, full_matrices=False)
+        assert type(got) is tuple and all(x.tobytes() == y.tobytes() for x, y in zip(got, ref))
+    assert all(x.dtype == y.dtype for x, y in zip(thin_svd(A.astype(np.float32)),
+                                                  np.linalg.svd(A.astype(np.float32), full_matrices=False)))
+    linalg = importlib.import_module("kincal.analysis.linalg")
+
+    class Failing:  # a gesdd that does not converge: ``svd``'s fallback answers
+        @staticmethod
+        def svd_s(a, signature):
+            raise np.linalg.LinAlgError("SVD did not converge")
+
+    fallback = []
+    monkeypatch.setattr(linalg, "_kernels", Failing)
+    monkeypatch.setattr(linalg, "svd", lambda a, full_matrices=True: fallback.append(1) or np.linalg.svd(a, False))
+    got = thin_svd(A)
+    assert fallback and all(x.tobytes() == y.tobytes() for x, y in zip(got, np.linalg.svd(A, full_matrices=False)))

@@ -26,7 +26,7 @@ import numpy as np
 
 from kincal.analysis.covariance import right_svd
 from kincal.analysis.factor import Factor
-from kincal.analysis.linalg import complete_q, lstsq, norm, norms, svd
+from kincal.analysis.linalg import complete_q, lstsq, norm, norms, svd, thin_svd
 from kincal.analysis.linearization import Linearization, unit_columns
 from kincal.analysis.naming import context, degenerate, describer
 from kincal.analysis.symmetries import Structure, consistent_nulls, rotation_nulls, scale_null
@@ -358,7 +358,7 @@ def _spectrum(J: np.ndarray, rtol: float, colnorm: np.ndarray | None = None) -> 
     Js, c_safe = unit_columns(J, colnorm)
     U = None
     if p <= m <= 2 * p:  # ``right_svd``'s own call, keeping U
-        U, S, Vt = svd(Js, full_matrices=False)
+        U, S, Vt = thin_svd(Js)
     else:
         S, Vt = right_svd(Js) if m >= p else svd(Js, full_matrices=True)[1:]  # all p rows of Vt
     S_full = S if len(S) == p else np.concatenate([S, np.zeros(p - len(S))])  # zero-padded when J is wide
