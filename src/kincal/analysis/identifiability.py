@@ -409,7 +409,7 @@ def _weak_indices(sv: _Spectrum, rank: int, rtol: float, weak_rtol: float, lifte
     limit = _weak_limit(S[:rank], weak_rtol) * smax
     if not sv.rank or not S[sv.rank - 1] < limit:  # S descends: the last above rtol is the smallest candidate
         return _NONE
-    weak_idx = np.flatnonzero((S > rtol * smax) & (S < _weak_limit(S[:rank], weak_rtol) * smax))
+    weak_idx = np.flatnonzero((S > rtol * smax) & (S < limit))
     if lifted:  # directions lifted by the residuals are not weak directions but held
         weak_idx = np.array([i for i in weak_idx if max(abs(sv.Vt[i] @ h) for h in lifted) < 0.5], dtype=int)
     return weak_idx
