@@ -26,7 +26,7 @@ import numpy as np
 
 from kincal.analysis.covariance import right_svd
 from kincal.analysis.factor import Factor
-from kincal.analysis.linalg import lstsq, norm, norms, svd
+from kincal.analysis.linalg import complete_q, lstsq, norm, norms, svd, thin_svd
 from kincal.analysis.linearization import Linearization, unit_columns
 from kincal.analysis.naming import context, degenerate, describer
 from kincal.analysis.symmetries import Structure, consistent_nulls, rotation_nulls, scale_null
@@ -104,13 +104,15 @@ def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol:
     scale = scale_null(lin, layout, structure) if lin.every else None
     held = rotation_nulls(lin, layout, experiments, structure)
     gauges = partial(consistent_nulls, lin, layout, experiments, rtol, structure=structure)
-    J, pins = lin.Rf, []
+    J, pins, colnorm = lin.Rf, [], lin.colnorm
     if hold is not None:
         hold, pins = _held(hold, priority, len(names), structure)
         J = lin.Rf.copy()
         J[:, pins] = 0.0  # the pinned coordinates do not move: exact nulls, the rest analysed without them
+        colnorm = None
         scale, held, gauges = _unpinned(hold, pins, scale, held, gauges)
-    ana = analyse(J, names, rtol=rtol, priority=priority, scale=scale, held=held, gauges=gauges, name=False)
+    ana = analyse(J, names, rtol=rtol, priority=priority, scale=scale, held=held, gauges=gauges, name=False,
+                  colnorm=colnorm)
     if pins:
         ana = _pinned(ana, hold, pins)
     return named(ana, lin, layout, experiments, priority, structural) if report else ana
@@ -308,18 +310,20 @@ def analyse(
     describe: Callable[[np.ndarray], str] | None = None,
     context: str = "",
     name: bool = True,
+    colnorm: np.ndarray | None = None,
 ) -> Identifiability:
     """Analyse the whitened Jacobian J (m, p) whose columns are the parameters ``names``; ``name``: also the null
-    directions in reduced row-echelon form (``directions`` and their messages)."""
+    directions in reduced row-echelon form (``directions`` and their messages); ``colnorm``: J's column norms,
+    when known (``Linearization.colnorm``)."""
     names = tuple(names)
     p = J.shape[1]
-    sv = _spectrum(J, rtol)
+    sv = _spectrum(J, rtol, colnorm)
     if callable(gauges):
         gauges = gauges(p - sv.rank)
     has_scale = scale is not None and norm(scale) > 0
     Ns, rank, lifted, held_scale = _hold(sv, ([scale] if has_scale else []) + list(held), has_scale, gauges)
     identifiable = norms(Ns, 1) < IDENTIFIABLE_TOL
-    N, R = _null_and_range(Ns / sv.c[:, None])
+    N, R = _null_and_range(Ns / sv.c[:, None], scratch=True)
     weak_idx = _weak_indices(sv, rank, rtol, weak_rtol, lifted)
     weak = tuple(_top_names(sv.Vt[i], names) for i in weak_idx)
     weak_vectors = _weak_vectors(sv, weak_idx)
@@ -348,13 +352,13 @@ class _Spectrum:
     U: np.ndarray | None = None  # (m, p) left singular vectors, where J is no taller than 2p (a triangular factor)
 
 
-def _spectrum(J: np.ndarray, rtol: float) -> _Spectrum:
+def _spectrum(J: np.ndarray, rtol: float, colnorm: np.ndarray | None = None) -> _Spectrum:
     """Singular values and vectors of J with every column scaled to unit norm, and the rank at ``rtol``."""
     m, p = J.shape
-    Js, c_safe = unit_columns(J)
+    Js, c_safe = unit_columns(J, colnorm)
     U = None
     if p <= m <= 2 * p:  # ``right_svd``'s own call, keeping U
-        U, S, Vt = svd(Js, full_matrices=False)
+        U, S, Vt = thin_svd(Js)
     else:
         S, Vt = right_svd(Js) if m >= p else svd(Js, full_matrices=True)[1:]  # all p rows of Vt
     S_full = S if len(S) == p else np.concatenate([S, np.zeros(p - len(S))])  # zero-padded when J is wide
@@ -402,10 +406,17 @@ def _outside(A: np.ndarray, B: np.ndarray) -> np.ndarray:
 
 def _weak_indices(sv: _Spectrum, rank: int, rtol: float, weak_rtol: float, lifted) -> np.ndarray:
     S, smax = sv.S, sv.smax
-    weak_idx = np.flatnonzero((S > rtol * smax) & (S < _weak_limit(S[:rank], weak_rtol) * smax))
+    limit = _weak_limit(S[:rank], weak_rtol) * smax
+    if not sv.rank or not S[sv.rank - 1] < limit:  # S descends: the last above rtol is the smallest candidate
+        return _NONE
+    weak_idx = np.flatnonzero((S > rtol * smax) & (S < limit))
     if lifted:  # directions lifted by the residuals are not weak directions but held
         weak_idx = np.array([i for i in weak_idx if max(abs(sv.Vt[i] @ h) for h in lifted) < 0.5], dtype=int)
     return weak_idx
+
+
+_NONE = np.zeros(0, dtype=int)
+_NONE.flags.writeable = False
 
 
 def _weak_vectors(sv: _Spectrum, weak_idx: np.ndarray) -> np.ndarray:
@@ -484,12 +495,13 @@ WEAK_GAP = 100.0
 
 def _weak_limit(s: np.ndarray, weak_rtol: float) -> float:
     """Relative singular value below which identifiable directions count as weak (see the module docstring)."""
-    if len(s) < 2 or s[0] <= 0:
+    if len(s) < 2 or s[0] <= 0 or s[-1] / s[0] >= 1e-3:  # rel descends: no gap below 1e-3 then
         return weak_rtol
-    rel = s / s[0]
-    ratios = rel[:-1] / np.maximum(rel[1:], 1e-300)
-    gaps = np.flatnonzero((ratios > WEAK_GAP) & (rel[1:] < 1e-3))
-    return max(weak_rtol, float(rel[gaps[0] + 1]) * (1 + 1e-12)) if len(gaps) else weak_rtol
+    rel = (s / s[0]).tolist()  # Python floats: the same divisions and comparisons, without numpy's calls
+    for a, b in zip(rel, rel[1:]):
+        if b < 1e-3 and a / max(b, 1e-300) > WEAK_GAP:
+            return max(weak_rtol, b * (1 + 1e-12))
+    return weak_rtol
 
 
 def select_columns(J: np.ndarray, order: Sequence[int], rank: int, tol: float = 1e-6) -> list[int]:
@@ -548,13 +560,14 @@ def _orth(A: np.ndarray, drop: int = 0) -> np.ndarray:
     return U[:, :k]
 
 
-def _null_and_range(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _null_and_range(A: np.ndarray, scratch: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Orthonormal bases of span(A) (p, k independent columns) and of its complement (p, p - k), from one complete
-    QR (Householder: as accurate as an SVD for independent columns, half its cost at p = 45, k = 18)."""
+    QR (Householder: as accurate as an SVD for independent columns, half its cost at p = 45, k = 18). ``scratch``:
+    A is the caller's to overwrite."""
     p, k = A.shape
     if k == 0:
         return A, np.eye(p)
-    Q = np.linalg.qr(A, mode="complete")[0]
+    Q = complete_q(A, overwrite=scratch)
     return Q[:, :k], Q[:, k:]
 
 

@@ -13,6 +13,12 @@ import math
 
 import numpy as np
 
+try:  # numpy's own LAPACK kernels (``numpy.linalg``'s calls, without their checks and wrappers)
+    from numpy.linalg import _umath_linalg as _kernels
+    _kernels.qr_r_raw, _kernels.qr_complete, _kernels.svd_s
+except (ImportError, AttributeError):  # pragma: no cover - another numpy: ``numpy.linalg`` itself
+    _kernels = None
+
 
 def svd(a, full_matrices: bool = True, compute_uv: bool = True):
     """``numpy.linalg.svd(a, full_matrices, compute_uv)`` (``(U, S, Vt)``, or ``S`` without ``compute_uv``),
@@ -25,6 +31,23 @@ def svd(a, full_matrices: bool = True, compute_uv: bool = True):
         if not np.all(np.isfinite(a)):  # no driver decomposes nan or inf: numpy's error says what failed
             raise
         return _gesvd(a, full_matrices, compute_uv)
+
+
+def thin_svd(a: np.ndarray):
+    """``svd(a, full_matrices=False)`` as a tuple ``(U, S, Vt)``, bit for bit: for a float64 matrix numpy's
+    ``gesdd`` kernel itself, without ``numpy.linalg.svd``'s checks and wrapping (the rank analysis asks at every
+    linearization); anything else, or a ``gesdd`` that does not converge, through ``svd``."""
+    if _kernels is None or type(a) is not np.ndarray or a.dtype != np.float64 or a.ndim != 2 or not a.size:
+        return tuple(svd(a, full_matrices=False))
+    try:
+        with np.errstate(call=_svd_error, invalid="call", over="ignore", divide="ignore", under="ignore"):
+            return _kernels.svd_s(a, signature="d->ddd")
+    except np.linalg.LinAlgError:
+        return tuple(svd(a, full_matrices=False))
+
+
+def _svd_error(err, flag):
+    raise np.linalg.LinAlgError("SVD did not converge")
 
 
 def _gesvd(a: np.ndarray, full_matrices: bool, compute_uv: bool):
@@ -64,3 +87,20 @@ def norms(x: np.ndarray, axis: int) -> np.ndarray:
     """The 2-norms along ``axis`` of a float array: ``numpy.linalg.norm(x, axis=axis)``'s arithmetic (``sqrt`` of
     ``add.reduce`` of the squares, bit for bit) without its dispatch (the analysis asks at every linearization)."""
     return np.sqrt(np.add.reduce(x * x, axis=axis))
+
+
+def complete_q(a: np.ndarray, overwrite: bool = False) -> np.ndarray:
+    """``numpy.linalg.qr(a, mode="complete")[0]``, bit for bit: for a float64 (m, n) array with m > n, numpy's two
+    LAPACK calls (``geqrf``, ``orgqr``) without building R, which a caller wanting Q only discards (else numpy's
+    call itself). ``overwrite``: ``a`` is the caller's scratch, used by the kernels instead of a copy."""
+    if _kernels is None or a.dtype != np.float64 or a.ndim != 2 or not a.shape[0] > a.shape[1]:
+        return np.linalg.qr(a, mode="complete")[0]
+    if not overwrite:
+        a = a.copy()  # overwritten by the kernels, as numpy's copy is
+    with np.errstate(call=_qr_error, invalid="call", over="ignore", divide="ignore", under="ignore"):
+        tau = _kernels.qr_r_raw(a, signature="d->d")
+        return _kernels.qr_complete(a, tau, signature="dd->d")
+
+
+def _qr_error(err, flag):
+    raise np.linalg.LinAlgError("Incorrect argument found while performing QR factorization")

@@ -33,7 +33,7 @@ class Linearization:
     fixed: np.ndarray | None = None  # layout indices of the fixed columns in R (with the length part), or None
     scale: np.ndarray | None = None  # the layout's scale direction at ``state`` (``params.scale_direction``), or None
 
-    @property
+    @cached_property  # asked at every step of a solve: read from the instance once known
     def p(self) -> int:
         return len(self.free)
 
@@ -52,20 +52,23 @@ class Linearization:
         """The residual's length part (``every`` only)."""
         return self.R[:, -2]
 
-    @property
+    @cached_property
     def Rf(self) -> np.ndarray:
         return self.R[: self.p, : self.p]
 
     @cached_property
     def colnorm(self) -> np.ndarray:
-        """Column norms of ``Rf``: those of the whitened Jacobian ``J`` (its triangular factor), computed once."""
-        return norms(self.Rf, 0)
+        """Column norms of ``Rf``: those of the whitened Jacobian ``J`` (its triangular factor), computed once
+        (read-only: the rank analysis shares it as its column scale, ``unit_columns``)."""
+        c = norms(self.Rf, 0)
+        c.flags.writeable = False
+        return c
 
-    @property
+    @cached_property
     def qtr(self) -> np.ndarray:
         return self.R[: self.p, -1]
 
-    @property
+    @cached_property  # asked at every step, the convergence test and the rank analysis: computed once
     def cost2(self) -> float:
         return float(self.r @ self.r)
 
@@ -75,11 +78,15 @@ class Linearization:
 ZERO_COLUMN_RTOL = 1e-10
 
 
-def unit_columns(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def unit_columns(J: np.ndarray, c: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(Js, c)``: J with every column scaled to unit norm, columns zero up to round-off (``ZERO_COLUMN_RTOL``)
-    set exactly to zero, and the scale ``c`` (1 for those), so that ``J ~ Js * c``."""
-    c = norms(J, 0)
+    set exactly to zero, and the scale ``c`` (1 for those), so that ``J ~ Js * c``. ``c``: J's column norms when
+    known (``Linearization.colnorm``), returned as they are when no column is zero."""
+    if c is None:
+        c = norms(J, 0)
     zero = c <= ZERO_COLUMN_RTOL * (c.max() if c.size else 0.0)
+    if not zero.any():  # the common case: nothing to set
+        return J / c, c
     c = np.where(zero, 1.0, c)
     Js = J / c
     Js[:, zero] = 0.0

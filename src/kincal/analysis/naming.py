@@ -39,9 +39,11 @@ def degenerate(Rf: np.ndarray, rank: int, rtol: float, layout: Layout, free: np.
     ``spectrum``: the singular values of ``Rf`` with unit columns, when already known."""
     if rank == 0:
         return True
-    arm = np.array([b.arm is not None for b in blocks_of(layout, free)], bool)
-    if not arm.any() or arm.all() or np.count_nonzero(~arm) < rank:
+    arms = [b.arm is not None for b in blocks_of(layout, free)]
+    frames = arms.count(False)
+    if frames == len(arms) or not frames or frames < rank:
         return False  # (the frames' columns alone, fewer than the rank, cannot reach it)
+    arm = np.array(arms, bool)
     Js = unit_columns(Rf)[0]
     s_all = right_svd(Js)[0] if spectrum is None else spectrum
     s_frames = right_svd(Js[:, ~arm])[0]

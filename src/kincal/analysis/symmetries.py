@@ -6,6 +6,7 @@ e.g. turning a last joint together with a clamp's fixture). Each is confirmed st
 from __future__ import annotations
 
 import hashlib
+import math
 import weakref
 from collections import OrderedDict
 from dataclasses import dataclass, field, replace
@@ -13,6 +14,7 @@ from typing import Sequence
 
 import numpy as np
 
+from kincal._memo import remember
 from kincal.analysis.columns import clear_plans, scatter_columns
 from kincal.analysis.covariance import right_svd
 from kincal.analysis.linalg import lstsq, norm, norms, svd
@@ -48,7 +50,7 @@ class Structure:
     @classmethod
     def of(cls, lin: Linearization, layout: Layout, experiments: Sequence, rtol: float) -> "Structure":
         return cls(layout, tuple(experiments), lin.free, rtol,
-                   tuple(layout.names[i] for i in lin.free), bool(layout.lengths[lin.free].any()),
+                   tuple(map(layout.names.__getitem__, lin.free.tolist())), bool(layout.lengths[lin.free].any()),
                    tuple(_rotation_candidates(lin.state, layout, experiments, lin.free)),
                    _key_start(layout, lin.free, rtol))
 
@@ -73,7 +75,7 @@ def scale_null(lin: Linearization, layout: Layout, structure: Structure | None =
     p = lin.p
     if not (structure.free_length if structure is not None else layout.lengths[lin.free].any()):
         return None  # no free length, nothing to scale
-    gap, tolerance, s, colnorm = _scale_gap(lin, layout)
+    gap, tolerance, s, colnorm = _scale_gap(lin, layout, structure)
     if gap > tolerance:
         return None
     fixed, Ra = lin.fixed, lin.Rall
@@ -93,11 +95,22 @@ def scale_null(lin: Linearization, layout: Layout, structure: Structure | None =
 SCALE_VISIBLE_MARGIN = 1e4
 
 
-def _scale_gap(lin: Linearization, layout: Layout):
+def _scale_gap(lin: Linearization, layout: Layout, structure: Structure | None = None):
     """The scale test's terms: (|J_all s_all - r_len|, the tolerance it is compared with, s, R's column norms),
-    all whitened, read off the linearization's triangular factor."""
+    all whitened, read off the linearization's triangular factor. ``structure``: the solve's, which keeps the
+    terms of its last linearization (``scale_null`` and ``scale_visible`` both ask at a solve's first)."""
     if not lin.every:
         raise AssertionError("the scale test needs a linearization with every column")
+    last = structure.derived.get("scale gap") if structure is not None else None
+    if last is not None and last[0] is lin and last[1] is layout:
+        return last[2]
+    terms = _scale_terms(lin, layout)
+    if structure is not None:
+        structure.derived["scale gap"] = (lin, layout, terms)
+    return terms
+
+
+def _scale_terms(lin: Linearization, layout: Layout):
     Ra = lin.Rall  # (q, p + len(fixed)): free first
     s_all = scale_direction(lin.state, layout) if lin.scale is None else lin.scale
     s = np.concatenate([s_all[lin.free], s_all[lin.fixed]])
@@ -105,16 +118,17 @@ def _scale_gap(lin: Linearization, layout: Layout):
     return norm(Ra @ s - lin.Rlen), 1e-6 * (np.add.reduce(colnorm * np.abs(s)) + norm(lin.Rlen)), s, colnorm
 
 
-def scale_visible(lin: Linearization, layout: Layout) -> bool:
+def scale_visible(lin: Linearization, layout: Layout, structure: Structure | None = None) -> bool:
     """Whether the data see the robot's scale by a wide margin at ``lin`` (a linearization with every column):
     the scale test's gap is ``SCALE_VISIBLE_MARGIN`` times its tolerance. A solve then skips the test's fixed
     columns at its later linearizations. The gap is what a measured length adds (markers, poses, distances:
     ``W y_measured``, the same at every state) or the pull of a known length (smooth in the state); the
     tolerance is 1e-6 of the whitened columns' size. Closing a margin of 1e4 would take a change of the robot's
-    size by that factor between linearizations of one solve, which is no calibration."""
+    size by that factor between linearizations of one solve, which is no calibration. ``structure``: the
+    solve's (the test's terms of ``scale_null`` at ``lin``)."""
     if not layout.lengths[lin.free].any():
         return False
-    gap, tolerance, _, _ = _scale_gap(lin, layout)
+    gap, tolerance, _, _ = _scale_gap(lin, layout, structure)
     return bool(gap > SCALE_VISIBLE_MARGIN * tolerance)
 
 
@@ -131,29 +145,51 @@ def rotation_nulls(lin: Linearization, layout: Layout, experiments: Sequence,
     else:
         candidates = structure.rotations
     out = []
-    for arm, i1, frames, free, turns in candidates:
+    for arm, i1, frames, outside, turns in candidates:
         a = lin.state.arms[arm]
-        xi = se3.adjoint(a.base) @ a.screws[0]  # joint 1's screw in world coordinates
+        xi = _adjoint(a.base, structure) @ a.screws[0]  # joint 1's screw in world coordinates
         g = np.zeros(layout.size)
         g[i1] = 1.0
         for name, b in frames:
             g[b.slice] = b.kind.world_motion(lin.state.extras[name], xi)
-        if (g[~free] != 0).any():
+        if len(outside) and (g[outside] != 0).any():
             continue
         gf = g[lin.free]
-        # no residual turns: the target is zero (``_turned_residuals``' zeros, up to their sign: the test alike)
-        t = _turned_residuals(lin, experiments, arm, se3.split(xi)[1]) if turns else np.zeros(len(lin.r))
         Jg = lin.J @ gf
-        colnorm = lin.colnorm  # J's column norms (R is J's triangular factor): J is not read whole
-        if norm(Jg - t) <= 1e-6 * (np.add.reduce(colnorm * np.abs(gf)) + norm(t)):
+        size = np.add.reduce(lin.colnorm * np.abs(gf))  # J's column norms (R is J's triangular factor)
+        if turns:
+            t = _turned_residuals(lin, experiments, arm, se3.split(xi)[1])
+            confirmed = norm(Jg - t) <= 1e-6 * (size + norm(t))
+        else:  # no residual turns: the target is zero (``Jg - 0`` is ``Jg``, ``size + 0`` is ``size``)
+            confirmed = norm(Jg) <= 1e-6 * size
+        if confirmed:
             out.append(gf)
     return out
 
 
+def _adjoint(T: np.ndarray, structure: Structure | None) -> np.ndarray:
+    """``se3.adjoint(T)``, remembered on the solve's ``structure`` by T's values: an arm's base changes only
+    where it is free, so most solves turn the same base at every linearization."""
+    if structure is None:
+        return se3.adjoint(T)
+    key = ("adjoint", T.dtype.str, T.shape, T.tobytes())
+    hit = structure.derived.get(key)
+    if hit is None:
+        hit = se3.adjoint(T)
+        hit.flags.writeable = False
+        if len(structure.derived) < _DERIVED_ENTRIES:  # a free base: a new key at every linearization
+            structure.derived[key] = hit
+    return hit
+
+
+_DERIVED_ENTRIES = 64
+
+
 def _rotation_candidates(state, layout: Layout, experiments: Sequence, free_idx: np.ndarray) -> list:
     """The arms whose first-joint rotation ``rotation_nulls`` tests, from the structure alone: (arm, index of
-    its joint 1 offset, its experiments' world-side frames as (name, block), the free mask, whether a residual
-    turns with it: a world-frame vector of an experiment it carries, ``_turned_residuals``). Not one mounted on
+    its joint 1 offset, its experiments' world-side frames as (name, block), the coordinates the rotation moves
+    that are not free (layout indices), whether a residual turns with it: a world-frame vector of an experiment
+    it carries, ``_turned_residuals``). Not one mounted on
     another arm (its first axis moves with the carrying arm: the root's turns the world), nor one whose
     experiments have another arm in the loop (which does not turn along), nor one whose joint 1 is fixed or
     prismatic, nor one with a known world-side frame (it anchors the rotation)."""
@@ -172,8 +208,16 @@ def _rotation_candidates(state, layout: Layout, experiments: Sequence, free_idx:
         frames = _world_frames(layout, exps)
         if frames is not None:
             turns = any(e.WORLD_VECTOR and _carries(state, arm, e) for e in experiments)
-            out.append((arm, i1, frames, free, turns))
+            out.append((arm, i1, frames, _outside(frames, free), turns))
     return out
+
+
+def _outside(frames, free: np.ndarray) -> np.ndarray:
+    """The layout indices of the frames' coordinates that are not free (none, as a rule)."""
+    if all(free[b.start: b.stop].all() for _, b in frames):
+        return np.zeros(0, int)
+    moved = np.concatenate([np.arange(b.start, b.stop) for _, b in frames])
+    return moved[~free[moved]]
 
 
 def _carries(state, arm: str, e) -> bool:
@@ -233,8 +277,8 @@ def consistent_nulls(lin: Linearization, layout: Layout, experiments: Sequence, 
     state where the residuals lifted none (the structure cache, below), it is that space: an empty basis is
     returned (nothing to add) without the consistent linearization. ``structure``: the solve's (``Structure``),
     for the start of the key."""
-    enough = 0.1 * rtol * np.max(lin.colnorm, initial=0.0)
-    if norm(lin.r) <= enough:
+    enough = 0.1 * rtol * (lin.colnorm.max() if lin.colnorm.size else 0.0)  # column norms are not negative
+    if math.sqrt(lin.cost2) <= enough:  # ``norm(lin.r)``: the same sum of squares
         return None
     key = structure_key(lin, layout, experiments, rtol, structure)
     known = 0 if key in _FULL_RANK else _NULLITY.get(key)
@@ -279,6 +323,7 @@ def clear_structure_cache() -> None:
     """Forget every structure remembered here, and the column plans of ``columns.scatter_columns``."""
     _FULL_RANK.clear()
     _NULLITY.clear()
+    _KEY_STARTS.clear()
     clear_plans()
 
 
@@ -304,9 +349,20 @@ def structure_key(lin: Linearization, layout: Layout, experiments: Sequence, rto
 def _key_start(layout: Layout, free: np.ndarray, rtol: float):
     """``structure_key``'s digest of the layout's names, the free coordinates and ``rtol`` so far. Not whether
     the linearization has the scale test's columns: the null space is the free columns' (``lin.J``) either way."""
-    h = hashlib.blake2b(digest_size=20)
-    h.update(repr((layout.names, free.tolist(), rtol)).encode())
-    return h
+    key = (layout.names, free.dtype.str, free.tobytes(), type(rtol), rtol)  # all that the repr reads
+    h = _KEY_STARTS.get(key)
+    if h is None:
+        h = hashlib.blake2b(digest_size=20)
+        h.update(repr((layout.names, free.tolist(), rtol)).encode())
+        remember(_KEY_STARTS, key, h, KEY_START_ENTRIES)
+    return h.copy()  # the caller completes its own
+
+
+# ``_key_start``'s digests by what they digest (the names, the free coordinates' values, ``rtol`` and its type):
+# a new solve of a structure seen before (a Monte Carlo repeat) has a new layout with the same names. Emptied with
+# the others (``clear_structure_cache``).
+KEY_START_ENTRIES = 64
+_KEY_STARTS: dict = {}
 
 
 # Each experiment's part of ``structure_key``, computed once per experiment object (a solve asks at every

@@ -17,11 +17,12 @@ def priority(problem, gauge) -> list[int]:
     """Free-coordinate order for pivots: user globs first (if any), then arm offsets, twists, home, base, tool,
     then experiment frames."""
     layout = problem.layout
-    names = [layout.names[i] for i in problem.free_idx]
     blk = blocks_of(layout, problem.free_idx)
-    default = sorted(range(len(names)), key=lambda k: (blk[k].kind.rank, k))
+    ranks = [b.kind.rank for b in blk]
+    default = sorted(range(len(blk)), key=ranks.__getitem__)  # stable: by (rank, k)
     if isinstance(gauge, str):
         return default
+    names = [layout.names[i] for i in problem.free_idx]
     order: list[int] = []
     for pat in gauge:
         hit = [k for k in default if k not in order and (

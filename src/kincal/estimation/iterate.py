@@ -73,7 +73,7 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
         structure = structure or Structure.of(lin, problem.layout, problem.experiments, options.rank_rtol)
         ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=order,
                        report=False, hold=hold, structure=structure)
-        if every and it == 1 and scale_visible(lin, problem.layout):
+        if every and it == 1 and scale_visible(lin, problem.layout, structure):
             every = False  # the data measure lengths: later linearizations skip the scale test's columns
         if first is None:  # named only if a report asks for it (``Result.identifiability_before``)
             first = DeferredReport.of(ana, lin, problem.layout, problem.experiments, order)
@@ -132,7 +132,7 @@ def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.nd
         recentre(retract(lin.state, problem.layout, problem.full_delta(delta)))
     if options.progress:
         options.progress(it, 2 * cost)
-    biggest = np.max(np.abs(delta), initial=0)
+    biggest = np.abs(delta).max(initial=0.0)  # the method: without np.max's dispatch
     log.debug("outer %d (%s): cost %.6g, whitened step %.3g, max |delta| %.3g", it,
               "Gauss-Newton" if accepted else "inner solve", 2 * cost, step, biggest)
     # stop when the step is negligible against the residual (or, with noise, well below one sigma)
