@@ -31,7 +31,7 @@ def linearize(problem: Problem, state: State, W, every: bool) -> Linearization:
         scale = scale_direction(state, layout)  # kept for the scale test (``symmetries.scale_null``)
         moves = layout.lengths | (scale != 0)
         fixed = np.flatnonzero(~layout.free & moves)
-    cols = np.concatenate([problem.free_idx, fixed])
+    cols = np.concatenate([problem.free_idx, fixed]) if every else problem.free_idx
     if problem.blocked:
         return _linearize_blocks(problem, state, W, cols, every)
     r, J, W, raw = problem.linearize(state, W, cols)

@@ -18,7 +18,7 @@ import numpy as np
 
 from kincal._memo import remember
 from kincal.errors import ModelError
-from kincal.params import values
+from kincal.params import kinds, values
 from kincal.params.kinds import (ARM_KINDS, COMPLIANCE, HOME, LATERAL, OFFSETS, PLANE, POINT, POINTS, POSE,
                                  POSE_COORDS, TWISTS, ParamKind)
 from kincal.params.values import State
@@ -103,6 +103,32 @@ class Layout:
     @property
     def free_names(self) -> list[str]:
         return [n for n, f in zip(self.names, self.free) if f]
+
+    @cached_property
+    def runs(self) -> tuple[list[int], np.ndarray]:
+        """``block_runs`` of the blocks, computed once (``touched``)."""
+        return block_runs(self.blocks)
+
+    def touched(self, mask: np.ndarray) -> list[Block]:
+        """The blocks (in order) where the (size,) bool ``mask`` holds a True (``touched``)."""
+        return touched(self, mask)
+
+
+def block_runs(blocks: Sequence[Block]) -> tuple[list[int], np.ndarray]:
+    """The indices of the blocks holding a coordinate and their starts (blocks are contiguous runs in order)."""
+    held = [k for k, b in enumerate(blocks) if b.stop > b.start]
+    return held, np.array([blocks[k].start for k in held], dtype=np.intp)
+
+
+def touched(layout, mask: np.ndarray) -> list[Block]:
+    """The blocks of ``layout`` (in order) where the (size,) bool ``mask`` holds a True: one reduction over the
+    blocks' runs instead of a test per block or per coordinate. ``layout``: a ``Layout`` or anything with its
+    ``blocks``."""
+    held, starts = layout.runs if isinstance(layout, Layout) else block_runs(layout.blocks)
+    if not held:
+        return []
+    hit = np.logical_or.reduceat(mask, starts)
+    return [layout.blocks[k] for k, h in zip(held, hit.tolist()) if h]
 
 
 def level_patterns(level: str, arms: Sequence[str]) -> list[str]:
@@ -202,9 +228,11 @@ _SHAPED = (POINT, POINTS)
 
 
 def clear_caches() -> None:
-    """Forget what ``build_layout`` and ``ArmValues.from_model`` remembered (tests, cold-start timings)."""
+    """Forget what ``build_layout``, ``ArmValues.from_model`` and ``TWISTS.scale`` remembered (tests, cold-start
+    timings)."""
     _SELECTIONS.clear()
     _BLOCKS.clear()
+    kinds._TWIST_SCALES.clear()
     values._FROM_MODEL.clear()
 
 
