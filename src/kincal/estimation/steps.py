@@ -9,6 +9,8 @@ identifiable subspace with the analytic Jacobian: Levenberg-Marquardt with geode
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from kincal.analysis import Linearization
@@ -135,8 +137,8 @@ def converged(step: float, r0_norm: float, cost: float, dof: int) -> bool:
     """A step is negligible against the residual, or (with noise) well below one sigma of scatter: the
     whitened step |J delta| is the step's length in standard deviations of the estimate, so 1e-2 moves no
     estimate by more than a hundredth of its standard deviation."""
-    scatter = np.sqrt(2 * cost / max(dof, 1))
-    return step < max(1e-6 * (1.0 + r0_norm), 1e-2 * scatter)
+    scatter = math.sqrt(2 * cost / max(dof, 1))  # a float: numpy's sqrt of a scalar, without its call overhead
+    return bool(step < max(1e-6 * (1.0 + r0_norm), 1e-2 * scatter))
 
 
 def gauss_newton(lin: Linearization, V: np.ndarray, factor: Factor | None = None) -> tuple[np.ndarray, float]:
@@ -153,4 +155,4 @@ def gauss_newton(lin: Linearization, V: np.ndarray, factor: Factor | None = None
 def negligible(lin: Linearization, V: np.ndarray, z: np.ndarray, r1sq: float) -> bool:
     """Convergence test at a new linearization point: the Gauss-Newton step asked for there is negligible."""
     step = norm(lin.Rf @ (V @ z))
-    return converged(step, np.sqrt(lin.cost2), 0.5 * r1sq, len(lin.r) - V.shape[1])
+    return converged(step, math.sqrt(lin.cost2), 0.5 * r1sq, len(lin.r) - V.shape[1])
