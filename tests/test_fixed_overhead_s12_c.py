@@ -153,6 +153,12 @@ def test_touched_blocks_are_the_scanned_ones(cases, rng):
                 assert layout.touched(mask) == _scan_touched(layout, mask)
         assert L.touched(layout, np.zeros(size, bool)) == []
     assert L.touched(type("E", (), {"blocks": ()})(), np.zeros(0, bool)) == []
+    # remembered per blocks tuple (shared by the layouts of one structure), forgotten with the params caches
+    again = Problem.build(*cases[0][1:3], cases[0][3], noise=cases[0][4]).layout
+    assert again.blocks is layouts[1].blocks and again.runs is layouts[1].runs
+    assert L._RUNS and id(fake.blocks) in L._RUNS
+    clear_caches()
+    assert not L._RUNS
 
 
 def test_wanted_blocks_are_those_with_a_free_coordinate(cases):
@@ -227,3 +233,19 @@ def test_twist_scale_remembered_for_a_models_own_values_only():
     assert np.array_equal(TWISTS.scale(c), TWISTS._scale(c)) and id(c) not in K._TWIST_SCALES  # writeable
     clear_caches()
     assert not K._TWIST_SCALES
+
+
+def test_converged_is_numpys_formula(rng):
+    from kincal.estimation import steps
+
+    def numpys(step, r0_norm, cost, dof):
+        return step < max(1e-6 * (1.0 + r0_norm), 1e-2 * np.sqrt(2 * cost / max(dof, 1)))
+
+    for _ in range(2000):
+        cost = float(rng.choice([0.0, -0.0, 1e-300, np.inf])) if rng.random() < 0.1 else float(rng.lognormal(0, 20))
+        dof = int(rng.integers(0, 50))
+        scatter = 1e-2 * np.sqrt(2 * cost / max(dof, 1))
+        step = float(scatter * rng.choice([0.5, 1.0, 2.0])) if rng.random() < 0.5 else float(rng.lognormal(0, 20))
+        r0 = float(rng.lognormal(0, 5))
+        assert steps.converged(step, r0, cost, dof) == numpys(step, r0, cost, dof)
+        assert steps.converged(step, np.float64(r0), cost, dof) == numpys(step, np.float64(r0), cost, dof)

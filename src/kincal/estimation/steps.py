@@ -146,10 +146,10 @@ def gauss_newton(lin: Linearization, V: np.ndarray, factor: Factor | None = None
     with ``J = Q R``, ``z = argmin |R V z + Q^T r|`` and ``|r + J V z|^2 = |r|^2 - |Q^T r|^2 + |R V z + Q^T r|^2``.
     ``factor``: the rank analysis' own SVD of ``lin.Rf`` when V is its identifiable subspace (``analysis.factor``):
     the step from it, without another least-squares solve."""
-    RV = lin.Rf @ V
-    z = V.T @ factor.step(-lin.qtr) if factor is not None else lstsq(RV, -lin.qtr)
-    e = lin.qtr + RV @ z
-    return z, max(lin.cost2 - float(lin.qtr @ lin.qtr) + float(e @ e), 0.0)
+    RV, qtr = lin.Rf @ V, lin.qtr
+    z = V.T @ factor.step(-qtr) if factor is not None else lstsq(RV, -qtr)
+    e = qtr + RV @ z
+    return z, max(lin.cost2 - float(qtr @ qtr) + float(e @ e), 0.0)
 
 
 def negligible(lin: Linearization, V: np.ndarray, z: np.ndarray, r1sq: float) -> bool:

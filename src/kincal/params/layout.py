@@ -105,7 +105,7 @@ class Layout:
         return [n for n, f in zip(self.names, self.free) if f]
 
     @cached_property
-    def runs(self) -> tuple[list[int], np.ndarray]:
+    def runs(self) -> tuple[tuple[int, ...], np.ndarray]:
         """``block_runs`` of the blocks, computed once (``touched``)."""
         return block_runs(self.blocks)
 
@@ -114,10 +114,19 @@ class Layout:
         return touched(self, mask)
 
 
-def block_runs(blocks: Sequence[Block]) -> tuple[list[int], np.ndarray]:
-    """The indices of the blocks holding a coordinate and their starts (blocks are contiguous runs in order)."""
+def block_runs(blocks: Sequence[Block]) -> tuple[tuple[int, ...], np.ndarray]:
+    """The indices of the blocks holding a coordinate and their starts (blocks are contiguous runs in order).
+    Remembered by the blocks tuple itself (held with the entry, so its id is not reused meanwhile): every layout
+    of a structure shares one (``_remembered_blocks``); blocks are immutable."""
+    hit = _RUNS.get(id(blocks))
+    if hit is not None and hit[0] is blocks:
+        return hit[1]
     held = [k for k, b in enumerate(blocks) if b.stop > b.start]
-    return held, np.array([blocks[k].start for k in held], dtype=np.intp)
+    starts = np.array([blocks[k].start for k in held], dtype=np.intp)
+    starts.flags.writeable = False
+    if isinstance(blocks, tuple):
+        remember(_RUNS, id(blocks), (blocks, (tuple(held), starts)), _SELECTION_ENTRIES)
+    return tuple(held), starts
 
 
 def touched(layout, mask: np.ndarray) -> list[Block]:
@@ -222,16 +231,19 @@ _SELECTION_ENTRIES = 256
 
 # _remembered_blocks' memory: (arm names, ids of their values, frames) -> (weak references to the values, blocks)
 _BLOCKS: dict[tuple, tuple] = {}
+# block_runs' memory: id(blocks tuple) -> (the tuple, its runs)
+_RUNS: dict[int, tuple] = {}
 # Frame kinds whose coordinates follow from the frame's name alone, and from its name and value shape.
 _NAMED = (POSE, PLANE)
 _SHAPED = (POINT, POINTS)
 
 
 def clear_caches() -> None:
-    """Forget what ``build_layout``, ``ArmValues.from_model`` and ``TWISTS.scale`` remembered (tests, cold-start
-    timings)."""
+    """Forget what ``build_layout``, ``block_runs``, ``ArmValues.from_model`` and ``TWISTS.scale`` remembered (tests,
+    cold-start timings)."""
     _SELECTIONS.clear()
     _BLOCKS.clear()
+    _RUNS.clear()
     kinds._TWIST_SCALES.clear()
     values._FROM_MODEL.clear()
 
