@@ -49,8 +49,8 @@ class Block:
         """The arm part's name (offsets, twists, home, base, tool, compliance); None for frames."""
         return self.kind.name if self.arm is not None else None
 
-    @property
-    def slice(self) -> slice:
+    @cached_property
+    def slice(self) -> slice:  # read at every retraction and stacking: made once
         return slice(self.start, self.stop)
 
     def value(self, state: State):
