@@ -223,14 +223,19 @@ def test_twist_scale_remembered_for_a_models_own_values_only():
     ur10, frida = robots.load("ur10"), robots.load("frida")
     a, b = ArmValues.from_model(ur10["arm"]), ArmValues.from_model(frida["right"])
     first = TWISTS.scale(a)
-    assert np.array_equal(first, TWISTS._scale(a)) and id(a) in K._TWIST_SCALES
+    assert np.array_equal(first, TWISTS._scale(a)) and id(a.screws) in K._TWIST_SCALES
+    shifted = K.arm_replace(a, offsets=a.offsets + 1.0)  # the same screws and bases: the same entry
+    assert np.array_equal(TWISTS.scale(shifted), TWISTS._scale(shifted)) and len(K._TWIST_SCALES) == 1
     first[:] = 0.0  # the caller's copy
     assert np.array_equal(TWISTS.scale(a), TWISTS._scale(a))
     assert np.array_equal(TWISTS.scale(b), TWISTS._scale(b))  # another model: its own
     moved = retract(State.from_robot(ur10), build_layout(State.from_robot(ur10), "kinematic"),
                     np.full(build_layout(State.from_robot(ur10), "kinematic").size, 1e-3))
     c = moved.arms["arm"]
-    assert np.array_equal(TWISTS.scale(c), TWISTS._scale(c)) and id(c) not in K._TWIST_SCALES  # writeable
+    assert np.array_equal(TWISTS.scale(c), TWISTS._scale(c)) and id(c.screws) not in K._TWIST_SCALES  # writeable
+    other = K.arm_replace(a, bases=tuple(B * 2.0 for B in a.bases))  # other bases (writeable): computed afresh
+    assert np.array_equal(TWISTS.scale(other), TWISTS._scale(other))
+    assert not np.array_equal(TWISTS.scale(other), TWISTS.scale(a))  # the test can fail
     clear_caches()
     assert not K._TWIST_SCALES
 

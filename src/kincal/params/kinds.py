@@ -11,7 +11,6 @@ a frame's value (pose 4x4, point (3,), points (m, 3), ``Plane``).
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import fields, replace
 
 import numpy as np
@@ -194,16 +193,16 @@ class _Twists(ParamKind):
         return a0.basis_pinv @ (a.screws - a0.screws).ravel()
 
     def scale(self, a):
-        """Remembered for values whose screws and bases cannot change (a model's own, ``ArmValues.from_model``:
-        the start of every calibration from that model), by the values object (held weakly, so its id is not
-        reused while remembered)."""
-        hit = _TWIST_SCALES.get(id(a))
-        if hit is not None and hit[0]() is a:
-            return hit[1].copy()
+        """Remembered for screws and bases that cannot change (read-only: a model's own, ``ArmValues.from_model``,
+        the start of every calibration from that model, and the values retracted from them in other blocks only),
+        by the screws array (held with the entry, so its id is not reused meanwhile)."""
+        hit = _TWIST_SCALES.get(id(a.screws))
+        if hit is not None and hit[0] is a.screws and hit[1] is a.bases and hit[2] == a.joint_types:
+            return hit[3].copy()
         out = self._scale(a)
         if not a.screws.flags.writeable and a.bases and not any(B.flags.writeable for B in a.bases):
             out.flags.writeable = False
-            remember(_TWIST_SCALES, id(a), (weakref.ref(a), out), _TWIST_SCALE_ENTRIES)
+            remember(_TWIST_SCALES, id(a.screws), (a.screws, a.bases, a.joint_types, out), _TWIST_SCALE_ENTRIES)
             return out.copy()
         return out
 
@@ -217,7 +216,7 @@ class _Twists(ParamKind):
         return a.tangent_coordinates(v)
 
 
-# _Twists.scale's memory: id(values) -> (weak reference to the values, their scale direction), oldest first
+# _Twists.scale's memory: id(screws) -> (screws, bases, joint types, their scale direction), oldest first
 _TWIST_SCALES: dict[int, tuple] = {}
 _TWIST_SCALE_ENTRIES = 64
 
