@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from contextlib import ExitStack
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -55,6 +56,7 @@ class ResidualCache:
         self.at_nominal: tuple | None = None
         self.linearized: tuple | None = None
         self.whitening: tuple | None = None  # (residual shapes, whiteners) without encoder noise: state-free
+        self.diagonals: dict[int, tuple] = {}  # id(whitener) -> (whitener, its constant diagonal or None)
 
     def keep(self, state: State, experiments: tuple, residuals: list, nominal: bool) -> None:
         if not self.keeps:
@@ -69,6 +71,21 @@ class ResidualCache:
             if entry is not None and entry[0] is state and entry[1] is experiments:
                 return entry[2]
         return None
+
+    def diagonal(self, W: np.ndarray) -> np.ndarray | None:
+        """``_constant_diagonal(W)``, remembered for the whiteners ``Problem._whitened_at`` made (broadcasts of a
+        diagonal no one else holds: the same arrays at every evaluation of a solve)."""
+        hit = self.diagonals.get(id(W))
+        return hit[1] if hit is not None and hit[0] is W else _constant_diagonal(W)
+
+    def made(self, W: np.ndarray) -> None:
+        """Remember the diagonal of a whitener just made (held with it: its id is not reused meanwhile)."""
+        if len(self.diagonals) >= 64:
+            self.diagonals.clear()
+        d = _constant_diagonal(W)
+        if d is not None:
+            d.flags.writeable = False  # shared by every evaluation
+        self.diagonals[id(W)] = (W, d)
 
     def get(self, state: State):
         return self.residuals if self.state is state else None
@@ -135,7 +152,7 @@ class Problem:
                  constraints=(), unknown=()) -> "Problem":
         """A problem from its parts, with the derived fields computed."""
         prior = np.isfinite(layout.prior_sigma) & layout.free
-        want = frozenset(b.name for b in layout.blocks if layout.free[b.start: b.stop].any())
+        want = frozenset(b.name for b in layout.touched(layout.free))
         return cls(robot, tuple(experiments), layout, nominal, nominal if start is None else start, tuple(noise),
                    tuple(constraints), tuple(unknown), np.flatnonzero(layout.free), np.flatnonzero(prior), want)
 
@@ -155,7 +172,7 @@ class Problem:
             return None
         return replace(self, experiments=tuple(exps), cache=ResidualCache())
 
-    @property
+    @cached_property
     def joint_noise(self) -> bool:
         """Whether any experiment states encoder noise (whitening then depends on the state through J_q)."""
         return any(nz.joint_sigma() > 0 for nz in self.noise)
@@ -196,7 +213,7 @@ class Problem:
         """Whether the problem is evaluated by blocks (``memory.by_blocks``; decided once, with ``parts``)."""
         return len(self.parts()) > len(self.experiments)
 
-    @property
+    @cached_property
     def _small(self) -> bool:
         """Small enough to keep a linearization's Jacobian blocks for the report (``ResidualCache.keep``)."""
         sizes = [e.size for e in self.experiments]
@@ -233,6 +250,7 @@ class Problem:
                 var = np.maximum(stated_sigmas(exp, nz) ** 2, VARIANCE_FLOOR)
                 if sj == 0:  # constant: a diagonal, broadcast over samples
                     out.append(np.broadcast_to(np.diag(1.0 / np.sqrt(var)), res.r.shape + (res.r.shape[1],)))
+                    self.cache.made(out[-1])
                     continue
                 own = np.diag(var)
             cov = np.broadcast_to(own, res.r.shape + (res.r.shape[1],)).copy()
@@ -281,7 +299,8 @@ class Problem:
     def evaluate(self, state0: State, delta_free: np.ndarray, whiteners, jac: bool = True):
         """Whitened stacked residual (m,) at ``retract(state0, delta)`` and, if asked, its Jacobian (m, p_free)."""
         delta = self.full_delta(delta_free)
-        state = retract(state0, self.layout, delta, tangents=jac)
+        # no step (a trial point retracted already): the same values as retracting by zero
+        state = retract(state0, self.layout, delta, tangents=jac) if delta_free.any() else state0
         if not jac:
             return self._stack(state, self._residuals(state, False), whiteners, None, {})[0], None
         Rl = {k: v for k, v in pose_retraction_jacobians(self.layout, delta).items() if k in self.want}
@@ -293,7 +312,7 @@ class Problem:
         ``Rl``: retraction Jacobians of pose blocks stepped away from their linearization point."""
         rs, Js = [], []
         for res, W in zip(residuals, whiteners):
-            d = _constant_diagonal(W)
+            d = self.cache.diagonal(W)
             rs.append((res.r * d).ravel() if d is not None else (W @ res.r[:, :, None]).ravel())
             if cols is None:
                 continue
@@ -315,7 +334,7 @@ class Problem:
             rs.append(rc)
             if cols is not None:
                 Js.append(Jc)
-        r = np.concatenate(rs)
+        r = _joined(rs)
         return (r, np.concatenate(Js, axis=0)) if cols is not None else (r, None)
 
     def statistics(self, state: State, whiteners=None) -> list[ResidualStats]:
@@ -371,12 +390,15 @@ def triangular_factor(columns: Sequence[np.ndarray]) -> np.ndarray:
 
 
 def _blocks_of(layout, cols: np.ndarray) -> frozenset:
-    """The names of the blocks holding a column of ``cols``: one search of the blocks' starts (contiguous runs in
-    order, ``Layout``; an empty block shares its start with the next and is never found) instead of a scan per
-    block."""
-    blocks = layout.blocks
-    starts = np.array([b.start for b in blocks])
-    return frozenset(blocks[k].name for k in np.unique(np.searchsorted(starts, cols, side="right") - 1).tolist())
+    """The names of the blocks holding a column of ``cols`` (``Layout.touched``: an empty block is never found)."""
+    mask = np.zeros(layout.size, bool)
+    mask[cols] = True
+    return frozenset(b.name for b in layout.touched(mask))
+
+
+def _joined(parts: list) -> np.ndarray:
+    """``np.concatenate(parts)`` (rows); a single part as it is (each part here is a new array of its own)."""
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
 def _constant_diagonal(W: np.ndarray) -> np.ndarray | None:

@@ -9,6 +9,8 @@ identifiable subspace with the analytic Jacobian: Levenberg-Marquardt with geode
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from kincal.analysis import Linearization
@@ -31,7 +33,7 @@ def linearize(problem: Problem, state: State, W, every: bool) -> Linearization:
         scale = scale_direction(state, layout)  # kept for the scale test (``symmetries.scale_null``)
         moves = layout.lengths | (scale != 0)
         fixed = np.flatnonzero(~layout.free & moves)
-    cols = np.concatenate([problem.free_idx, fixed])
+    cols = np.concatenate([problem.free_idx, fixed]) if every else problem.free_idx
     if problem.blocked:
         return _linearize_blocks(problem, state, W, cols, every)
     r, J, W, raw = problem.linearize(state, W, cols)
@@ -135,8 +137,8 @@ def converged(step: float, r0_norm: float, cost: float, dof: int) -> bool:
     """A step is negligible against the residual, or (with noise) well below one sigma of scatter: the
     whitened step |J delta| is the step's length in standard deviations of the estimate, so 1e-2 moves no
     estimate by more than a hundredth of its standard deviation."""
-    scatter = np.sqrt(2 * cost / max(dof, 1))
-    return step < max(1e-6 * (1.0 + r0_norm), 1e-2 * scatter)
+    scatter = math.sqrt(2 * cost / max(dof, 1))  # a float: numpy's sqrt of a scalar, without its call overhead
+    return bool(step < max(1e-6 * (1.0 + r0_norm), 1e-2 * scatter))
 
 
 def gauss_newton(lin: Linearization, V: np.ndarray, factor: Factor | None = None) -> tuple[np.ndarray, float]:
@@ -144,13 +146,13 @@ def gauss_newton(lin: Linearization, V: np.ndarray, factor: Factor | None = None
     with ``J = Q R``, ``z = argmin |R V z + Q^T r|`` and ``|r + J V z|^2 = |r|^2 - |Q^T r|^2 + |R V z + Q^T r|^2``.
     ``factor``: the rank analysis' own SVD of ``lin.Rf`` when V is its identifiable subspace (``analysis.factor``):
     the step from it, without another least-squares solve."""
-    RV = lin.Rf @ V
-    z = V.T @ factor.step(-lin.qtr) if factor is not None else lstsq(RV, -lin.qtr)
-    e = lin.qtr + RV @ z
-    return z, max(lin.cost2 - float(lin.qtr @ lin.qtr) + float(e @ e), 0.0)
+    RV, qtr = lin.Rf @ V, lin.qtr
+    z = V.T @ factor.step(-qtr) if factor is not None else lstsq(RV, -qtr)
+    e = qtr + RV @ z
+    return z, max(lin.cost2 - float(qtr @ qtr) + float(e @ e), 0.0)
 
 
 def negligible(lin: Linearization, V: np.ndarray, z: np.ndarray, r1sq: float) -> bool:
     """Convergence test at a new linearization point: the Gauss-Newton step asked for there is negligible."""
     step = norm(lin.Rf @ (V @ z))
-    return converged(step, np.sqrt(lin.cost2), 0.5 * r1sq, len(lin.r) - V.shape[1])
+    return converged(step, math.sqrt(lin.cost2), 0.5 * r1sq, len(lin.r) - V.shape[1])

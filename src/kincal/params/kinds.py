@@ -11,19 +11,37 @@ a frame's value (pose 4x4, point (3,), points (m, 3), ``Plane``).
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import fields, replace
 
 import numpy as np
 
+from kincal._memo import remember
 from kincal.errors import ModelError
 from kincal.kinematics import PRISMATIC, REVOLUTE, TWIST_COORDS, conform_twists, tangent_frames
 from kincal.kinematics.lateral import LATERAL_COORDS
 from kincal.lie import se3, so3
-from kincal.params.values import Plane, retract_twists
+from kincal.params.values import ArmValues, Plane, retract_twists
 
 POSE_COORDS = TWIST_COORDS  # a pose increment is a twist
 POSE_UNITS = ("m", "m", "m", "rad", "rad", "rad")
 COMPLIANCE_UNITS = {REVOLUTE: "rad/Nm", PRISMATIC: "m/N"}
+_ARM_FIELDS = tuple(f.name for f in fields(ArmValues))
+_ARM_FIELD_SET = frozenset(_ARM_FIELDS)
+# constructing one runs no check of its own and sets every field from its argument
+_ARM_PLAIN = not hasattr(ArmValues, "__post_init__") and all(f.init for f in fields(ArmValues))
+
+
+def arm_replace(a: ArmValues, **changes) -> ArmValues:
+    """``dataclasses.replace(a, **changes)`` without its field-by-field ``__init__`` (several per solver step): the
+    same fields, none of ``a``'s cached properties (``basis``, ``basis_pinv``: they depend on the fields)."""
+    if type(a) is not ArmValues or not _ARM_PLAIN or not _ARM_FIELD_SET.issuperset(changes):
+        return replace(a, **changes)  # its checks and errors
+    new = object.__new__(ArmValues)
+    old, d = a.__dict__, new.__dict__
+    for name in _ARM_FIELDS:
+        d[name] = old[name]
+    d.update(changes)
+    return new
 
 
 class ParamKind:
@@ -123,7 +141,7 @@ class _Offsets(ParamKind):
                 ["rad" if t == REVOLUTE else "m" for t in a.joint_types])
 
     def retract(self, a, d):
-        return replace(a, offsets=a.offsets + d)
+        return arm_replace(a, offsets=a.offsets + d)
 
     def displacement(self, a, a0):
         return a.offsets - a0.offsets, np.eye(a.dof)
@@ -157,16 +175,16 @@ class _Twists(ParamKind):
         """``with_tangents(conform(a))`` in one ``replace``."""
         screws = conform_twists(a.screws, a.joint_types)
         B, G = tangent_frames(screws, a.joint_types)
-        return replace(a, screws=screws, bases=B, generators=G)
+        return arm_replace(a, screws=screws, bases=B, generators=G)
 
     def conform(self, a):
         """The screws conformed (``conform_twists``: removes round-off only, the retraction is exact)."""
-        return replace(a, screws=conform_twists(a.screws, a.joint_types))
+        return arm_replace(a, screws=conform_twists(a.screws, a.joint_types))
 
     def with_tangents(self, a):
         """The tangent bases and generators at the screws as they are."""
         B, G = tangent_frames(a.screws, a.joint_types)
-        return replace(a, bases=B, generators=G)
+        return arm_replace(a, bases=B, generators=G)
 
     def displacement(self, a, a0):
         return self.offset(a, a0), a0.basis_pinv @ a.basis
@@ -175,6 +193,20 @@ class _Twists(ParamKind):
         return a0.basis_pinv @ (a.screws - a0.screws).ravel()
 
     def scale(self, a):
+        """Remembered for screws and bases that cannot change (read-only: a model's own, ``ArmValues.from_model``,
+        the start of every calibration from that model, and the values retracted from them in other blocks only),
+        by the screws array (held with the entry, so its id is not reused meanwhile)."""
+        hit = _TWIST_SCALES.get(id(a.screws))
+        if hit is not None and hit[0] is a.screws and hit[1] is a.bases and hit[2] == a.joint_types:
+            return hit[3].copy()
+        out = self._scale(a)
+        if not a.screws.flags.writeable and a.bases and not any(B.flags.writeable for B in a.bases):
+            out.flags.writeable = False
+            remember(_TWIST_SCALES, id(a.screws), (a.screws, a.bases, a.joint_types, out), _TWIST_SCALE_ENTRIES)
+            return out.copy()
+        return out
+
+    def _scale(self, a):
         v = np.zeros_like(a.screws)
         if PRISMATIC not in a.joint_types:  # every joint revolute: its moment scales (``rev`` all true)
             v[:, :3] = a.screws[:, :3]
@@ -182,6 +214,11 @@ class _Twists(ParamKind):
             rev = np.array(a.joint_types) == REVOLUTE
             v[rev, :3] = a.screws[rev, :3]
         return a.tangent_coordinates(v)
+
+
+# _Twists.scale's memory: id(screws) -> (screws, bases, joint types, their scale direction), oldest first
+_TWIST_SCALES: dict[int, tuple] = {}
+_TWIST_SCALE_ENTRIES = 64
 
 
 class _ArmPose(ParamKind):
@@ -196,7 +233,7 @@ class _ArmPose(ParamKind):
         return [f"{prefix}.{self.field}.{c}" for c in POSE_COORDS], list(POSE_UNITS)
 
     def retract(self, a, d):
-        return replace(a, **{self.field: se3.exp(d) @ getattr(a, self.field)})
+        return arm_replace(a, **{self.field: se3.exp(d) @ getattr(a, self.field)})
 
     def displacement(self, a, a0):
         return _pose_disp(getattr(a, self.field), getattr(a0, self.field))
@@ -205,7 +242,7 @@ class _ArmPose(ParamKind):
         return getattr(a, self.field)
 
     def with_pose(self, a, T):
-        return replace(a, **{self.field: T})
+        return arm_replace(a, **{self.field: T})
 
     def offset(self, a, a0):
         return _pose_offset(getattr(a, self.field), getattr(a0, self.field))
@@ -220,7 +257,7 @@ class _ArmPose(ParamKind):
 def with_arm_poses(a, poses):
     """``a`` with several of its poses replaced at once: ``poses`` [(arm pose kind, T)] (one ``replace``, the
     same values as the kinds' ``with_pose`` one after the other)."""
-    return replace(a, **{kind.field: T for kind, T in poses})
+    return arm_replace(a, **{kind.field: T for kind, T in poses})
 
 
 class _Compliance(ParamKind):
@@ -238,7 +275,7 @@ class _Compliance(ParamKind):
         return names, units
 
     def retract(self, a, d):
-        return replace(a, compliance=a.joint_compliance + d)
+        return arm_replace(a, compliance=a.joint_compliance + d)
 
     def displacement(self, a, a0):
         k = a.joint_compliance
@@ -267,7 +304,7 @@ class _Lateral(ParamKind):
         return [f"{prefix}.{j}.{c}" for j in a.joint_names for c in LATERAL_COORDS], ["rad/Nm"] * (2 * a.dof)
 
     def retract(self, a, d):
-        return replace(a, lateral=a.lateral + d.reshape(-1, 2)) if a.lateral is not None else a
+        return arm_replace(a, lateral=a.lateral + d.reshape(-1, 2)) if a.lateral is not None else a
 
     def displacement(self, a, a0):
         d = np.ravel(a.lateral) - np.ravel(a0.lateral)

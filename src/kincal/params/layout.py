@@ -18,7 +18,7 @@ import numpy as np
 
 from kincal._memo import remember
 from kincal.errors import ModelError
-from kincal.params import values
+from kincal.params import kinds, values
 from kincal.params.kinds import (ARM_KINDS, COMPLIANCE, HOME, LATERAL, OFFSETS, PLANE, POINT, POINTS, POSE,
                                  POSE_COORDS, TWISTS, ParamKind)
 from kincal.params.values import State
@@ -49,8 +49,8 @@ class Block:
         """The arm part's name (offsets, twists, home, base, tool, compliance); None for frames."""
         return self.kind.name if self.arm is not None else None
 
-    @property
-    def slice(self) -> slice:
+    @cached_property
+    def slice(self) -> slice:  # read at every retraction and stacking: made once
         return slice(self.start, self.stop)
 
     def value(self, state: State):
@@ -103,6 +103,41 @@ class Layout:
     @property
     def free_names(self) -> list[str]:
         return [n for n, f in zip(self.names, self.free) if f]
+
+    @cached_property
+    def runs(self) -> tuple[tuple[int, ...], np.ndarray]:
+        """``block_runs`` of the blocks, computed once (``touched``)."""
+        return block_runs(self.blocks)
+
+    def touched(self, mask: np.ndarray) -> list[Block]:
+        """The blocks (in order) where the (size,) bool ``mask`` holds a True (``touched``)."""
+        return touched(self, mask)
+
+
+def block_runs(blocks: Sequence[Block]) -> tuple[tuple[int, ...], np.ndarray]:
+    """The indices of the blocks holding a coordinate and their starts (blocks are contiguous runs in order).
+    Remembered by the blocks tuple itself (held with the entry, so its id is not reused meanwhile): every layout
+    of a structure shares one (``_remembered_blocks``); blocks are immutable."""
+    hit = _RUNS.get(id(blocks))
+    if hit is not None and hit[0] is blocks:
+        return hit[1]
+    held = [k for k, b in enumerate(blocks) if b.stop > b.start]
+    starts = np.array([blocks[k].start for k in held], dtype=np.intp)
+    starts.flags.writeable = False
+    if isinstance(blocks, tuple):
+        remember(_RUNS, id(blocks), (blocks, (tuple(held), starts)), _SELECTION_ENTRIES)
+    return tuple(held), starts
+
+
+def touched(layout, mask: np.ndarray) -> list[Block]:
+    """The blocks of ``layout`` (in order) where the (size,) bool ``mask`` holds a True: one reduction over the
+    blocks' runs instead of a test per block or per coordinate. ``layout``: a ``Layout`` or anything with its
+    ``blocks``."""
+    held, starts = layout.runs if isinstance(layout, Layout) else block_runs(layout.blocks)
+    if not held:
+        return []
+    hit = np.logical_or.reduceat(mask, starts)
+    return [layout.blocks[k] for k, h in zip(held, hit.tolist()) if h]
 
 
 def level_patterns(level: str, arms: Sequence[str]) -> list[str]:
@@ -196,15 +231,20 @@ _SELECTION_ENTRIES = 256
 
 # _remembered_blocks' memory: (arm names, ids of their values, frames) -> (weak references to the values, blocks)
 _BLOCKS: dict[tuple, tuple] = {}
+# block_runs' memory: id(blocks tuple) -> (the tuple, its runs)
+_RUNS: dict[int, tuple] = {}
 # Frame kinds whose coordinates follow from the frame's name alone, and from its name and value shape.
 _NAMED = (POSE, PLANE)
 _SHAPED = (POINT, POINTS)
 
 
 def clear_caches() -> None:
-    """Forget what ``build_layout`` and ``ArmValues.from_model`` remembered (tests, cold-start timings)."""
+    """Forget what ``build_layout``, ``block_runs``, ``ArmValues.from_model`` and ``TWISTS.scale`` remembered (tests,
+    cold-start timings)."""
     _SELECTIONS.clear()
     _BLOCKS.clear()
+    _RUNS.clear()
+    kinds._TWIST_SCALES.clear()
     values._FROM_MODEL.clear()
 
 

@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-from bisect import bisect_right
-
 import numpy as np
 
 from kincal.lie import se3
-from kincal.params.kinds import ARM_KINDS, POSE_COORDS, TWISTS, with_arm_poses
-from kincal.params.layout import Layout
+from kincal.params.kinds import ARM_KINDS, POSE_COORDS, TWISTS, ParamKind, with_arm_poses
+from kincal.params.layout import Layout, touched
 from kincal.params.values import State, retract_twists, twist_motions
 
 
@@ -50,13 +48,8 @@ def retract(state: State, layout: Layout, delta: np.ndarray, tangents: bool = Tr
 
 
 def _moved_blocks(layout: Layout, delta: np.ndarray) -> list:
-    """The blocks of ``layout`` (in order) where ``delta`` has a nonzero coordinate: one scan of ``delta``
-    instead of one per block (blocks are contiguous runs in order, ``Layout``)."""
-    hit = np.flatnonzero(delta).tolist()
-    if not hit:
-        return []
-    starts = [b.start for b in layout.blocks]
-    return [layout.blocks[k] for k in sorted({bisect_right(starts, i) - 1 for i in hit})]
+    """The blocks of ``layout`` (in order) where ``delta`` has a nonzero coordinate."""
+    return touched(layout, delta != 0)
 
 
 def recentre(state: State, conformed: bool = False) -> State:
@@ -65,11 +58,20 @@ def recentre(state: State, conformed: bool = False) -> State:
     kept as they are, the same arrays."""
     arms = {}
     for name, a in state.arms.items():
-        for kind in ARM_KINDS:
+        for kind in _RECENTRING:
             a = TWISTS.with_tangents(a) if conformed and kind is TWISTS else kind.recentre(a)
         arms[name] = a
-    extras = {k: state.kinds[k].recentre(v) for k, v in state.extras.items()}
+    extras = {k: _recentred(state.kinds[k], v) for k, v in state.extras.items()}
     return state.replace(arms, extras)
+
+
+def _recentred(kind, value):
+    """``kind.recentre(value)``, without the call where the kind keeps its values as they are."""
+    return value if type(kind).recentre is ParamKind.recentre else kind.recentre(value)
+
+
+# The arm kinds whose values re-centre (the others keep theirs: ``ParamKind.recentre``), in ``ARM_KINDS``' order.
+_RECENTRING = tuple(k for k in ARM_KINDS if type(k).recentre is not ParamKind.recentre)
 
 
 def conform(state: State) -> State:
@@ -119,12 +121,11 @@ def displacement(state: State, nominal: State, layout: Layout, only: np.ndarray 
 
 
 def _blocks_holding(layout: Layout, idx) -> list:
-    """The blocks of ``layout`` (in order) holding any of the indices ``idx``: one pass over the indices as
-    Python ints instead of a mask tested block by block (blocks are contiguous runs in order, ``Layout``)."""
-    starts = [b.start for b in layout.blocks]
-    idx = np.arange(layout.size)[np.asarray(idx, dtype=int)].ravel()  # negative ones counted from the end
-    held = {bisect_right(starts, i) - 1 for i in idx.tolist()}
-    return [layout.blocks[k] for k in sorted(held)]
+    """The blocks of ``layout`` (in order) holding any of the indices ``idx`` (negative ones counted from the
+    end)."""
+    mask = np.zeros(layout.size, bool)
+    mask[np.asarray(idx, dtype=int)] = True
+    return layout.touched(mask)
 
 
 def scale_direction(state: State, layout: Layout) -> np.ndarray:
