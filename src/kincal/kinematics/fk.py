@@ -113,7 +113,9 @@ def _product_prefixes(screws, theta, base) -> np.ndarray:
 
 def _frame_prefixes(screws, theta, base, turns) -> np.ndarray:
     """The prefixes of exact joint screws through their joint frames (``chain``), computed joint by joint in one
-    buffer (joint first) and returned as its (..., n + 1, 4, 4) view."""
+    buffer (joint first) and returned as its (..., n + 1, 4, 4) view. ``X = P_i C_i`` is held transposed
+    (column, sample, row), so that a revolute turn of its columns 0 and 1 is three operations on contiguous rows
+    (``turn_pairs``); the products are numpy's on transposed views, the same numbers."""
     C, Ci, revolute, _, _ = se3.joint_frames(screws)
     n = theta.shape[-1]
     batch = theta.shape[:-1]
@@ -122,30 +124,40 @@ def _frame_prefixes(screws, theta, base, turns) -> np.ndarray:
     P = np.empty((n + 1, N, 4, 4))
     P[0] = np.broadcast_to(base, batch + (4, 4)).reshape(N, 4, 4)
     moves = flat.any(axis=0)
-    cos, sin = (t.reshape(-1, n).T[:, :, None] for t in turns)  # per joint (N, 1)
-    X = np.empty((N, 4, 4))
-    X2, P2 = X.reshape(4 * N, 4), P.reshape(n + 1, 4 * N, 4)  # the products' views, made once
-    x0, x1 = X[:, :3, 0], X[:, :3, 1]  # the columns a revolute joint turns (the last row stays (0, 0, 0, 1))
+    c2, s2 = _turn_rows(*(t.reshape(-1, n) for t in turns), 4, pose=True)  # per joint (2, N, 4)
+    XT = np.empty((4, N, 4))
+    XT2, P2 = XT.reshape(4, 4 * N), P.reshape(n + 1, 4 * N, 4)  # the products' views, made once
     for i in range(n):
         if not moves[i]:  # exp(0) = I
             P[i + 1] = P[i]
             continue
-        np.matmul(P2[i], C[i], out=X2)
+        np.matmul(C[i].T, P2[i].T, out=XT2)
         if revolute[i]:  # X Rz(t): columns 0 and 1 turn (c x0 + s x1, c x1 - s x0)
-            turn_columns(x0, x1, cos[i], sin[i])
+            turn_pairs(XT[:2], c2[i], s2[i])
         else:  # X Tz(t): the origin moves along z
-            X[:, :3, 3] += flat[:, i, None] * X[:, :3, 2]
-        np.matmul(X2, Ci[i], out=P2[i + 1])
-    return np.moveaxis(P, 0, 1).reshape(batch + (n + 1, 4, 4))
+            XT[3, :, :3] += flat[:, i, None] * XT[2, :, :3]
+        np.matmul(XT2.T, Ci[i], out=P2[i + 1])
+    return P.transpose(1, 0, 2, 3).reshape(batch + (n + 1, 4, 4))
 
 
-def turn_columns(x0: np.ndarray, x1: np.ndarray, c: np.ndarray, s: np.ndarray) -> None:
-    """``x0, x1 = c x0 + s x1, c x1 - s x0`` in place (views of a buffer; c, s broadcast against them)."""
-    a = c * x0
-    a += s * x1
-    b = c * x1
-    b -= s * x0
-    x0[...], x1[...] = a, b
+def _turn_rows(cos: np.ndarray, sin: np.ndarray, rows: int, pose: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """``turn_pairs``' factors per joint from cos, sin (N, n): ``(c, c)`` and ``(s, -s)``, (n, 2, N, rows), each
+    sample's value repeated over ``rows``; ``pose``: a pose's last row gets 1 and 0, which keep its zeros."""
+    c2 = np.empty((cos.shape[1], 2, cos.shape[0], rows))
+    s2 = np.empty_like(c2)
+    c2[...] = cos.T[:, None, :, None]
+    s2[:, 0] = sin.T[:, :, None]
+    np.negative(s2[:, 0], out=s2[:, 1])
+    if pose:
+        c2[..., 3] = 1.0
+        s2[..., 3] = 0.0
+    return c2, s2
+
+
+def turn_pairs(Z: np.ndarray, c2: np.ndarray, s2: np.ndarray) -> None:
+    """``Z[0], Z[1] = c Z[0] + s Z[1], c Z[1] - s Z[0]`` in place with ``c2 = (c, c)``, ``s2 = (s, -s)`` stacked
+    on Z's first axis: each a sum of two rounded products (``c x1 + (-s) x0`` is ``c x1 - s x0`` exactly)."""
+    np.add(c2 * Z, s2 * Z[::-1], out=Z)
 
 
 def expanded_chain(screws, theta, base, home, tool, frames: bool = True) -> Kinematics:

@@ -35,7 +35,7 @@ from typing import Sequence
 import numpy as np
 
 from kincal.kinematics.elastic import LoadedKinematics, compliance_columns, deflection_map
-from kincal.kinematics.fk import Kinematics, turn_columns
+from kincal.kinematics.fk import Kinematics, _turn_rows, turn_pairs
 from kincal.kinematics.gravity import _Projected, gravity_torque_derivatives
 from kincal.lie import se3
 
@@ -193,22 +193,22 @@ def _frame_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
     else:
         M[0] = _project_prefixes(G, kin.prefixes[:, :1])[0]
     moves = theta.any(axis=0)
-    cos, sin = (t.T[:, :, None, None] for t in kin.turns)  # per joint (N, 1, 1)
-    K2 = np.empty((N * k, 6))
-    K = K2.reshape(N, k, 6)
-    x0, x1 = K[..., 0::3], K[..., 1::3]  # the columns a revolute joint turns: (0, 3) and (1, 4)
+    c2, s2 = _turn_rows(*kin.turns, k)  # per joint (2, N, k)
+    KT = np.empty((6, N * k))  # K = M_i Ad(C_i) transposed: the turned columns are contiguous rows
+    Z = KT.reshape(2, 3, N, k)[:, :2].transpose(1, 0, 2, 3)  # (x0, x1) of (v, w): rows (0, 3) and (1, 4)
     for i in range(n):
         if not moves[i]:
             M[i + 1] = M[i]
             continue
-        np.matmul(M[i], AdC[i], out=K2)
+        np.matmul(AdC[i].T, M[i].T, out=KT)
         if revolute[i]:  # Ad(Rz(t)) = diag(Rz, Rz): c x0 + s x1, c x1 - s x0
-            turn_columns(x0, x1, cos[i], sin[i])
+            turn_pairs(Z, c2[i][:, None], s2[i][:, None])
         else:  # Ad(Tz(t)) = [[I, hat(t e_z)], [0, I]]: g^T hat(t e_z) = (g x t e_z)^T
             t = theta[:, i, None]
-            K[..., 3] += t * K[..., 1]
-            K[..., 4] -= t * K[..., 0]
-        np.matmul(K2, AdCi[i], out=M[i + 1])
+            K = KT.reshape(6, N, k)
+            K[3] += t * K[1]
+            K[4] -= t * K[0]
+        np.matmul(KT.T, AdCi[i], out=M[i + 1])
     return M
 
 
