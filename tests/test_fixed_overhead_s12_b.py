@@ -154,5 +154,5 @@ def test_turn_pairs_is_turn_columns():
     want = X.copy()
     _turn_columns(want[0], want[1], c, s)
     got = X.copy()
-    fk.turn_pairs(got, np.stack([c, c]), np.stack([s, -s]))
+    fk.turn_pairs(got.reshape(2, -1), np.stack([c, c, c], -1).reshape(1, -1) * [[1], [1]], np.stack([s, s, s], -1).reshape(1, -1) * [[1], [-1]])
     assert got.tobytes() == want.tobytes()

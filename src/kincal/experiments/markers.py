@@ -45,6 +45,9 @@ class MarkersExperiment(Experiment):
         kin = self._kin(state, arm)
         F = kin.tool
         pA = se3.transform_points(F[:, None], x)  # (N, m, 3) world
+        r = se3.transform_points(se3.inverse(W), pA) - y
+        if want is not None and not want and not jq:  # the residual alone (a trial point)
+            return Residual(r.reshape(N, 3 * m), {}, {})
         Rt = W[:3, :3].T
         GA = Rt @ point_jacobian(pA)  # (N, m, 3, 6)
         jac, jqs = {}, {}
@@ -57,7 +60,6 @@ class MarkersExperiment(Experiment):
             jac[self.frames["markers"]] = Jx.reshape(N, 3 * m, 3 * m)
         if self._wanted("tracker", want):
             jac[self.frames["tracker"]] = -GA.reshape(N, 3 * m, 6)
-        r = se3.transform_points(se3.inverse(W), pA) - y
         return Residual(r.reshape(N, 3 * m), jac, jqs)
 
     def initial(self, state, known):

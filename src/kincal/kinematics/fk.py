@@ -124,7 +124,7 @@ def _frame_prefixes(screws, theta, base, turns) -> np.ndarray:
     P = np.empty((n + 1, N, 4, 4))
     P[0] = np.broadcast_to(base, batch + (4, 4)).reshape(N, 4, 4)
     moves = flat.any(axis=0)
-    c2, s2 = _turn_rows(*(t.reshape(-1, n) for t in turns), 4, pose=True)  # per joint (2, N, 4)
+    c2, s2 = _turn_rows(*(t.reshape(-1, n) for t in turns), 4, pose=True)  # per joint (1 or 2, 4 N)
     XT = np.empty((4, N, 4))
     XT2, P2 = XT.reshape(4, 4 * N), P.reshape(n + 1, 4 * N, 4)  # the products' views, made once
     for i in range(n):
@@ -133,7 +133,7 @@ def _frame_prefixes(screws, theta, base, turns) -> np.ndarray:
             continue
         np.matmul(C[i].T, P2[i].T, out=XT2)
         if revolute[i]:  # X Rz(t): columns 0 and 1 turn (c x0 + s x1, c x1 - s x0)
-            turn_pairs(XT[:2], c2[i], s2[i])
+            turn_pairs(XT2[:2], c2[i], s2[i])
         else:  # X Tz(t): the origin moves along z
             XT[3, :, :3] += flat[:, i, None] * XT[2, :, :3]
         np.matmul(XT2.T, Ci[i], out=P2[i + 1])
@@ -141,23 +141,25 @@ def _frame_prefixes(screws, theta, base, turns) -> np.ndarray:
 
 
 def _turn_rows(cos: np.ndarray, sin: np.ndarray, rows: int, pose: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """``turn_pairs``' factors per joint from cos, sin (N, n): ``(c, c)`` and ``(s, -s)``, (n, 2, N, rows), each
-    sample's value repeated over ``rows``; ``pose``: a pose's last row gets 1 and 0, which keep its zeros."""
-    c2 = np.empty((cos.shape[1], 2, cos.shape[0], rows))
-    s2 = np.empty_like(c2)
-    c2[...] = cos.T[:, None, :, None]
-    s2[:, 0] = sin.T[:, :, None]
-    np.negative(s2[:, 0], out=s2[:, 1])
+    """``turn_pairs``' factors per joint from cos, sin (N, n): ``c`` (n, 1, N * rows) and ``(s, -s)``
+    (n, 2, N * rows), each sample's value repeated over ``rows``; ``pose`` (rows 4): a pose's last row gets 1 and
+    0, which keep its zeros."""
+    n, N = cos.shape[1], cos.shape[0]
+    c = np.repeat(cos.T, rows, axis=1)
+    s2 = np.repeat(sin.T[:, None, :] * _SIGNS, rows, axis=2)
     if pose:
-        c2[..., 3] = 1.0
-        s2[..., 3] = 0.0
-    return c2, s2
+        c.reshape(n, N, 4)[..., 3] = 1.0
+        s2.reshape(n, 2, N, 4)[..., 3] = 0.0
+    return c.reshape(n, 1, N * rows), s2
 
 
-def turn_pairs(Z: np.ndarray, c2: np.ndarray, s2: np.ndarray) -> None:
-    """``Z[0], Z[1] = c Z[0] + s Z[1], c Z[1] - s Z[0]`` in place with ``c2 = (c, c)``, ``s2 = (s, -s)`` stacked
-    on Z's first axis: each a sum of two rounded products (``c x1 + (-s) x0`` is ``c x1 - s x0`` exactly)."""
-    np.add(c2 * Z, s2 * Z[::-1], out=Z)
+_SIGNS = np.array([[1.0], [-1.0]])  # (s, -s): a product by -1 is the negation
+
+
+def turn_pairs(Z: np.ndarray, c: np.ndarray, s2: np.ndarray) -> None:
+    """``Z[..., 0, :], Z[..., 1, :] = c z0 + s z1, c z1 - s z0`` in place with ``c`` and ``s2 = (s, -s)`` stacked
+    likewise: each a sum of two rounded products (``c z1 + (-s) z0`` is ``c z1 - s z0`` exactly)."""
+    np.add(c * Z, s2 * Z[..., ::-1, :], out=Z)
 
 
 def expanded_chain(screws, theta, base, home, tool, frames: bool = True) -> Kinematics:

@@ -193,16 +193,16 @@ def _frame_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
     else:
         M[0] = _project_prefixes(G, kin.prefixes[:, :1])[0]
     moves = theta.any(axis=0)
-    c2, s2 = _turn_rows(*kin.turns, k)  # per joint (2, N, k)
+    c2, s2 = _turn_rows(*kin.turns, k)  # per joint (1 or 2, N k)
     KT = np.empty((6, N * k))  # K = M_i Ad(C_i) transposed: the turned columns are contiguous rows
-    Z = KT.reshape(2, 3, N, k)[:, :2].transpose(1, 0, 2, 3)  # (x0, x1) of (v, w): rows (0, 3) and (1, 4)
+    Z = KT.reshape(2, 3, N * k)[:, :2]  # (x0, x1) of v and of w: rows (0, 1) and (3, 4)
     for i in range(n):
         if not moves[i]:
             M[i + 1] = M[i]
             continue
         np.matmul(AdC[i].T, M[i].T, out=KT)
         if revolute[i]:  # Ad(Rz(t)) = diag(Rz, Rz): c x0 + s x1, c x1 - s x0
-            turn_pairs(Z, c2[i][:, None], s2[i][:, None])
+            turn_pairs(Z, c2[i], s2[i])
         else:  # Ad(Tz(t)) = [[I, hat(t e_z)], [0, I]]: g^T hat(t e_z) = (g x t e_z)^T
             t = theta[:, i, None]
             K = KT.reshape(6, N, k)
@@ -219,7 +219,7 @@ def _twist_columns(M: np.ndarray, generators, step: int, N: int, k: int) -> np.n
     if len(widths) == 1:
         n, t = len(generators), widths.pop()
         D = M[0: step * n: step] - M[step: step * (n + 1): step]  # (n, N*k, 6)
-        return np.moveaxis((D @ np.stack(generators)).reshape(n, N, k, t), 0, 2).reshape(N, k, n * t)
+        return (D @ np.stack(generators)).reshape(n, N, k, t).transpose(1, 2, 0, 3).reshape(N, k, n * t)
     out = np.empty((N, k, sum(g.shape[1] for g in generators)))
     c = 0
     for j, Gj in enumerate(generators):
@@ -231,7 +231,7 @@ def _twist_columns(M: np.ndarray, generators, step: int, N: int, k: int) -> np.n
 
 def _along_screws(M: np.ndarray, screws: np.ndarray, N: int, k: int) -> np.ndarray:
     """``M_j xi_j`` (N, k, n) for projected prefixes M (n, N*k, 6) (``_project_prefixes``)."""
-    return np.moveaxis((M @ screws[:, :, None])[..., 0].reshape(len(screws), N, k), 0, -1)
+    return (M @ screws[:, :, None])[..., 0].reshape(len(screws), N, k).transpose(1, 2, 0)
 
 
 def insertion_torques(kin: LoadedKinematics, m: int, F: np.ndarray, moved=(), C: np.ndarray | None = None
