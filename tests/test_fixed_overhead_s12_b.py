@@ -156,3 +156,21 @@ def test_turn_pairs_is_turn_columns():
     got = X.copy()
     fk.turn_pairs(got.reshape(2, -1), np.stack([c, c, c], -1).reshape(1, -1) * [[1], [1]], np.stack([s, s, s], -1).reshape(1, -1) * [[1], [-1]])
     assert got.tobytes() == want.tobytes()
+
+
+def _point_jacobian(p):
+    """fd4f6a3's ``_kernel.point_jacobian``."""
+    from kincal.lie import so3
+    out = np.zeros(p.shape[:-1] + (3, 6))
+    out[..., :, :3] = np.eye(3)
+    out[..., :, 3:] = -so3.hat(p)
+    return out
+
+
+@pytest.mark.parametrize("shape", [(3,), (1, 3), (50, 3), (50, 2, 3), (4, 5, 3)])
+def test_point_jacobian_bit_for_bit(shape):
+    from kincal.experiments._kernel import point_jacobian
+    p = np.random.default_rng(len(shape)).standard_normal(shape)
+    p.flat[0], p.flat[-1] = 0.0, -0.0
+    got = point_jacobian(p)
+    assert got.shape == shape[:-1] + (3, 6) and got.tobytes() == _point_jacobian(p).tobytes()

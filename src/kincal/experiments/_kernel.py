@@ -230,11 +230,24 @@ def pose_gap_in_b(TA: np.ndarray, TB: np.ndarray):
 
 
 def point_jacobian(p: np.ndarray) -> np.ndarray:
-    """d p / d(left increment of the frame carrying p): [I, -hat(p)], (..., 3, 6)."""
-    out = np.zeros(p.shape[:-1] + (3, 6))
-    out[..., :, :3] = np.eye(3)
-    out[..., :, 3:] = -so3.hat(p)
-    return out
+    """d p / d(left increment of the frame carrying p): [I, -hat(p)], (..., 3, 6); written entry by entry from a
+    constant row (``-hat``'s diagonal is -0.0, as negating ``so3.hat`` gives)."""
+    p = np.asarray(p, dtype=float)
+    flat = p.reshape(-1, 3)
+    out = np.empty((len(flat), 18))
+    out[...] = _POINT_ROW
+    out[:, _POINT_PLUS] = flat[:, _POINT_PLUS_OF]
+    out[:, _POINT_MINUS] = -flat[:, _POINT_MINUS_OF]
+    return out.reshape(p.shape[:-1] + (3, 6))
+
+
+# [I, -hat(p)] flattened row by row (3 x 6): ones at 0, 7, 14; -0.0 on -hat's diagonal (3, 10, 17); p_k at
+# _POINT_PLUS, -p_k at _POINT_MINUS (-hat(p) = [[0, z, -y], [-z, 0, x], [y, -x, 0]]).
+_POINT_ROW = np.zeros(18)
+_POINT_ROW[[0, 7, 14]] = 1.0
+_POINT_ROW[[3, 10, 17]] = -0.0
+_POINT_PLUS, _POINT_PLUS_OF = np.array([4, 11, 15]), np.array([2, 0, 1])
+_POINT_MINUS, _POINT_MINUS_OF = np.array([5, 9, 16]), np.array([1, 2, 0])
 
 
 def pose_mean(T: np.ndarray) -> np.ndarray:
