@@ -119,7 +119,7 @@ def test_chain_prefixes_are_the_column_turning_ones_bit_for_bit(N):
             theta = _angles(rng, (N,), len(screws), case)
             turns = np.cos(theta), np.sin(theta)
             want = _frame_prefixes(screws, theta, base, turns)
-            got = fk._frame_prefixes(screws, theta, base, turns)
+            got, moves = fk._frame_prefixes(screws, theta, base, turns)
             assert got.shape == want.shape and got.tobytes() == want.tobytes()
             kin = fk.chain(screws, theta, base, np.eye(4), np.eye(4))
             assert kin.prefixes.tobytes() == want.tobytes()
@@ -131,7 +131,7 @@ def test_chain_prefixes_of_a_batch_grid_bit_for_bit():
         theta = _angles(rng, (4, 5), len(screws), 0)
         turns = np.cos(theta), np.sin(theta)
         want = _frame_prefixes(screws, theta, base, turns)
-        got = fk._frame_prefixes(screws, theta, base, turns)
+        got, moves = fk._frame_prefixes(screws, theta, base, turns)
         assert got.shape == want.shape and got.tobytes() == want.tobytes()
 
 
@@ -174,3 +174,19 @@ def test_point_jacobian_bit_for_bit(shape):
     p.flat[0], p.flat[-1] = 0.0, -0.0
     got = point_jacobian(p)
     assert got.shape == shape[:-1] + (3, 6) and got.tobytes() == _point_jacobian(p).tobytes()
+
+
+def test_chain_presets_are_the_properties_computed():
+    """``chain`` sets ``moves`` and ``one_base``: what the cached properties compute from the kinematics."""
+    rng = np.random.default_rng(8)
+    for screws, base in _chains(rng):
+        for batch in ((1,), (20,), (3, 4), ()):
+            theta = _angles(rng, batch, len(screws), 1)
+            kin = fk.chain(screws, theta, base, np.eye(4), np.eye(4))
+            bare = fk.Kinematics(kin.theta, kin.screws, kin.prefixes, kin.flange, kin.tool)
+            assert np.array_equal(kin.moves, bare.moves) and kin.moves.dtype == bare.moves.dtype
+            assert kin.one_base.tobytes() == bare.one_base.tobytes() == base.tobytes()
+    raw = fk.chain(rng.standard_normal((3, 6)), rng.standard_normal((5, 3)), np.eye(4), np.eye(4), np.eye(4))
+    assert np.array_equal(raw.one_base, np.eye(4))
+    per_sample = se3.exp(rng.standard_normal((5, 6)))
+    assert fk.chain(load("ur10")["arm"].screws, rng.standard_normal((5, 6)), per_sample, np.eye(4), np.eye(4)).one_base is None

@@ -57,6 +57,17 @@ class Kinematics:
         """``(cos theta, sin theta)``, each (..., n) (the chain's own when it computed them)."""
         return np.cos(self.theta), np.sin(self.theta)
 
+    @cached_property
+    def moves(self) -> np.ndarray:
+        """(n,): whether each joint is off zero in some sample (one at zero in every sample is the identity)."""
+        return self.theta.reshape(-1, self.theta.shape[-1]).any(axis=0)
+
+    @cached_property
+    def one_base(self) -> np.ndarray | None:
+        """The base (4, 4) when every sample has the same one (a chain's own: finite bases are equal), else None."""
+        P0 = self.prefixes[..., 0, :, :].reshape(-1, 4, 4)
+        return P0[0] if (P0 == P0[:1]).all() else None
+
 
 def _exponentials(screws, theta) -> np.ndarray:
     if se3.exact_joint_screws(screws):
@@ -79,16 +90,18 @@ def chain(screws, theta, base, home, tool, frames: bool = True) -> Kinematics:
     ``frames`` False: the products of the joints' exponentials (a loaded chain's, ``elastic.loaded_chain``)."""
     theta = np.asarray(theta, dtype=float)
     screws = np.asarray(screws, dtype=float)
-    turns = None
+    known = {}
     if frames and se3.exact_joint_screws(screws):
-        turns = np.cos(theta), np.sin(theta)
-        prefixes = _frame_prefixes(screws, theta, base, turns)
+        known["turns"] = turns = np.cos(theta), np.sin(theta)
+        prefixes, known["moves"] = _frame_prefixes(screws, theta, base, turns)
     else:
         prefixes = _product_prefixes(screws, theta, base)
+    base = np.asarray(base)
+    if base.ndim == 2 and np.isfinite(base).all():  # every sample's prefix 0 is a copy of it
+        known["one_base"] = prefixes[(0,) * (prefixes.ndim - 2)]  # sample 0, prefix 0
     flange = _times(prefixes[..., -1, :, :], home)
     kin = Kinematics(theta, screws, prefixes, flange, _times(flange, tool))
-    if turns is not None:
-        kin.__dict__["turns"] = turns  # the cached property's value: the Jacobians turn by the same
+    kin.__dict__.update(known)  # the cached properties' values: the Jacobians turn by the same
     return kin
 
 
@@ -111,9 +124,9 @@ def _product_prefixes(screws, theta, base) -> np.ndarray:
     return prefixes
 
 
-def _frame_prefixes(screws, theta, base, turns) -> np.ndarray:
+def _frame_prefixes(screws, theta, base, turns) -> tuple[np.ndarray, np.ndarray]:
     """The prefixes of exact joint screws through their joint frames (``chain``), computed joint by joint in one
-    buffer (joint first) and returned as its (..., n + 1, 4, 4) view. ``X = P_i C_i`` is held transposed
+    buffer (joint first) and returned as its (..., n + 1, 4, 4) view, with which joints move (``Kinematics.moves``). ``X = P_i C_i`` is held transposed
     (column, sample, row), so that a revolute turn of its columns 0 and 1 is three operations on contiguous rows
     (``turn_pairs``); the products are numpy's on transposed views, the same numbers."""
     C, Ci, revolute, _, _ = se3.joint_frames(screws)
@@ -137,7 +150,7 @@ def _frame_prefixes(screws, theta, base, turns) -> np.ndarray:
         else:  # X Tz(t): the origin moves along z
             XT[3, :, :3] += flat[:, i, None] * XT[2, :, :3]
         np.matmul(XT2.T, Ci[i], out=P2[i + 1])
-    return P.transpose(1, 0, 2, 3).reshape(batch + (n + 1, 4, 4))
+    return P.transpose(1, 0, 2, 3).reshape(batch + (n + 1, 4, 4)), moves
 
 
 def _turn_rows(cos: np.ndarray, sin: np.ndarray, rows: int, pose: bool = False) -> tuple[np.ndarray, np.ndarray]:

@@ -187,12 +187,11 @@ def _frame_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
     theta = kin.theta
     n = theta.shape[1]
     M = np.empty((n + 1, N * k, 6))
-    P0 = kin.prefixes[:, 0]
-    if (P0 == P0[:1]).all():  # one base for every sample (a chain's own)
-        M[0] = G.reshape(N * k, 6) @ se3.adjoint(P0[0])
+    if kin.one_base is not None:  # one base for every sample (a chain's own)
+        M[0] = G.reshape(N * k, 6) @ se3.adjoint(kin.one_base)
     else:
         M[0] = _project_prefixes(G, kin.prefixes[:, :1])[0]
-    moves = theta.any(axis=0)
+    moves = kin.moves
     c2, s2 = _turn_rows(*kin.turns, k)  # per joint (1 or 2, N k)
     KT = np.empty((6, N * k))  # K = M_i Ad(C_i) transposed: the turned columns are contiguous rows
     Z = KT.reshape(2, 3, N * k)[:, :2]  # (x0, x1) of v and of w: rows (0, 1) and (3, 4)
