@@ -190,3 +190,43 @@ def test_chain_presets_are_the_properties_computed():
     assert np.array_equal(raw.one_base, np.eye(4))
     per_sample = se3.exp(rng.standard_normal((5, 6)))
     assert fk.chain(load("ur10")["arm"].screws, rng.standard_normal((5, 6)), per_sample, np.eye(4), np.eye(4)).one_base is None
+
+
+def _fit_transform(src, dst):
+    """fd4f6a3's ``_kernel.fit_transform``."""
+    src, dst = np.broadcast_arrays(src, dst)
+    cs, cd = src.mean(axis=-2), dst.mean(axis=-2)
+    U, _, Vt = np.linalg.svd(np.swapaxes(dst - cd[..., None, :], -1, -2) @ (src - cs[..., None, :]))
+    U[..., :, 2] *= np.sign(np.linalg.det(U @ Vt))[..., None]
+    R = U @ Vt
+    return se3.make(R, cd - np.einsum("...ij,...j->...i", R, cs))
+
+
+@pytest.mark.parametrize("K", [3, 4, 50, 1001])
+def test_fit_transform_bit_for_bit(K):
+    from kincal.experiments._kernel import fit_transform
+    rng = np.random.default_rng(K)
+    for t in range(9):
+        src = rng.standard_normal((K, 3))
+        dst = se3.transform_points(se3.exp(rng.standard_normal(6)), src) + 1e-3 * rng.standard_normal((K, 3))
+        if t % 3 == 1:
+            dst = dst * [1.0, 1.0, -1.0]  # a reflected best fit
+        for a, b in ((src, dst), (src[None].repeat(4, 0), dst[None]), (src, np.stack([dst, 2 * dst]))):
+            got, want = fit_transform(a, b), _fit_transform(a, b)
+            assert got.shape == want.shape and got.tobytes() == want.tobytes()
+
+
+def test_markers_initial_is_the_mean_of_the_marker_in_the_tool():
+    """``MarkersExperiment.initial``: the tracker by ``fit_transform``, the marker as ``np.mean`` gives it."""
+    from kincal.estimation import Problem
+    from kincal.simulate import Noise, generate_markers
+    robot = load("ur10")
+    ds, _, _ = generate_markers(robot, "arm", n=30, rng=4, noise=Noise(position=5e-5), markers=2, n_validation=1)
+    problem = Problem.build(robot, [ds], "kinematic")
+    exp = problem.experiments[0]
+    F = exp._fk(problem.nominal, "arm")
+    y = ds.measured["p_tracker_marker"]
+    W = _fit_transform(y.reshape(-1, 3), se3.transform_points(F[:, None], np.zeros(y.shape[1:])).reshape(-1, 3))
+    x = np.mean(se3.transform_points(se3.inverse(F)[:, None], se3.transform_points(W, y)), axis=0)
+    assert problem.nominal.extras[exp.frames["tracker"]].tobytes() == W.tobytes()
+    assert np.asarray(problem.nominal.extras[exp.frames["markers"]]).tobytes() == x.tobytes()

@@ -250,6 +250,15 @@ _POINT_PLUS, _POINT_PLUS_OF = np.array([4, 11, 15]), np.array([2, 0, 1])
 _POINT_MINUS, _POINT_MINUS_OF = np.array([5, 9, 16]), np.array([1, 2, 0])
 
 
+def _det_sign(Q: np.ndarray) -> np.ndarray:
+    """``np.sign(np.linalg.det(Q))`` of orthogonal matrices (determinant +-1, far from zero: any rounding gives
+    the same sign); one 3 x 3 by its triple product on Python floats."""
+    if Q.shape != (3, 3):
+        return np.sign(np.linalg.det(Q))
+    (a, b, c), (d, e, f), (g, h, i) = Q.tolist()
+    return np.sign(np.float64(a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)))
+
+
 def pose_mean(T: np.ndarray) -> np.ndarray:
     """A rigid transform near the mean of T (N, 4, 4): two Gauss-Newton steps of the left log-average."""
     M = T[0]
@@ -261,9 +270,11 @@ def pose_mean(T: np.ndarray) -> np.ndarray:
 def fit_transform(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """Rigid T minimizing sum |T src - dst|^2 (Kabsch): points (..., K, 3), batches broadcast (one layout
     against many rows of measured points), -> (..., 4, 4)."""
-    src, dst = np.broadcast_arrays(src, dst)
-    cs, cd = src.mean(axis=-2), dst.mean(axis=-2)
+    if src.shape != dst.shape:
+        src, dst = np.broadcast_arrays(src, dst)
+    K = src.shape[-2]
+    cs, cd = np.add.reduce(src, axis=-2) / K, np.add.reduce(dst, axis=-2) / K  # ``mean``'s sum and division
     U, _, Vt = np.linalg.svd(np.swapaxes(dst - cd[..., None, :], -1, -2) @ (src - cs[..., None, :]))
-    U[..., :, 2] *= np.sign(np.linalg.det(U @ Vt))[..., None]  # a proper rotation even for a reflected best fit
+    U[..., :, 2] *= _det_sign(U @ Vt)[..., None]  # a proper rotation even for a reflected best fit
     R = U @ Vt
     return se3.make(R, cd - np.einsum("...ij,...j->...i", R, cs))
