@@ -230,3 +230,25 @@ def test_markers_initial_is_the_mean_of_the_marker_in_the_tool():
     x = np.mean(se3.transform_points(se3.inverse(F)[:, None], se3.transform_points(W, y)), axis=0)
     assert problem.nominal.extras[exp.frames["tracker"]].tobytes() == W.tobytes()
     assert np.asarray(problem.nominal.extras[exp.frames["markers"]]).tobytes() == x.tobytes()
+
+
+def test_remembered_single_pose_inverse_and_adjoint():
+    """``se3.remembered``: the function's value bit for bit, read-only, keyed by the function and the pose's bytes
+    (another pose or function misses), forgotten by ``se3.clear_caches``; batches are computed."""
+    rng = np.random.default_rng(12)
+    se3.clear_caches()
+    T = se3.exp(rng.standard_normal(6))
+    for fn in (se3.inverse, se3.adjoint):
+        got = se3.remembered(fn, T)
+        assert got.tobytes() == fn(T).tobytes() and not got.flags.writeable
+        assert se3.remembered(fn, T.copy()) is got
+    assert se3.remembered(se3.inverse, T).shape == (4, 4) and se3.remembered(se3.adjoint, T).shape == (6, 6)
+    U = T.copy()
+    U[0, 3] = np.nextafter(U[0, 3], 1.0)  # one ulp away: a miss
+    assert se3.remembered(se3.inverse, U).tobytes() == se3.inverse(U).tobytes()
+    assert se3.remembered(se3.inverse, U).tobytes() != se3.remembered(se3.inverse, T).tobytes()
+    batch = se3.exp(rng.standard_normal((3, 6)))
+    assert se3.remembered(se3.inverse, batch).tobytes() == se3.inverse(batch).tobytes()
+    kept = se3.remembered(se3.adjoint, T)
+    se3.clear_caches()
+    assert se3.remembered(se3.adjoint, T) is not kept

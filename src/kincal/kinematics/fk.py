@@ -135,7 +135,7 @@ def _frame_prefixes(screws, theta, base, turns) -> tuple[np.ndarray, np.ndarray]
     flat = theta.reshape(-1, n)
     N = flat.shape[0]
     P = np.empty((n + 1, N, 4, 4))
-    P[0] = np.broadcast_to(base, batch + (4, 4)).reshape(N, 4, 4)
+    P[0] = base if np.ndim(base) == 2 else np.broadcast_to(base, batch + (4, 4)).reshape(N, 4, 4)
     moves = flat.any(axis=0)
     c2, s2 = _turn_rows(*(t.reshape(-1, n) for t in turns), 4, pose=True)  # per joint (1 or 2, 4 N)
     XT = np.empty((4, N, 4))

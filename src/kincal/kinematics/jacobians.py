@@ -188,7 +188,7 @@ def _frame_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
     n = theta.shape[1]
     M = np.empty((n + 1, N * k, 6))
     if kin.one_base is not None:  # one base for every sample (a chain's own)
-        M[0] = G.reshape(N * k, 6) @ se3.adjoint(kin.one_base)
+        M[0] = G.reshape(N * k, 6) @ se3.remembered(se3.adjoint, kin.one_base)
     else:
         M[0] = _project_prefixes(G, kin.prefixes[:, :1])[0]
     moves = kin.moves
