@@ -252,3 +252,50 @@ def test_remembered_single_pose_inverse_and_adjoint():
     kept = se3.remembered(se3.adjoint, T)
     se3.clear_caches()
     assert se3.remembered(se3.adjoint, T) is not kept
+
+
+def _markers_residual(exp, state, want, jq):
+    """fd4f6a3's ``MarkersExperiment.residual`` (with the base's point Jacobian and inverse)."""
+    arm = exp.arms[0]
+    W = state.extras[exp.frames["tracker"]]
+    x = np.asarray(state.extras[exp.frames["markers"]])
+    y = exp.dataset.measured["p_tracker_marker"]
+    N, m = y.shape[:2]
+    kin = exp._kin(state, arm)
+    F = kin.tool
+    pA = se3.transform_points(F[:, None], x)
+    Rt = W[:3, :3].T
+    GA = Rt @ _point_jacobian(pA)
+    jac, jqs = {}, {}
+    exp._arm_jac(state, arm, kin, GA.reshape(N, 3 * m, 6), want, jq, jac, jqs)
+    if exp._wanted("markers", want):
+        Jx = np.zeros((N, m, 3, m, 3))
+        RtR = Rt @ F[:, :3, :3]
+        for j in range(m):
+            Jx[:, j, :, j, :] = RtR
+        jac[exp.frames["markers"]] = Jx.reshape(N, 3 * m, 3 * m)
+    if exp._wanted("tracker", want):
+        jac[exp.frames["tracker"]] = -GA.reshape(N, 3 * m, 6)
+    r = se3.transform_points(se3.inverse(W), pA) - y
+    return r.reshape(N, 3 * m), jac, jqs
+
+
+@pytest.mark.parametrize("markers", [1, 3])
+def test_markers_residual_is_the_base_one_bit_for_bit(markers):
+    """Every block, the readings' derivative and the residual (also asked alone) as the base computed them."""
+    from kincal.estimation import Problem
+    from kincal.simulate import Noise, generate_markers
+    robot = load("ur10")
+    ds, _, _ = generate_markers(robot, "arm", n=25, rng=markers, noise=Noise(position=5e-5), markers=markers,
+                                n_validation=1)
+    problem = Problem.build(robot, [ds], "kinematic")
+    exp, state = problem.experiments[0], problem.start
+    for want, jq in ((None, True), (problem.want, False), (set(), False), ({"tracker"}, False), (set(), True)):
+        got = exp.residual(state, want=want, jq=jq)
+        r, jac, jqs = _markers_residual(exp, state, want, jq)
+        assert got.r.tobytes() == r.tobytes()
+        assert set(got.jac) == set(jac) and set(got.jq) == set(jqs)
+        for name, J in jac.items():
+            assert got.jac[name].shape == J.shape and got.jac[name].tobytes() == J.tobytes(), name
+        for name, J in jqs.items():
+            assert got.jq[name].tobytes() == J.tobytes()

@@ -53,11 +53,14 @@ class MarkersExperiment(Experiment):
         jac, jqs = {}, {}
         self._arm_jac(state, arm, kin, GA.reshape(N, 3 * m, 6), want, jq, jac, jqs)
         if self._wanted("markers", want):
-            Jx = np.zeros((N, m, 3, m, 3))
             RtR = Rt @ F[:, :3, :3]
-            for j in range(m):  # loop over markers, not samples
-                Jx[:, j, :, j, :] = RtR
-            jac[self.frames["markers"]] = Jx.reshape(N, 3 * m, 3 * m)
+            if m == 1:  # the block is RtR itself
+                jac[self.frames["markers"]] = RtR
+            else:
+                Jx = np.zeros((N, m, 3, m, 3))
+                for j in range(m):  # loop over markers, not samples
+                    Jx[:, j, :, j, :] = RtR
+                jac[self.frames["markers"]] = Jx.reshape(N, 3 * m, 3 * m)
         if self._wanted("tracker", want):
             jac[self.frames["tracker"]] = -GA.reshape(N, 3 * m, 6)
         return Residual(r.reshape(N, 3 * m), jac, jqs)
