@@ -299,3 +299,13 @@ def test_markers_residual_is_the_base_one_bit_for_bit(markers):
             assert got.jac[name].shape == J.shape and got.jac[name].tobytes() == J.tobytes(), name
         for name, J in jqs.items():
             assert got.jq[name].tobytes() == J.tobytes()
+
+
+def test_frame_shapes_read_the_sizes_once_with_the_same_shapes():
+    from kincal.estimation import Problem
+    from kincal.simulate import Noise, generate_markers
+    ds, _, _ = generate_markers(load("ur10"), "arm", n=10, rng=2, noise=Noise(position=5e-5), markers=3,
+                                n_validation=1)
+    exp = Problem.build(load("ur10"), [ds], "kinematic").experiments[0]
+    assert exp.frame_shapes() == {"tracker": (4, 4), "markers": (3, 3)}
+    assert all(exp.frame_shape(r) == s for r, s in exp.frame_shapes().items())

@@ -170,10 +170,14 @@ class Experiment:
     def frame_shape(self, role: str) -> tuple[int, ...]:
         """Shape of the value of a role's frame, to check data sets sharing it agree: the schema's shape, with
         data-chosen sizes (markers ``m``) read off this data set."""
+        return self.frame_shapes()[role]
+
+    def frame_shapes(self) -> dict[str, tuple[int, ...]]:
+        """``frame_shape`` of every role, the data's sizes read once."""
         d = self.dataset
         sizes = self.SCHEMA.sizes(d.measured, d.known, d.size)
-        shape = self.SCHEMA.field(self.ROLES[role]).shape
-        return tuple(sizes.get(s, -1) if isinstance(s, str) else s for s in shape)
+        return {role: tuple(sizes.get(s, -1) if isinstance(s, str) else s for s in self.SCHEMA.field(key).shape)
+                for role, key in self.ROLES.items()}
 
     def start(self, nominal: State, free_parts, unknown) -> dict[str, np.ndarray]:
         """Corrections of tool frames before solving (``{"<arm>.tool": X}``: start from ``tool @ X``) when this
