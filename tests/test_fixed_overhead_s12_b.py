@@ -154,7 +154,8 @@ def test_turn_pairs_is_turn_columns():
     want = X.copy()
     _turn_columns(want[0], want[1], c, s)
     got = X.copy()
-    fk.turn_pairs(got.reshape(2, -1), np.stack([c, c, c], -1).reshape(1, -1) * [[1], [1]], np.stack([s, s, s], -1).reshape(1, -1) * [[1], [-1]])
+    c_rows, s_rows = (np.repeat(v, 3, axis=1).reshape(1, -1) for v in (c, s))
+    fk.turn_pairs(got.reshape(2, -1), c_rows, s_rows * [[1.0], [-1.0]])
     assert got.tobytes() == want.tobytes()
 
 
@@ -189,7 +190,8 @@ def test_chain_presets_are_the_properties_computed():
     raw = fk.chain(rng.standard_normal((3, 6)), rng.standard_normal((5, 3)), np.eye(4), np.eye(4), np.eye(4))
     assert np.array_equal(raw.one_base, np.eye(4))
     per_sample = se3.exp(rng.standard_normal((5, 6)))
-    assert fk.chain(load("ur10")["arm"].screws, rng.standard_normal((5, 6)), per_sample, np.eye(4), np.eye(4)).one_base is None
+    theta = rng.standard_normal((5, 6))
+    assert fk.chain(load("ur10")["arm"].screws, theta, per_sample, np.eye(4), np.eye(4)).one_base is None
 
 
 def _fit_transform(src, dst):

@@ -126,9 +126,10 @@ def _product_prefixes(screws, theta, base) -> np.ndarray:
 
 def _frame_prefixes(screws, theta, base, turns) -> tuple[np.ndarray, np.ndarray]:
     """The prefixes of exact joint screws through their joint frames (``chain``), computed joint by joint in one
-    buffer (joint first) and returned as its (..., n + 1, 4, 4) view, with which joints move (``Kinematics.moves``). ``X = P_i C_i`` is held transposed
-    (column, sample, row), so that a revolute turn of its columns 0 and 1 is three operations on contiguous rows
-    (``turn_pairs``); the products are numpy's on transposed views, the same numbers."""
+    buffer (joint first) and returned as its (..., n + 1, 4, 4) view, with which joints move (``Kinematics.moves``).
+    ``X = P_i C_i`` is held transposed (column, sample, row), so that a revolute turn of its columns 0 and 1 is
+    three operations on contiguous rows (``turn_pairs``); the products are numpy's on transposed views, the same
+    numbers."""
     C, Ci, revolute, _, _ = se3.joint_frames(screws)
     n = theta.shape[-1]
     batch = theta.shape[:-1]
@@ -137,7 +138,7 @@ def _frame_prefixes(screws, theta, base, turns) -> tuple[np.ndarray, np.ndarray]
     P = np.empty((n + 1, N, 4, 4))
     P[0] = base if np.ndim(base) == 2 else np.broadcast_to(base, batch + (4, 4)).reshape(N, 4, 4)
     moves = flat.any(axis=0)
-    c2, s2 = _turn_rows(*(t.reshape(-1, n) for t in turns), 4, pose=True)  # per joint (1 or 2, 4 N)
+    c2, s2 = turn_factors(*(t.reshape(-1, n) for t in turns), 4, pose=True)  # per joint (1 or 2, 4 N)
     XT = np.empty((4, N, 4))
     XT2, P2 = XT.reshape(4, 4 * N), P.reshape(n + 1, 4 * N, 4)  # the products' views, made once
     for i in range(n):
@@ -153,10 +154,10 @@ def _frame_prefixes(screws, theta, base, turns) -> tuple[np.ndarray, np.ndarray]
     return P.transpose(1, 0, 2, 3).reshape(batch + (n + 1, 4, 4)), moves
 
 
-def _turn_rows(cos: np.ndarray, sin: np.ndarray, rows: int, pose: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def turn_factors(cos: np.ndarray, sin: np.ndarray, rows: int, pose: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """``turn_pairs``' factors per joint from cos, sin (N, n): ``c`` (n, 1, N * rows) and ``(s, -s)``
     (n, 2, N * rows), each sample's value repeated over ``rows``; ``pose`` (rows 4): a pose's last row gets 1 and
-    0, which keep its zeros."""
+    0, so that its +0.0 entries stay +0.0 (``1 x + 0 y``)."""
     n, N = cos.shape[1], cos.shape[0]
     c = np.repeat(cos.T, rows, axis=1)
     s2 = np.repeat(sin.T[:, None, :] * _SIGNS, rows, axis=2)

@@ -35,7 +35,7 @@ from typing import Sequence
 import numpy as np
 
 from kincal.kinematics.elastic import LoadedKinematics, compliance_columns, deflection_map
-from kincal.kinematics.fk import Kinematics, _turn_rows, turn_pairs
+from kincal.kinematics.fk import Kinematics, turn_factors, turn_pairs
 from kincal.kinematics.gravity import _Projected, gravity_torque_derivatives
 from kincal.lie import se3
 
@@ -192,7 +192,7 @@ def _frame_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
     else:
         M[0] = _project_prefixes(G, kin.prefixes[:, :1])[0]
     moves = kin.moves
-    c2, s2 = _turn_rows(*kin.turns, k)  # per joint (1 or 2, N k)
+    c2, s2 = turn_factors(*kin.turns, k)  # per joint (1 or 2, N k)
     KT = np.empty((6, N * k))  # K = M_i Ad(C_i) transposed: the turned columns are contiguous rows
     Z = KT.reshape(2, 3, N * k)[:, :2]  # (x0, x1) of v and of w: rows (0, 1) and (3, 4)
     for i in range(n):

@@ -277,7 +277,7 @@ def remembered(fn, T: np.ndarray) -> np.ndarray:
     T = np.asarray(T, dtype=float)
     if T.shape != (4, 4):
         return fn(T)
-    key = (fn.__name__, T.tobytes())
+    key = (fn, T.tobytes())
     hit = _ONE_POSE.get(key)
     if hit is None:
         hit = fn(T)
@@ -286,7 +286,7 @@ def remembered(fn, T: np.ndarray) -> np.ndarray:
     return hit
 
 
-_ONE_POSE: dict[tuple, np.ndarray] = {}  # ``remembered``'s values
+_ONE_POSE: dict[tuple, np.ndarray] = {}  # ``remembered``'s values by (function, bytes of the pose)
 
 
 def adjoint(T: np.ndarray) -> np.ndarray:
