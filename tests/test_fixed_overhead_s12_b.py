@@ -311,3 +311,19 @@ def test_frame_shapes_read_the_sizes_once_with_the_same_shapes():
     exp = Problem.build(load("ur10"), [ds], "kinematic").experiments[0]
     assert exp.frame_shapes() == {"tracker": (4, 4), "markers": (3, 3)}
     assert all(exp.frame_shape(r) == s for r, s in exp.frame_shapes().items())
+
+
+@pytest.mark.parametrize("kind", ["pose", "markers", "socket"])
+def test_residual_alone_is_the_full_residual_bit_for_bit(kind):
+    """Asked for no Jacobian (``want=set()``, no readings), a residual gives the r of the full evaluation, with
+    no blocks (pose and markers stop before their Jacobians)."""
+    from kincal import simulate
+    from kincal.estimation import Problem
+    robot = load("ur10")
+    make = getattr(simulate, f"generate_{kind}")
+    ds = make(robot, "arm", n=20, rng=5, noise=simulate.Noise(position=5e-5, orientation=1e-4))[0]
+    problem = Problem.build(robot, [ds], "kinematic")
+    exp, state = problem.experiments[0], problem.start
+    alone, full = exp.residual(state, want=set(), jq=False), exp.residual(state, want=None, jq=True)
+    assert alone.r.tobytes() == full.r.tobytes() and not alone.jac and not alone.jq
+    assert full.jac and full.jq

@@ -194,12 +194,14 @@ def _branch_blocks(state, ch, branches, parts, jq, dtheta, kin, out, jqs) -> Non
                 _add(out, f"{b.arm}.{p}", J)
 
 
-def pose_gap(TA: np.ndarray, TB: np.ndarray, of_b: bool = True):
+def pose_gap(TA: np.ndarray, TB: np.ndarray, of_b: bool = True, jacobians: bool = True):
     """r = [p_A - p_B, log(R_A R_B^T)] (N, 6) in world coordinates, and dr/d(left increment) of A and of B
-    (None with ``of_b`` False: a fixed B, the measured pose)."""
+    (None with ``of_b`` False: a fixed B, the measured pose; both None with ``jacobians`` False)."""
     pA, pB = TA[..., :3, 3], TB[..., :3, 3]
     E = TA[..., :3, :3] @ np.swapaxes(TB[..., :3, :3], -1, -2)
     rw = so3.log(E)
+    if not jacobians:
+        return np.concatenate([pA - pB, rw], axis=-1), None, None
     Ji = so3.left_jacobian_inv(rw)
     shape = TA.shape[:-2]
     GA = np.zeros(shape + (6, 6))

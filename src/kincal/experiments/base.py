@@ -194,6 +194,11 @@ class Experiment:
     def _parts(self, arm: str, want) -> tuple[str, ...]:
         return tuple(p for p in ARM_PARTS if want is None or f"{arm}.{p}" in want)
 
+    @staticmethod
+    def _residual_only(want, jq: bool) -> bool:
+        """No Jacobian asked for (a trial point's evaluation): the residual alone."""
+        return want is not None and not want and not jq
+
     def _wanted(self, role: str, want) -> bool:
         return role in self.frames and (want is None or self.frames[role] in want)
 

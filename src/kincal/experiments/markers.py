@@ -46,7 +46,7 @@ class MarkersExperiment(Experiment):
         F = kin.tool
         pA = se3.transform_points(F[:, None], x)  # (N, m, 3) world
         r = se3.transform_points(se3.remembered(se3.inverse, W), pA) - y
-        if want is not None and not want and not jq:  # the residual alone (a trial point)
+        if self._residual_only(want, jq):
             return Residual(r.reshape(N, 3 * m), {}, {})
         Rt = W[:3, :3].T
         GA = Rt @ point_jacobian(pA)  # (N, m, 3, 6)
