@@ -194,12 +194,14 @@ def _branch_blocks(state, ch, branches, parts, jq, dtheta, kin, out, jqs) -> Non
                 _add(out, f"{b.arm}.{p}", J)
 
 
-def pose_gap(TA: np.ndarray, TB: np.ndarray, of_b: bool = True):
+def pose_gap(TA: np.ndarray, TB: np.ndarray, of_b: bool = True, jacobians: bool = True):
     """r = [p_A - p_B, log(R_A R_B^T)] (N, 6) in world coordinates, and dr/d(left increment) of A and of B
-    (None with ``of_b`` False: a fixed B, the measured pose)."""
+    (None with ``of_b`` False: a fixed B, the measured pose; both None with ``jacobians`` False)."""
     pA, pB = TA[..., :3, 3], TB[..., :3, 3]
     E = TA[..., :3, :3] @ np.swapaxes(TB[..., :3, :3], -1, -2)
     rw = so3.log(E)
+    if not jacobians:
+        return np.concatenate([pA - pB, rw], axis=-1), None, None
     Ji = so3.left_jacobian_inv(rw)
     shape = TA.shape[:-2]
     GA = np.zeros(shape + (6, 6))
@@ -230,11 +232,33 @@ def pose_gap_in_b(TA: np.ndarray, TB: np.ndarray):
 
 
 def point_jacobian(p: np.ndarray) -> np.ndarray:
-    """d p / d(left increment of the frame carrying p): [I, -hat(p)], (..., 3, 6)."""
-    out = np.zeros(p.shape[:-1] + (3, 6))
-    out[..., :, :3] = np.eye(3)
-    out[..., :, 3:] = -so3.hat(p)
-    return out
+    """d p / d(left increment of the frame carrying p): [I, -hat(p)], (..., 3, 6); written entry by entry from a
+    constant row (``-hat``'s diagonal is -0.0, as negating ``so3.hat`` gives)."""
+    p = np.asarray(p, dtype=float)
+    flat = p.reshape(-1, 3)
+    out = np.empty((len(flat), 18))
+    out[...] = _POINT_ROW
+    out[:, _POINT_PLUS] = flat[:, _POINT_PLUS_OF]
+    out[:, _POINT_MINUS] = -flat[:, _POINT_MINUS_OF]
+    return out.reshape(p.shape[:-1] + (3, 6))
+
+
+# [I, -hat(p)] flattened row by row (3 x 6): ones at 0, 7, 14; -0.0 on -hat's diagonal (3, 10, 17); p_k at
+# _POINT_PLUS, -p_k at _POINT_MINUS (-hat(p) = [[0, z, -y], [-z, 0, x], [y, -x, 0]]).
+_POINT_ROW = np.zeros(18)
+_POINT_ROW[[0, 7, 14]] = 1.0
+_POINT_ROW[[3, 10, 17]] = -0.0
+_POINT_PLUS, _POINT_PLUS_OF = np.array([4, 11, 15]), np.array([2, 0, 1])
+_POINT_MINUS, _POINT_MINUS_OF = np.array([5, 9, 16]), np.array([1, 2, 0])
+
+
+def _det_sign(Q: np.ndarray) -> np.ndarray:
+    """``np.sign(np.linalg.det(Q))`` of orthogonal matrices (determinant +-1, far from zero: any rounding gives
+    the same sign); one 3 x 3 by its triple product on Python floats."""
+    if Q.shape != (3, 3):
+        return np.sign(np.linalg.det(Q))
+    (a, b, c), (d, e, f), (g, h, i) = Q.tolist()
+    return np.sign(np.float64(a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)))
 
 
 def pose_mean(T: np.ndarray) -> np.ndarray:
@@ -248,9 +272,11 @@ def pose_mean(T: np.ndarray) -> np.ndarray:
 def fit_transform(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """Rigid T minimizing sum |T src - dst|^2 (Kabsch): points (..., K, 3), batches broadcast (one layout
     against many rows of measured points), -> (..., 4, 4)."""
-    src, dst = np.broadcast_arrays(src, dst)
-    cs, cd = src.mean(axis=-2), dst.mean(axis=-2)
+    if src.shape != dst.shape:
+        src, dst = np.broadcast_arrays(src, dst)
+    K = src.shape[-2]
+    cs, cd = np.add.reduce(src, axis=-2) / K, np.add.reduce(dst, axis=-2) / K  # ``mean``'s sum and division
     U, _, Vt = np.linalg.svd(np.swapaxes(dst - cd[..., None, :], -1, -2) @ (src - cs[..., None, :]))
-    U[..., :, 2] *= np.sign(np.linalg.det(U @ Vt))[..., None]  # a proper rotation even for a reflected best fit
+    U[..., :, 2] *= _det_sign(U @ Vt)[..., None]  # a proper rotation even for a reflected best fit
     R = U @ Vt
     return se3.make(R, cd - np.einsum("...ij,...j->...i", R, cs))

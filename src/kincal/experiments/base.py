@@ -170,10 +170,14 @@ class Experiment:
     def frame_shape(self, role: str) -> tuple[int, ...]:
         """Shape of the value of a role's frame, to check data sets sharing it agree: the schema's shape, with
         data-chosen sizes (markers ``m``) read off this data set."""
+        return self.frame_shapes()[role]
+
+    def frame_shapes(self) -> dict[str, tuple[int, ...]]:
+        """``frame_shape`` of every role, the data's sizes read once."""
         d = self.dataset
         sizes = self.SCHEMA.sizes(d.measured, d.known, d.size)
-        shape = self.SCHEMA.field(self.ROLES[role]).shape
-        return tuple(sizes.get(s, -1) if isinstance(s, str) else s for s in shape)
+        return {role: tuple(sizes.get(s, -1) if isinstance(s, str) else s for s in self.SCHEMA.field(key).shape)
+                for role, key in self.ROLES.items()}
 
     def start(self, nominal: State, free_parts, unknown) -> dict[str, np.ndarray]:
         """Corrections of tool frames before solving (``{"<arm>.tool": X}``: start from ``tool @ X``) when this
@@ -189,6 +193,11 @@ class Experiment:
     # helpers
     def _parts(self, arm: str, want) -> tuple[str, ...]:
         return tuple(p for p in ARM_PARTS if want is None or f"{arm}.{p}" in want)
+
+    @staticmethod
+    def _residual_only(want, jq: bool) -> bool:
+        """No Jacobian asked for (a trial point's evaluation): the residual alone."""
+        return want is not None and not want and not jq
 
     def _wanted(self, role: str, want) -> bool:
         return role in self.frames and (want is None or self.frames[role] in want)

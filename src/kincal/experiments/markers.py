@@ -45,19 +45,24 @@ class MarkersExperiment(Experiment):
         kin = self._kin(state, arm)
         F = kin.tool
         pA = se3.transform_points(F[:, None], x)  # (N, m, 3) world
+        r = se3.transform_points(se3.remembered(se3.inverse, W), pA) - y
+        if self._residual_only(want, jq):
+            return Residual(r.reshape(N, 3 * m), {}, {})
         Rt = W[:3, :3].T
         GA = Rt @ point_jacobian(pA)  # (N, m, 3, 6)
         jac, jqs = {}, {}
         self._arm_jac(state, arm, kin, GA.reshape(N, 3 * m, 6), want, jq, jac, jqs)
         if self._wanted("markers", want):
-            Jx = np.zeros((N, m, 3, m, 3))
             RtR = Rt @ F[:, :3, :3]
-            for j in range(m):  # loop over markers, not samples
-                Jx[:, j, :, j, :] = RtR
-            jac[self.frames["markers"]] = Jx.reshape(N, 3 * m, 3 * m)
+            if m == 1:  # the block is RtR itself
+                jac[self.frames["markers"]] = RtR
+            else:
+                Jx = np.zeros((N, m, 3, m, 3))
+                for j in range(m):  # loop over markers, not samples
+                    Jx[:, j, :, j, :] = RtR
+                jac[self.frames["markers"]] = Jx.reshape(N, 3 * m, 3 * m)
         if self._wanted("tracker", want):
             jac[self.frames["tracker"]] = -GA.reshape(N, 3 * m, 6)
-        r = se3.transform_points(se3.inverse(W), pA) - y
         return Residual(r.reshape(N, 3 * m), jac, jqs)
 
     def initial(self, state, known):
@@ -70,5 +75,6 @@ class MarkersExperiment(Experiment):
             W = fit_transform(y.reshape(-1, 3), se3.transform_points(F[:, None], x).reshape(-1, 3))
             out["tracker"] = W
         if "markers" not in known:
-            out["markers"] = np.mean(se3.transform_points(se3.inverse(F)[:, None], se3.transform_points(W, y)), axis=0)
+            local = se3.transform_points(se3.inverse(F)[:, None], se3.transform_points(W, y))
+            out["markers"] = np.add.reduce(local, axis=0) / len(local)  # ``np.mean``'s sum and division
         return out

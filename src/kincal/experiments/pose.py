@@ -56,7 +56,10 @@ class PoseExperiment(Experiment):
         W = state.extras[self.frames["tracker"]]
         kin = self._kin(state, arm)
         Wi = se3.inverse(W)
-        r, GA, _ = pose_gap(Wi @ kin.tool, self.dataset.measured["T_tracker_tool"], of_b=False)
+        alone = self._residual_only(want, jq)
+        r, GA, _ = pose_gap(Wi @ kin.tool, self.dataset.measured["T_tracker_tool"], of_b=False, jacobians=not alone)
+        if alone:
+            return Residual(r, {}, {})
         GA = GA @ se3.adjoint(Wi)  # world left increments of the tool -> tracker-frame increments
         jac, jqs = {}, {}
         self._arm_jac(state, arm, kin, GA, want, jq, jac, jqs)

@@ -86,8 +86,9 @@ def _check_shapes(experiments) -> None:
     example the same number of markers)."""
     first: dict[str, tuple[tuple, str]] = {}
     for exp in experiments:
+        shapes = exp.frame_shapes()
         for role, name in exp.frames.items():
-            shape = tuple(exp.frame_shape(role))
+            shape = shapes[role]
             key = exp.ROLES[role]
             if key in exp.dataset.known and np.shape(exp.dataset.known[key]) != shape:
                 raise DataFormatError(f"data set '{exp.name}': field known['{key}'] has shape "

@@ -57,6 +57,17 @@ class Kinematics:
         """``(cos theta, sin theta)``, each (..., n) (the chain's own when it computed them)."""
         return np.cos(self.theta), np.sin(self.theta)
 
+    @cached_property
+    def moves(self) -> np.ndarray:
+        """(n,): whether each joint is off zero in some sample (one at zero in every sample is the identity)."""
+        return self.theta.reshape(-1, self.theta.shape[-1]).any(axis=0)
+
+    @cached_property
+    def one_base(self) -> np.ndarray | None:
+        """The base (4, 4) when every sample has the same one (a chain's own: finite bases are equal), else None."""
+        P0 = self.prefixes[..., 0, :, :].reshape(-1, 4, 4)
+        return P0[0] if (P0 == P0[:1]).all() else None
+
 
 def _exponentials(screws, theta) -> np.ndarray:
     if se3.exact_joint_screws(screws):
@@ -79,16 +90,18 @@ def chain(screws, theta, base, home, tool, frames: bool = True) -> Kinematics:
     ``frames`` False: the products of the joints' exponentials (a loaded chain's, ``elastic.loaded_chain``)."""
     theta = np.asarray(theta, dtype=float)
     screws = np.asarray(screws, dtype=float)
-    turns = None
+    known = {}
     if frames and se3.exact_joint_screws(screws):
-        turns = np.cos(theta), np.sin(theta)
-        prefixes = _frame_prefixes(screws, theta, base, turns)
+        known["turns"] = turns = np.cos(theta), np.sin(theta)
+        prefixes, known["moves"] = _frame_prefixes(screws, theta, base, turns)
     else:
         prefixes = _product_prefixes(screws, theta, base)
+    base = np.asarray(base)
+    if base.ndim == 2 and np.isfinite(base).all():  # every sample's prefix 0 is a copy of it
+        known["one_base"] = prefixes[(0,) * (prefixes.ndim - 2)]  # sample 0, prefix 0
     flange = _times(prefixes[..., -1, :, :], home)
     kin = Kinematics(theta, screws, prefixes, flange, _times(flange, tool))
-    if turns is not None:
-        kin.__dict__["turns"] = turns  # the cached property's value: the Jacobians turn by the same
+    kin.__dict__.update(known)  # the cached properties' values: the Jacobians turn by the same
     return kin
 
 
@@ -111,41 +124,56 @@ def _product_prefixes(screws, theta, base) -> np.ndarray:
     return prefixes
 
 
-def _frame_prefixes(screws, theta, base, turns) -> np.ndarray:
+def _frame_prefixes(screws, theta, base, turns) -> tuple[np.ndarray, np.ndarray]:
     """The prefixes of exact joint screws through their joint frames (``chain``), computed joint by joint in one
-    buffer (joint first) and returned as its (..., n + 1, 4, 4) view."""
+    buffer (joint first) and returned as its (..., n + 1, 4, 4) view, with which joints move (``Kinematics.moves``).
+    ``X = P_i C_i`` is held transposed (column, sample, row), so that a revolute turn of its columns 0 and 1 is
+    three operations on contiguous rows (``turn_pairs``); the products are numpy's on transposed views, the same
+    numbers."""
     C, Ci, revolute, _, _ = se3.joint_frames(screws)
     n = theta.shape[-1]
     batch = theta.shape[:-1]
     flat = theta.reshape(-1, n)
     N = flat.shape[0]
     P = np.empty((n + 1, N, 4, 4))
-    P[0] = np.broadcast_to(base, batch + (4, 4)).reshape(N, 4, 4)
+    P[0] = base if np.ndim(base) == 2 else np.broadcast_to(base, batch + (4, 4)).reshape(N, 4, 4)
     moves = flat.any(axis=0)
-    cos, sin = (t.reshape(-1, n).T[:, :, None] for t in turns)  # per joint (N, 1)
-    X = np.empty((N, 4, 4))
-    X2, P2 = X.reshape(4 * N, 4), P.reshape(n + 1, 4 * N, 4)  # the products' views, made once
-    x0, x1 = X[:, :3, 0], X[:, :3, 1]  # the columns a revolute joint turns (the last row stays (0, 0, 0, 1))
+    c2, s2 = turn_factors(*(t.reshape(-1, n) for t in turns), 4, pose=True)  # per joint (1 or 2, 4 N)
+    XT = np.empty((4, N, 4))
+    XT2, P2 = XT.reshape(4, 4 * N), P.reshape(n + 1, 4 * N, 4)  # the products' views, made once
     for i in range(n):
         if not moves[i]:  # exp(0) = I
             P[i + 1] = P[i]
             continue
-        np.matmul(P2[i], C[i], out=X2)
+        np.matmul(C[i].T, P2[i].T, out=XT2)
         if revolute[i]:  # X Rz(t): columns 0 and 1 turn (c x0 + s x1, c x1 - s x0)
-            turn_columns(x0, x1, cos[i], sin[i])
+            turn_pairs(XT2[:2], c2[i], s2[i])
         else:  # X Tz(t): the origin moves along z
-            X[:, :3, 3] += flat[:, i, None] * X[:, :3, 2]
-        np.matmul(X2, Ci[i], out=P2[i + 1])
-    return np.moveaxis(P, 0, 1).reshape(batch + (n + 1, 4, 4))
+            XT[3, :, :3] += flat[:, i, None] * XT[2, :, :3]
+        np.matmul(XT2.T, Ci[i], out=P2[i + 1])
+    return P.transpose(1, 0, 2, 3).reshape(batch + (n + 1, 4, 4)), moves
 
 
-def turn_columns(x0: np.ndarray, x1: np.ndarray, c: np.ndarray, s: np.ndarray) -> None:
-    """``x0, x1 = c x0 + s x1, c x1 - s x0`` in place (views of a buffer; c, s broadcast against them)."""
-    a = c * x0
-    a += s * x1
-    b = c * x1
-    b -= s * x0
-    x0[...], x1[...] = a, b
+def turn_factors(cos: np.ndarray, sin: np.ndarray, rows: int, pose: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """``turn_pairs``' factors per joint from cos, sin (N, n): ``c`` (n, 1, N * rows) and ``(s, -s)``
+    (n, 2, N * rows), each sample's value repeated over ``rows``; ``pose`` (rows 4): a pose's last row gets 1 and
+    0, so that its +0.0 entries stay +0.0 (``1 x + 0 y``)."""
+    n, N = cos.shape[1], cos.shape[0]
+    c = np.repeat(cos.T, rows, axis=1)
+    s2 = np.repeat(sin.T[:, None, :] * _SIGNS, rows, axis=2)
+    if pose:
+        c.reshape(n, N, 4)[..., 3] = 1.0
+        s2.reshape(n, 2, N, 4)[..., 3] = 0.0
+    return c.reshape(n, 1, N * rows), s2
+
+
+_SIGNS = np.array([[1.0], [-1.0]])  # (s, -s): a product by -1 is the negation
+
+
+def turn_pairs(Z: np.ndarray, c: np.ndarray, s2: np.ndarray) -> None:
+    """``Z[..., 0, :], Z[..., 1, :] = c z0 + s z1, c z1 - s z0`` in place with ``c`` and ``s2 = (s, -s)`` stacked
+    likewise: each a sum of two rounded products (``c z1 + (-s) z0`` is ``c z1 - s z0`` exactly)."""
+    np.add(c * Z, s2 * Z[..., ::-1, :], out=Z)
 
 
 def expanded_chain(screws, theta, base, home, tool, frames: bool = True) -> Kinematics:

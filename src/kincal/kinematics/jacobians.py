@@ -35,7 +35,7 @@ from typing import Sequence
 import numpy as np
 
 from kincal.kinematics.elastic import LoadedKinematics, compliance_columns, deflection_map
-from kincal.kinematics.fk import Kinematics, turn_columns
+from kincal.kinematics.fk import Kinematics, turn_factors, turn_pairs
 from kincal.kinematics.gravity import _Projected, gravity_torque_derivatives
 from kincal.lie import se3
 
@@ -187,28 +187,27 @@ def _frame_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
     theta = kin.theta
     n = theta.shape[1]
     M = np.empty((n + 1, N * k, 6))
-    P0 = kin.prefixes[:, 0]
-    if (P0 == P0[:1]).all():  # one base for every sample (a chain's own)
-        M[0] = G.reshape(N * k, 6) @ se3.adjoint(P0[0])
+    if kin.one_base is not None:  # one base for every sample (a chain's own)
+        M[0] = G.reshape(N * k, 6) @ se3.remembered(se3.adjoint, kin.one_base)
     else:
         M[0] = _project_prefixes(G, kin.prefixes[:, :1])[0]
-    moves = theta.any(axis=0)
-    cos, sin = (t.T[:, :, None, None] for t in kin.turns)  # per joint (N, 1, 1)
-    K2 = np.empty((N * k, 6))
-    K = K2.reshape(N, k, 6)
-    x0, x1 = K[..., 0::3], K[..., 1::3]  # the columns a revolute joint turns: (0, 3) and (1, 4)
+    moves = kin.moves
+    c2, s2 = turn_factors(*kin.turns, k)  # per joint (1 or 2, N k)
+    KT = np.empty((6, N * k))  # K = M_i Ad(C_i) transposed: the turned columns are contiguous rows
+    Z = KT.reshape(2, 3, N * k)[:, :2]  # (x0, x1) of v and of w: rows (0, 1) and (3, 4)
     for i in range(n):
         if not moves[i]:
             M[i + 1] = M[i]
             continue
-        np.matmul(M[i], AdC[i], out=K2)
+        np.matmul(AdC[i].T, M[i].T, out=KT)
         if revolute[i]:  # Ad(Rz(t)) = diag(Rz, Rz): c x0 + s x1, c x1 - s x0
-            turn_columns(x0, x1, cos[i], sin[i])
+            turn_pairs(Z, c2[i], s2[i])
         else:  # Ad(Tz(t)) = [[I, hat(t e_z)], [0, I]]: g^T hat(t e_z) = (g x t e_z)^T
             t = theta[:, i, None]
-            K[..., 3] += t * K[..., 1]
-            K[..., 4] -= t * K[..., 0]
-        np.matmul(K2, AdCi[i], out=M[i + 1])
+            K = KT.reshape(6, N, k)
+            K[3] += t * K[1]
+            K[4] -= t * K[0]
+        np.matmul(KT.T, AdCi[i], out=M[i + 1])
     return M
 
 
@@ -219,7 +218,7 @@ def _twist_columns(M: np.ndarray, generators, step: int, N: int, k: int) -> np.n
     if len(widths) == 1:
         n, t = len(generators), widths.pop()
         D = M[0: step * n: step] - M[step: step * (n + 1): step]  # (n, N*k, 6)
-        return np.moveaxis((D @ np.stack(generators)).reshape(n, N, k, t), 0, 2).reshape(N, k, n * t)
+        return (D @ np.stack(generators)).reshape(n, N, k, t).transpose(1, 2, 0, 3).reshape(N, k, n * t)
     out = np.empty((N, k, sum(g.shape[1] for g in generators)))
     c = 0
     for j, Gj in enumerate(generators):
@@ -231,7 +230,7 @@ def _twist_columns(M: np.ndarray, generators, step: int, N: int, k: int) -> np.n
 
 def _along_screws(M: np.ndarray, screws: np.ndarray, N: int, k: int) -> np.ndarray:
     """``M_j xi_j`` (N, k, n) for projected prefixes M (n, N*k, 6) (``_project_prefixes``)."""
-    return np.moveaxis((M @ screws[:, :, None])[..., 0].reshape(len(screws), N, k), 0, -1)
+    return (M @ screws[:, :, None])[..., 0].reshape(len(screws), N, k).transpose(1, 2, 0)
 
 
 def insertion_torques(kin: LoadedKinematics, m: int, F: np.ndarray, moved=(), C: np.ndarray | None = None

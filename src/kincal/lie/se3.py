@@ -231,10 +231,12 @@ _EXACT: dict[tuple, bool] = {}  # exact_joint_screws of the last few screw array
 
 
 def clear_caches() -> None:
-    """Forget the joint-screw terms and exactness verdicts remembered per screw array (tests, cold timings)."""
+    """Forget the joint-screw terms and exactness verdicts remembered per screw array, and the remembered
+    inverses and adjoints of single poses (tests, cold timings)."""
     _TERMS.clear()
     _EXACT.clear()
     _FRAMES.clear()
+    _ONE_POSE.clear()
 
 
 def _exact(screws: np.ndarray, tol: float) -> bool:
@@ -267,6 +269,24 @@ def inverse(T: np.ndarray) -> np.ndarray:
     T = np.asarray(T, dtype=float)
     Rt = np.swapaxes(T[..., :3, :3], -1, -2)
     return make(Rt, -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3]))
+
+
+def remembered(fn, T: np.ndarray) -> np.ndarray:
+    """``fn(T)`` (``inverse`` or ``adjoint``) of one pose (4, 4), remembered by the function and T's bytes (a
+    tracker frame or base met at every evaluation of a solve); read-only. Other shapes: computed."""
+    T = np.asarray(T, dtype=float)
+    if T.shape != (4, 4):
+        return fn(T)
+    key = (fn, T.tobytes())
+    hit = _ONE_POSE.get(key)
+    if hit is None:
+        hit = fn(T)
+        hit.flags.writeable = False
+        remember(_ONE_POSE, key, hit, _TERMS_ENTRIES)
+    return hit
+
+
+_ONE_POSE: dict[tuple, np.ndarray] = {}  # ``remembered``'s values by (function, bytes of the pose)
 
 
 def adjoint(T: np.ndarray) -> np.ndarray:
