@@ -106,6 +106,8 @@ PHASES = (
     ("LAPACK QR", "numpy.linalg:qr"),
     ("LAPACK QR", "kincal.estimation.problem:triangular_factor"),
     ("LAPACK SVD", "numpy.linalg:svd"),
+    ("LAPACK SVD", "kincal.analysis.linalg:thin_svd"),
+    ("LAPACK QR", "kincal.analysis.linalg:complete_q"),
     ("LAPACK lstsq", "numpy.linalg:lstsq"),
 )
 
