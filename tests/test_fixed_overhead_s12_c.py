@@ -153,9 +153,11 @@ def test_touched_blocks_are_the_scanned_ones(cases, rng):
                 assert layout.touched(mask) == _scan_touched(layout, mask)
         assert L.touched(layout, np.zeros(size, bool)) == []
     assert L.touched(type("E", (), {"blocks": ()})(), np.zeros(0, bool)) == []
-    # remembered per blocks tuple (shared by the layouts of one structure), forgotten with the params caches
+    # remembered per blocks tuple (shared by the layouts of one structure while its arms' values live: the blocks'
+    # memory holds them weakly), forgotten with the params caches
+    first = Problem.build(*cases[0][1:3], cases[0][3], noise=cases[0][4])
     again = Problem.build(*cases[0][1:3], cases[0][3], noise=cases[0][4]).layout
-    assert again.blocks is layouts[1].blocks and again.runs is layouts[1].runs
+    assert again.blocks is first.layout.blocks and again.runs is first.layout.runs
     assert L._RUNS and id(fake.blocks) in L._RUNS
     clear_caches()
     assert not L._RUNS
