@@ -265,8 +265,10 @@ def _joint_sensitivity(exp, state, comps, res=None) -> dict:
         jq = exp.residual(state, want=set(), jq=True).jq
     out = {}
     for q in dict.fromkeys(comps):
-        rows = np.array([c is q or c == q for c in comps], bool)
-        means = [_mean_square(j[:, rows]) for j in jq.values()]
+        rows = [c is q or c == q for c in comps]
+        # every row of one quantity: j[:, rows] would be j's C-ordered copy, which a C-ordered j is already
+        rows = None if all(rows) else np.array(rows, bool)
+        means = [_mean_square(np.ascontiguousarray(j) if rows is None else j[:, rows]) for j in jq.values()]
         # the mean of one mean is itself (x / 1): np.mean's list conversion only where there are more
         out[q] = math.sqrt(means[0] if len(means) == 1 else np.mean(means)) if jq else 0.0
     return out

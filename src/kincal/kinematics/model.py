@@ -184,20 +184,21 @@ class ArmModel:
     def _with_geometry(self, changes: dict) -> "ArmModel":
         where = f"arm '{self.name}'"
         new = object.__new__(ArmModel)
-        new.__dict__.update(self.__dict__, **changes)
-        set_ = lambda k, v: object.__setattr__(new, k, v)  # noqa: E731  (frozen dataclass)
+        fields = new.__dict__  # written directly: a frozen dataclass without slots, as object.__setattr__ would
+        fields.update(self.__dict__, **changes)
         if "screws" in changes:
-            screws = as_array(new.screws, f"{where}: screws", (6,))
-            set_("screws", _frozen(screws))
+            screws = as_array(fields["screws"], f"{where}: screws", (6,))
+            fields["screws"] = _frozen(screws)
             _check_joint_screws(screws, new.joint_types, new.joint_names, where)
         for key in ("home", "base", "tool"):
             if key in changes:  # a transform bit for bit this model's passed its checks: its frozen copy is kept
-                set_(key, getattr(self, key) if _same_bits(changes[key], getattr(self, key))
-                     else _checked_transform(new, key, where))
+                own = getattr(self, key)
+                fields[key] = own if _same_bits(changes[key], own) else _checked_transform(new, key, where)
         for key, default in (("offsets", 0.0), ("compliance", 0.0)):
             if key in changes:
-                set_(key, _joint_vector(new, key, default, new.dof, where))
-        _check_compliance(new, where)
+                fields[key] = _joint_vector(new, key, default, new.dof, where)
+        if "compliance" in changes:  # else this model's, checked with the same allow_negative_compliance
+            _check_compliance(new, where)
         return new
 
     def home_twist(self) -> np.ndarray:
@@ -252,13 +253,18 @@ def _joint_vector(arm: ArmModel, key: str, default: float, n: int, where: str) -
     arr = np.full(n, default, dtype=float) if val is None else np.asarray(val, dtype=float)
     if arr.shape != (n,):
         raise ModelError(f"{where}: {key} must have {n} entries (one per joint), got shape {arr.shape}")
-    if key != "lower" and key != "upper" and not np.all(np.isfinite(arr)):
+    if key != "lower" and key != "upper" and not _all_finite(arr):
         raise ModelError(f"{where}: {key} must be finite, got {arr.tolist()}")
     return _frozen(arr)
 
 
+def _all_finite(arr: np.ndarray) -> bool:
+    """``np.all(np.isfinite(arr))`` of an arm's few per-joint values, on Python floats (no numpy calls)."""
+    return all(map(math.isfinite, arr.ravel().tolist()))
+
+
 def _check_compliance(arm: ArmModel, where: str) -> None:
-    if np.any(arm.compliance < 0) and not arm.allow_negative_compliance:
+    if not arm.allow_negative_compliance and any(c < 0 for c in arm.compliance.ravel().tolist()):
         raise ModelError(f"{where}: compliance must be >= 0 (rad/(N m) or m/N), got {arm.compliance.tolist()}"
                          "; a calibration's estimates below 0 need allow_negative_compliance")
 
