@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from kincal.analysis.linalg import solve
+
 # The first excluded singular value must be below this fraction of the last kept one: the part of ``Rf`` the
 # truncation drops then changes a step or a covariance by less than that, relative (exact symmetries sit at
 # round-off, about 1e-16). Above it (a direction just under the rank threshold) callers decompose again.
@@ -49,5 +51,5 @@ class Factor:
         matrix is ``M^-1 M^-T``."""
         r = self.rank
         M = self.S[:r, None] * (self.Vt[:r] @ (self.c[:, None] * V))
-        Z = np.linalg.solve(M.T, V.T)  # (V M^-1)^T
+        Z = solve(M.T, V.T)  # (V M^-1)^T
         return sigma2 * (Z.T @ Z)
