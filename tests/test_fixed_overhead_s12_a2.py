@@ -1,10 +1,11 @@
-"""Session 12 (a2): the covariance's solve by numpy's own kernel, and the blocks and default pivot order of the
-free coordinates remembered per structure, bit for bit.
+"""Session 12 (a2): the factor's covariance without a solve, and the blocks and default pivot order of the free
+coordinates remembered per structure.
 
-``linalg.solve`` is ``numpy.linalg.solve`` (and its error on a singular matrix); ``blocks_of`` and ``pivot_order``
-remembered are the fresh answers, and another structure or other free coordinates miss; whole solves (markers,
-pose, socket, clamp, dual arm, elastic) with these fast paths swapped for their earlier forms give the same Result
-bit for bit."""
+``linalg.solve`` is ``numpy.linalg.solve`` (and its error on a singular matrix); ``Factor.covariance`` (closed form)
+is the earlier form (a solve with ``M``) to round-off, and whole calibrations with either agree to 1e-10 relative
+(the same rank, status, messages, estimates); ``blocks_of`` and ``pivot_order`` remembered are the fresh answers,
+and another structure or other free coordinates miss; whole solves (markers, pose, socket, clamp, dual arm,
+elastic) with the memory swapped for the fresh computation give the same Result bit for bit."""
 
 from __future__ import annotations
 
@@ -92,9 +93,51 @@ def test_priority_remembered_is_its_earlier_form(ur10_sets):
 # ------------------------------------------------------------------------------------------ whole solves
 
 
+def _covariance_before(self, V, sigma2=1.0):
+    r = self.rank
+    M = self.S[:r, None] * (self.Vt[:r] @ (self.c[:, None] * V))
+    Z = np.linalg.solve(M.T, V.T)  # (V M^-1)^T
+    return sigma2 * (Z.T @ Z)
+
+
+@pytest.mark.parametrize("spread", [0, 1, 2])  # columns graded over 1e-4 (``_deficient``) times 10^-spread
+def test_covariance_without_a_solve_is_the_one_with_to_round_off(spread):
+    from test_fixed_overhead_session10 import _deficient
+    from kincal.analysis.identifiability import analyse
+
+    rng = np.random.default_rng(spread)
+    for low in (None, 1e-3):
+        for _ in range(10):
+            R = _deficient(rng, m=60, p=20, k=5, low=low) * np.logspace(0, -spread, 20)
+            ana = analyse(R, [f"x{i}" for i in range(20)], name=False)
+            assert ana.factor is not None
+            V = ana.range_space
+            got, want = ana.factor.covariance(V, 2.5), _covariance_before(ana.factor, V, 2.5)
+            d = np.sqrt(np.diag(want))
+            assert np.abs(got - want).max() <= 1e-11 * max(1.0, 10.0 ** spread) * np.outer(d, d).max()
+            assert np.allclose(np.diag(got), np.diag(want), rtol=1e-9, atol=0)
+
+
+@pytest.mark.parametrize("case", ["markers", "pose"])
+def test_calibrations_with_the_covariance_without_a_solve_agree_to_1e_10(monkeypatch, ur10_sets, case):
+    run = _cases(ur10_sets)[case]
+    fast = run()
+    with monkeypatch.context() as m:
+        m.setattr(factor.Factor, "covariance", _covariance_before)
+        slow = run()
+    assert fast.identifiability.factor is not None  # the covariance came from the factor
+    assert (fast.status, fast.messages, fast.iterations, fast.identifiability.rank) == \
+        (slow.status, slow.messages, slow.iterations, slow.identifiability.rank)
+    assert [(e.name, e.value, e.identifiable) for e in fast.estimates] == \
+        [(e.name, e.value, e.identifiable) for e in slow.estimates]
+    for a, b in zip(fast.estimates, slow.estimates):
+        assert a.std == pytest.approx(b.std, rel=1e-10, nan_ok=True)
+    d = np.sqrt(np.abs(np.diag(slow.covariance)))
+    assert np.all(np.abs(fast.covariance - slow.covariance) <= 1e-10 * np.outer(d, d))
+
+
 def _earlier_forms(m):
-    """Every fast path of this branch swapped for its earlier form."""
-    m.setattr(factor, "solve", np.linalg.solve)
+    """The memory of this branch swapped for the fresh computation (the covariance: above)."""
     m.setattr(naming, "remember", lambda cache, key, value, limit: value)  # nothing remembered: always fresh
     naming.clear_block_cache()
 
