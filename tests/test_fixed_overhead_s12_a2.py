@@ -1,11 +1,11 @@
 """Session 12 (a2): the factor's covariance without a solve, and the blocks and default pivot order of the free
 coordinates remembered per structure.
 
-``linalg.solve`` is ``numpy.linalg.solve`` (and its error on a singular matrix); ``Factor.covariance`` (closed form)
-is the earlier form (a solve with ``M``) to round-off, and whole calibrations with either agree to 1e-10 relative
-(the same rank, status, messages, estimates); ``blocks_of`` and ``pivot_order`` remembered are the fresh answers,
-and another structure or other free coordinates miss; whole solves (markers, pose, socket, clamp, dual arm,
-elastic) with the memory swapped for the fresh computation give the same Result bit for bit."""
+``Factor.covariance`` (closed form) is the earlier form (a solve with ``M``) to round-off, and whole calibrations
+with either agree to 1e-10 relative (the same rank, status, messages, estimates); ``blocks_of`` and ``pivot_order``
+remembered are the fresh answers, and another structure or other free coordinates miss; whole solves (markers,
+pose, socket, clamp, dual arm, elastic) with the memory swapped for the fresh computation give the same Result
+bit for bit."""
 
 from __future__ import annotations
 
@@ -14,31 +14,11 @@ import pytest
 
 from kincal import robots
 from kincal.analysis import factor, naming, symmetries
-from kincal.analysis.linalg import solve
 from kincal.estimation.gauge import priority
 from kincal.params import build_layout
 from kincal.params.layout import Layout
 from test_fixed_overhead_s12_a import _cases, _first_linearization, _priority_before
 from test_structure_cache import NOISE, _same, ur10_sets  # noqa: F401  (the UR10 data sets, a fixture)
-
-
-@pytest.mark.parametrize("n, k", [(27, 45), (27, 1), (5, 3), (1, 1), (6, 9)])
-def test_solve_is_numpys(n, k):
-    rng = np.random.default_rng(n + 3 * k)
-    A, B = rng.normal(size=(n, n)), rng.normal(size=(k, n))
-    for a, b in ((A, B.T), (A.T, B.T), (np.asfortranarray(A), np.ascontiguousarray(B.T)), (A[::-1], B.T[::-1])):
-        assert solve(a, b).tobytes() == np.linalg.solve(a, b).tobytes()
-    low = (A.astype(np.float32), B.T.astype(np.float32))  # another dtype: numpy's own call
-    assert solve(*low).dtype == np.linalg.solve(*low).dtype
-    assert solve(*low).tobytes() == np.linalg.solve(*low).tobytes()
-
-
-def test_solve_of_a_singular_matrix_raises_numpys_error():
-    A = np.ones((4, 4))
-    with pytest.raises(np.linalg.LinAlgError, match="Singular matrix"):
-        np.linalg.solve(A, np.eye(4))
-    with pytest.raises(np.linalg.LinAlgError, match="Singular matrix"):
-        solve(A, np.eye(4))
 
 
 def _fresh(layout, idx):

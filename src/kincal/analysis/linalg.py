@@ -15,7 +15,7 @@ import numpy as np
 
 try:  # numpy's own LAPACK kernels (``numpy.linalg``'s calls, without their checks and wrappers)
     from numpy.linalg import _umath_linalg as _kernels
-    _kernels.qr_r_raw, _kernels.qr_complete, _kernels.svd_s, _kernels.solve
+    _kernels.qr_r_raw, _kernels.qr_complete, _kernels.svd_s
 except (ImportError, AttributeError):  # pragma: no cover - another numpy: ``numpy.linalg`` itself
     _kernels = None
 
@@ -100,20 +100,6 @@ def complete_q(a: np.ndarray, overwrite: bool = False) -> np.ndarray:
     with np.errstate(call=_qr_error, invalid="call", over="ignore", divide="ignore", under="ignore"):
         tau = _kernels.qr_r_raw(a, signature="d->d")
         return _kernels.qr_complete(a, tau, signature="dd->d")
-
-
-def solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``numpy.linalg.solve(a, b)`` for float64 ``a`` (n, n) and ``b`` (n, k), bit for bit: numpy's ``gesv`` kernel
-    without its checks and wrapping (the covariance asks at every solve); anything else through numpy's call."""
-    if (_kernels is None or type(a) is not np.ndarray or type(b) is not np.ndarray or a.dtype != np.float64
-            or b.dtype != np.float64 or a.ndim != 2 or b.ndim != 2 or a.shape[0] != a.shape[1]):
-        return np.linalg.solve(a, b)
-    with np.errstate(call=_singular, invalid="call", over="ignore", divide="ignore", under="ignore"):
-        return _kernels.solve(a, b, signature="dd->d")
-
-
-def _singular(err, flag):
-    raise np.linalg.LinAlgError("Singular matrix")
 
 
 def _qr_error(err, flag):
