@@ -46,8 +46,9 @@ class Factor:
     def covariance(self, V: np.ndarray, sigma2: float = 1.0) -> np.ndarray:
         """``sigma2 * V (V^T Rf^T Rf V)^-1 V^T`` (``covariance.covariance``) for ``V`` (p, rank) an orthonormal basis
         of the identifiable subspace: ``Rf V = U1 M`` with ``M = S1 V1^T diag(c) V`` square, so the inverse Gram
-        matrix is ``M^-1 M^-T``."""
+        matrix is ``M^-1 M^-T``; and ``M^-1 = V^T diag(c)^-1 V1 S1^-1`` without a solve, since ``diag(c)`` maps the
+        null space (``V``'s complement) into the scaled null space, orthogonal to ``V1``."""
         r = self.rank
-        M = self.S[:r, None] * (self.Vt[:r] @ (self.c[:, None] * V))
-        Z = np.linalg.solve(M.T, V.T)  # (V M^-1)^T
+        W = (self.Vt[:r] / self.c) / self.S[:r, None]  # S1^-1 V1^T diag(c)^-1
+        Z = (W @ V) @ V.T  # (V M^-1)^T
         return sigma2 * (Z.T @ Z)

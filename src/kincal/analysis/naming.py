@@ -8,6 +8,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from kincal._memo import remember
 from kincal.analysis.covariance import right_svd
 from kincal.analysis.linearization import unit_columns
 from kincal.kinematics import chain
@@ -27,8 +28,40 @@ def block_of(layout: Layout, i: int) -> Block:
 
 def blocks_of(layout: Layout, idx) -> list[Block]:
     """The blocks holding the layout coordinates ``idx`` (the blocks are contiguous and in order)."""
-    stops = np.array([b.stop for b in layout.blocks])
-    return [layout.blocks[k] for k in np.searchsorted(stops, np.asarray(idx, dtype=int), side="right").tolist()]
+    return list(_blocks_and_order(layout, idx)[0])
+
+
+def pivot_order(layout: Layout, idx) -> list[int]:
+    """The positions of the coordinates ``idx`` by their block kind's rank (arm offsets, twists, home, base, tool,
+    then experiment frames), stably: the default pivot order of the named null directions."""
+    return list(_blocks_and_order(layout, idx)[1])
+
+
+def _blocks_and_order(layout: Layout, idx) -> tuple[tuple[Block, ...], tuple[int, ...]]:
+    """``blocks_of`` and ``pivot_order``, remembered by the blocks tuple itself (held with the entry, so its id is
+    not reused meanwhile: every layout of a structure shares one, ``params.layout``; blocks and their kinds are
+    immutable) and the values of ``idx``: all they read. A solve asks at its start and its first report."""
+    blocks, idx = layout.blocks, np.asarray(idx, dtype=int)
+    key = (id(blocks), idx.tobytes())
+    hit = _BLOCKS_OF.get(key)
+    if hit is not None and hit[0] is blocks:
+        return hit[1]
+    stops = np.array([b.stop for b in blocks])
+    found = tuple(blocks[k] for k in np.searchsorted(stops, idx, side="right").tolist())
+    ranks = [b.kind.rank for b in found]
+    out = found, tuple(sorted(range(len(found)), key=ranks.__getitem__))
+    if isinstance(blocks, tuple):
+        remember(_BLOCKS_OF, key, (blocks, out), BLOCKS_OF_ENTRIES)
+    return out
+
+
+BLOCKS_OF_ENTRIES = 256
+_BLOCKS_OF: dict = {}
+
+
+def clear_block_cache() -> None:
+    """Forget what ``blocks_of`` and ``pivot_order`` remembered."""
+    _BLOCKS_OF.clear()
 
 
 def degenerate(Rf: np.ndarray, rank: int, rtol: float, layout: Layout, free: np.ndarray,

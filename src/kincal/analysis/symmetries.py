@@ -19,6 +19,7 @@ from kincal.analysis.columns import clear_plans, scatter_columns
 from kincal.analysis.covariance import right_svd
 from kincal.analysis.linalg import lstsq, norm, norms, svd
 from kincal.analysis.linearization import Linearization, unit_columns
+from kincal.analysis.naming import clear_block_cache
 from kincal.kinematics import REVOLUTE
 from kincal.kinematics.model import lineage
 from kincal.lie import se3
@@ -320,11 +321,13 @@ def _remember(key: bytes, nullity: int) -> None:
 
 
 def clear_structure_cache() -> None:
-    """Forget every structure remembered here, and the column plans of ``columns.scatter_columns``."""
+    """Forget every structure remembered here, the column plans of ``columns.scatter_columns`` and the blocks of
+    ``naming.blocks_of``."""
     _FULL_RANK.clear()
     _NULLITY.clear()
     _KEY_STARTS.clear()
     clear_plans()
+    clear_block_cache()
 
 
 def structure_key(lin: Linearization, layout: Layout, experiments: Sequence, rtol: float,

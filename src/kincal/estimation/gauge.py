@@ -8,7 +8,7 @@ import fnmatch
 import numpy as np
 
 from kincal.analysis import Identifiability, identify, select_columns
-from kincal.analysis.naming import blocks_of
+from kincal.analysis.naming import blocks_of, pivot_order
 from kincal.errors import ModelError
 from kincal.estimation import steps
 from kincal.params import COMPLIANCE, LATERAL, State, retract
@@ -17,11 +17,10 @@ def priority(problem, gauge) -> list[int]:
     """Free-coordinate order for pivots: user globs first (if any), then arm offsets, twists, home, base, tool,
     then experiment frames."""
     layout = problem.layout
-    blk = blocks_of(layout, problem.free_idx)
-    ranks = [b.kind.rank for b in blk]
-    default = sorted(range(len(blk)), key=ranks.__getitem__)  # stable: by (rank, k)
+    default = pivot_order(layout, problem.free_idx)  # stable: by (rank, k)
     if isinstance(gauge, str):
         return default
+    blk = blocks_of(layout, problem.free_idx)
     names = [layout.names[i] for i in problem.free_idx]
     order: list[int] = []
     for pat in gauge:
