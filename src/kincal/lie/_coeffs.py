@@ -100,6 +100,19 @@ def log_coeff(theta):
     return _branch(theta, _LOG_D, lambda t: (1.0 - 0.5 * t * np.sin(t) / (1.0 - np.cos(t))) / t**2)
 
 
+def exp_coeffs(theta: np.ndarray) -> tuple[list, list, list]:
+    """(sin_over_t, one_minus_cos_over_t2, t_minus_sin_over_t3) of angles (m,), as lists of Python floats: below
+    the branch point, a few of them, in one loop (``_branch``'s series, the same IEEE operations)."""
+    if theta.size <= _FEW and bool(np.all(theta < _TAYLOR_BELOW)):
+        out = ([], [], [])
+        series = (_SIN_OVER_T, _ONE_MINUS_COS, _T_MINUS_SIN)
+        for t2 in (theta * theta).tolist():
+            for o, c in zip(out, series):
+                o.append(_horner_float(c.rest, c.top, t2))
+        return out
+    return tuple(f(theta).tolist() for f in (sin_over_t, one_minus_cos_over_t2, t_minus_sin_over_t3))
+
+
 def se3_jl_coeffs(theta):
     """Coefficients (a1, a2, a3, a4) with J_l(xi) = I + a1 X + a2 X^2 + a3 X^3 + a4 X^4, X = ad(xi).
 
