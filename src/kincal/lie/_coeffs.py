@@ -100,15 +100,22 @@ def log_coeff(theta):
     return _branch(theta, _LOG_D, lambda t: (1.0 - 0.5 * t * np.sin(t) / (1.0 - np.cos(t))) / t**2)
 
 
+_EXP_TOPS = (_SIN_OVER_T.top, _ONE_MINUS_COS.top, _T_MINUS_SIN.top)
+_EXP_RESTS = tuple(zip(_SIN_OVER_T.rest, _ONE_MINUS_COS.rest, _T_MINUS_SIN.rest))
+
+
 def exp_coeffs(theta: np.ndarray) -> tuple[list, list, list]:
     """(sin_over_t, one_minus_cos_over_t2, t_minus_sin_over_t3) of angles (m,), as lists of Python floats: below
     the branch point, a few of them, in one loop (``_branch``'s series, the same IEEE operations)."""
     if theta.size <= _FEW and bool(np.all(theta < _TAYLOR_BELOW)):
         out = ([], [], [])
-        series = (_SIN_OVER_T, _ONE_MINUS_COS, _T_MINUS_SIN)
         for t2 in (theta * theta).tolist():
-            for o, c in zip(out, series):
-                o.append(_horner_float(c.rest, c.top, t2))
+            a, b, c = _EXP_TOPS
+            for ca, cb, cc in _EXP_RESTS:  # ``_horner_float`` of the three, side by side
+                a, b, c = a * t2 + ca, b * t2 + cb, c * t2 + cc
+            out[0].append(a)
+            out[1].append(b)
+            out[2].append(c)
         return out
     return tuple(f(theta).tolist() for f in (sin_over_t, one_minus_cos_over_t2, t_minus_sin_over_t3))
 
