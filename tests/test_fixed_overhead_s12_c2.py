@@ -42,6 +42,22 @@ def test_exp_coeffs_are_the_three_series(t):
     assert len(fast) == 3 and all(_same(f, p) for f, p in zip(fast, plain))
 
 
+@pytest.mark.parametrize("t", ANGLES + [np.float64(0.3), np.float64(1.2), np.full((2, 3), 0.4), np.full((2, 9), 0.4)],
+                         ids=range(len(ANGLES) + 4))
+def test_series_of_a_few_angles_are_the_batched_ones(t):
+    """``_branch`` and ``se3_jl_coeffs`` on Python floats for a few small angles: numpy's Horner bit for bit."""
+    t = np.asarray(t)
+    for s, f in ((_coeffs._SIN_OVER_T, _coeffs.sin_over_t), (_coeffs._LOG_D, _coeffs.log_coeff)):
+        fast = f(t)
+        small = t < _coeffs._TAYLOR_BELOW
+        plain = np.where(small, _coeffs._horner(s.values, np.atleast_1d(t * t)).reshape(t.shape), fast)
+        assert _same(fast, plain) and np.shape(fast) == t.shape
+    jl = _coeffs.se3_jl_coeffs(t)
+    for c, a in zip((_coeffs._A1, _coeffs._A2, _coeffs._A3, _coeffs._A4), jl):
+        plain = np.where(t < _coeffs._TAYLOR_BELOW, _coeffs._horner(c.values, np.atleast_1d(t * t)).reshape(t.shape), a)
+        assert _same(a, plain) and np.shape(a) == t.shape
+
+
 def test_few_exponentials_are_the_batched_ones(rng):
     for scale in (1e-6, 1e-2, 0.5, 2.0):
         xi = rng.normal(size=(16, 6)) * scale
