@@ -125,3 +125,15 @@ def test_the_comparison_can_fail(monkeypatch, cases):
     with monkeypatch.context() as m:
         m.setattr(se3, "exp_coeffs", lambda t: tuple([c * (1 + 1e-15) for c in cs] for cs in _plain_exp_coeffs(t)))
         assert _digest(calibrate(robot, sets, free, noise=noise)) != shipped
+
+
+@pytest.mark.parametrize("m, n", [(150, 52), (5, 9), (128, 128), (300, 127), (200, 129), (1, 1), (40, 200)])
+def test_triangular_factor_is_numpys_r(rng, m, n):
+    """The triangle's mask read from the constant table (up to its size) or made (above): numpy's R bit for bit."""
+    from kincal.estimation.problem import triangular_factor
+
+    A = rng.normal(size=(m, n))
+    cols = [A[:, : n // 2], A[:, n // 2:]]
+    R = triangular_factor(cols)
+    R0 = np.linalg.qr(A, mode="r")
+    assert R.flags.c_contiguous and _same(R, R0)
