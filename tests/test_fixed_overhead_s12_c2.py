@@ -1,8 +1,10 @@
 """Session 12, round 2 (helper c2): the Lie kernel with fewer numpy and Python calls, bit for bit.
 
 ``_coeffs.exp_coeffs`` evaluates the three series of a few exponentials in one loop (``se3._few_exps``);
+``_coeffs._few_small`` lets ``_branch`` and ``se3_jl_coeffs`` check and square a few angles on Python floats;
 ``se3.log_with_jacobian_inv`` is ``log`` and ``left_jacobian_inv`` with the rotation's inverse Jacobian computed
-once (``ops.displacement``, the pose kinds' ``displacement``). Each against the calls it replaces, on angles below,
+once (``ops.displacement``, the pose kinds' ``displacement``); ``problem.triangular_factor`` reads the triangle's
+mask from a constant table. Each against the calls it replaces, on angles below,
 at and above the series' branch point and near pi, and through whole calibrations (markers, pose, clamp, dual arm,
 elastic)."""
 
@@ -13,6 +15,7 @@ import pytest
 from test_fixed_overhead_s12_c import _digest, cases  # noqa: F401 (the structures, the result digest)
 
 from kincal.estimation import calibrate
+from kincal.estimation import problem as P
 from kincal.lie import _coeffs, se3, so3
 from kincal.params import clear_caches, displacement
 from kincal.params import kinds as K
@@ -109,6 +112,8 @@ def test_calibrations_give_what_the_replaced_calls_give(monkeypatch, cases):
         with monkeypatch.context() as m:
             m.setattr(se3, "exp_coeffs", _plain_exp_coeffs)
             m.setattr(se3, "log_with_jacobian_inv", _plain_log_with_jacobian_inv)
+            m.setattr(_coeffs, "_few_small", lambda theta: None)  # numpy's Horner for a few angles too
+            m.setattr(P, "_UPPER", np.zeros((0, 0), bool))  # the triangle's mask made at every call
             clear_caches()
             plain = _digest(calibrate(robot, sets, free, noise=noise))
         assert shipped == plain, name
