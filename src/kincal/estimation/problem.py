@@ -385,8 +385,13 @@ def triangular_factor(columns: Sequence[np.ndarray]) -> np.ndarray:
         return np.linalg.qr(np.column_stack(columns), mode="r")
     k = min(m, n)
     R = np.zeros((k, n))  # C-ordered; the upper triangle copied in, the zeros below as ``np.triu``'s
-    np.copyto(R, qr[:k], where=~np.tri(k, n, -1, dtype=bool))
+    np.copyto(R, qr[:k], where=_UPPER[:k, :n] if n <= len(_UPPER) else ~np.tri(k, n, -1, dtype=bool))
     return R
+
+
+# ``~np.tri(k, n, -1, dtype=bool)`` of every k <= n up to its size is its leading block: one constant table
+_UPPER = ~np.tri(128, 128, -1, dtype=bool)
+_UPPER.flags.writeable = False
 
 
 def _blocks_of(layout, cols: np.ndarray) -> frozenset:

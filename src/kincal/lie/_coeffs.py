@@ -60,18 +60,27 @@ def _horner_float(cs: list, out: float, t2: float) -> float:
     return out
 
 
+def _few_small(theta: np.ndarray) -> list | None:
+    """The angles (an array of 1 to ``_FEW`` dimensions) as Python floats when there are at most ``_FEW`` of them,
+    all below the branch point; else None."""
+    if theta.ndim == 0 or theta.size > _FEW:
+        return None
+    ts = theta.ravel().tolist()
+    return ts if all(t < _TAYLOR_BELOW for t in ts) else None
+
+
 def _branch(theta: np.ndarray, series: _Series, closed_form) -> np.ndarray:
     theta = np.asarray(theta, dtype=float)
+    ts = _few_small(theta)
+    if ts is not None:  # a few angles (one per joint), all below the branch point: Python floats, the same IEEE
+        cs, top = series.rest, series.top  # operations (``t * t`` is ``theta * theta``'s product)
+        return np.array([_horner_float(cs, top, t * t) for t in ts]).reshape(theta.shape)
     small = theta < _TAYLOR_BELOW
     if theta.ndim == 0:  # one angle: Horner on Python floats (the same IEEE operations, without array overhead)
         if not small:
             return closed_form(theta)
         return np.float64(_horner_float(series.rest, series.top, float(theta * theta)))
     if small.all():  # every angle below the branch point (joint screws' small steps): no masking
-        if theta.size <= _FEW:  # a few angles (one per joint): Python floats, the same IEEE operations
-            cs, top = series.rest, series.top
-            return np.array([_horner_float(cs, top, t2) for t2 in (theta * theta).ravel().tolist()]
-                            ).reshape(theta.shape)
         return _horner(series.values, theta * theta)
     out = np.empty_like(theta)
     out[small] = _horner(series.values, theta[small] ** 2)
@@ -100,16 +109,39 @@ def log_coeff(theta):
     return _branch(theta, _LOG_D, lambda t: (1.0 - 0.5 * t * np.sin(t) / (1.0 - np.cos(t))) / t**2)
 
 
+_EXP_TOPS = (_SIN_OVER_T.top, _ONE_MINUS_COS.top, _T_MINUS_SIN.top)
+_EXP_RESTS = tuple(zip(_SIN_OVER_T.rest, _ONE_MINUS_COS.rest, _T_MINUS_SIN.rest))
+
+
+def exp_coeffs(theta: np.ndarray) -> tuple[list, list, list]:
+    """(sin_over_t, one_minus_cos_over_t2, t_minus_sin_over_t3) of angles (m,), as lists of Python floats: below
+    the branch point, a few of them, in one loop (``_branch``'s series, the same IEEE operations)."""
+    ts = _few_small(theta)
+    if ts is not None:
+        out = ([], [], [])
+        for t in ts:
+            t2 = t * t  # ``theta * theta``'s product
+            a, b, c = _EXP_TOPS
+            for ca, cb, cc in _EXP_RESTS:  # ``_horner_float`` of the three, side by side
+                a, b, c = a * t2 + ca, b * t2 + cb, c * t2 + cc
+            out[0].append(a)
+            out[1].append(b)
+            out[2].append(c)
+        return out
+    return tuple(f(theta).tolist() for f in (sin_over_t, one_minus_cos_over_t2, t_minus_sin_over_t3))
+
+
 def se3_jl_coeffs(theta):
     """Coefficients (a1, a2, a3, a4) with J_l(xi) = I + a1 X + a2 X^2 + a3 X^3 + a4 X^4, X = ad(xi).
 
     These are the thesis' closed forms (eq. 2.44 with q = 1), theta = |w|.
     """
     theta = np.asarray(theta, dtype=float)
-    if theta.size <= _FEW and bool(np.all(theta < _TAYLOR_BELOW)):  # ``_branch``'s series on floats, all four
-        t2 = (theta * theta).ravel().tolist()
+    ts = _few_small(theta)
+    if ts is not None:  # ``_branch``'s series on floats, all four
+        t2 = [t * t for t in ts]
         return tuple(np.array([_horner_float(c.rest, c.top, x) for x in t2]).reshape(theta.shape)
-                     if theta.ndim else np.float64(_horner_float(c.rest, c.top, t2[0])) for c in (_A1, _A2, _A3, _A4))
+                     for c in (_A1, _A2, _A3, _A4))
     a1 = _branch(theta, _A1, lambda t: (4 - t * np.sin(t) - 4 * np.cos(t)) / (2 * t**2))
     a2 = _branch(theta, _A2, lambda t: (4 * t - 5 * np.sin(t) + t * np.cos(t)) / (2 * t**3))
     a3 = _branch(theta, _A3, lambda t: (2 - t * np.sin(t) - 2 * np.cos(t)) / (2 * t**4))

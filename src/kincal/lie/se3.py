@@ -14,7 +14,7 @@ import numpy as np
 
 from kincal._memo import remember
 from kincal.lie import so3
-from kincal.lie._coeffs import one_minus_cos_over_t2, se3_jl_coeffs, sin_over_t, t_minus_sin_over_t3
+from kincal.lie._coeffs import exp_coeffs, one_minus_cos_over_t2, se3_jl_coeffs, t_minus_sin_over_t3
 
 
 def split(xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -77,10 +77,10 @@ def exp(xi: np.ndarray) -> np.ndarray:
 
 
 def _few_exps(xi: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """``exp`` of a few twists (m, 6) at angles t (m,): the coefficients and cosines as arrays (numpy's own
-    functions), the rest twist by twist on Python floats with ``exp``'s and ``so3.exp``'s operations (one
-    coefficient each for both, as they compute the same)."""
-    a, b, c3 = (f(t).tolist() for f in (sin_over_t, one_minus_cos_over_t2, t_minus_sin_over_t3))
+    """``exp`` of a few twists (m, 6) at angles t (m,): the coefficients (``exp_coeffs``) and cosines (numpy's),
+    the rest twist by twist on Python floats with ``exp``'s and ``so3.exp``'s operations (one coefficient each for
+    both, as they compute the same)."""
+    a, b, c3 = exp_coeffs(t)
     out = []
     for (v0, v1, v2, x, y, z), ak, bk, ck, c in zip(xi.tolist(), a, b, c3, np.cos(t).tolist()):
         wv = so3.cross_tuple((x, y, z), (v0, v1, v2))
@@ -265,6 +265,16 @@ def log(T: np.ndarray) -> np.ndarray:
     return join(v, w)
 
 
+def log_with_jacobian_inv(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(x, left_jacobian_inv(x))`` with ``x = log(T)``, the rotation's inverse Jacobian computed once (the same
+    numbers as the two calls)."""
+    T = np.asarray(T, dtype=float)
+    w = so3.log(T[..., :3, :3])
+    Ji = so3.left_jacobian_inv(w)
+    x = join(np.einsum("...ij,...j->...i", Ji, T[..., :3, 3]), w)
+    return x, _inverse_blocks(Ji, left_jacobian(x)[..., :3, 3:])
+
+
 def inverse(T: np.ndarray) -> np.ndarray:
     T = np.asarray(T, dtype=float)
     Rt = np.swapaxes(T[..., :3, :3], -1, -2)
@@ -335,6 +345,10 @@ def _ad_entries(sign: int) -> tuple[np.ndarray, np.ndarray]:
 _AD_PLUS, _AD_MINUS = _ad_entries(1), _ad_entries(-1)
 
 
+_I6 = np.eye(6)
+_I6.flags.writeable = False
+
+
 def left_jacobian(xi: np.ndarray) -> np.ndarray:
     """J_l(xi) = sum_k ad(xi)^k / (k+1)!, in the thesis' four-term closed form (eq. 2.44): (..., 6, 6)."""
     xi = np.asarray(xi, dtype=float)
@@ -342,7 +356,7 @@ def left_jacobian(xi: np.ndarray) -> np.ndarray:
     X = ad(xi)
     X2 = X @ X
     X3 = X2 @ X
-    return np.eye(6) + a1 * X + a2 * X2 + a3 * X3 + a4 * (X2 @ X2)
+    return _I6 + a1 * X + a2 * X2 + a3 * X3 + a4 * (X2 @ X2)
 
 
 def left_jacobian_inv(xi: np.ndarray) -> np.ndarray:
@@ -350,8 +364,12 @@ def left_jacobian_inv(xi: np.ndarray) -> np.ndarray:
     xi = np.asarray(xi, dtype=float)
     w = split(xi)[1]
     Q = left_jacobian(xi)[..., :3, 3:]
-    Ji = so3.left_jacobian_inv(w)
-    out = np.zeros(xi.shape[:-1] + (6, 6))
+    return _inverse_blocks(so3.left_jacobian_inv(w), Q)
+
+
+def _inverse_blocks(Ji: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """[[J, Q], [0, J]]^-1 from J^-1 (..., 3, 3) and Q."""
+    out = np.zeros(Ji.shape[:-2] + (6, 6))
     out[..., :3, :3] = Ji
     out[..., 3:, 3:] = Ji
     out[..., :3, 3:] = -Ji @ Q @ Ji

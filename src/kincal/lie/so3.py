@@ -119,12 +119,16 @@ def log(R: np.ndarray) -> np.ndarray:
     return np.where(large[..., None], w_large, w_small)
 
 
+_I3 = np.eye(3)
+_I3.flags.writeable = False
+
+
 def left_jacobian(w: np.ndarray) -> np.ndarray:
     """J_l(w) = I + (1 - cos t)/t^2 W + (t - sin t)/t^3 W^2: (..., 3) -> (..., 3, 3)."""
     w = np.asarray(w, dtype=float)
     t = angle(w)[..., None, None]
     W = hat(w)
-    return np.eye(3) + one_minus_cos_over_t2(t) * W + t_minus_sin_over_t3(t) * (W @ W)
+    return _I3 + one_minus_cos_over_t2(t) * W + t_minus_sin_over_t3(t) * (W @ W)
 
 
 def left_jacobian_inv(w: np.ndarray) -> np.ndarray:
@@ -132,7 +136,7 @@ def left_jacobian_inv(w: np.ndarray) -> np.ndarray:
     w = np.asarray(w, dtype=float)
     t = angle(w)[..., None, None]
     W = hat(w)
-    return np.eye(3) - 0.5 * W + log_coeff(t) * (W @ W)
+    return _I3 - 0.5 * W + log_coeff(t) * (W @ W)
 
 
 def right_jacobian(w: np.ndarray) -> np.ndarray:

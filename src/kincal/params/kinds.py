@@ -121,8 +121,7 @@ class ParamKind:
 
 
 def _pose_disp(T, T0):
-    x = _pose_offset(T, T0)
-    return x, se3.left_jacobian_inv(x)
+    return se3.log_with_jacobian_inv(T @ se3.inverse(T0))
 
 
 def _pose_offset(T, T0):

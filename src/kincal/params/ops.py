@@ -111,8 +111,8 @@ def displacement(state: State, nominal: State, layout: Layout, only: np.ndarray 
             disp[b.slice] = b.kind.offset(value, value0)
     if poses:
         T, T0 = np.stack([t for _, t, _ in poses]), np.stack([t for _, _, t in poses])
-        x = se3.log(T @ se3.inverse(T0))
-        Jinv = se3.left_jacobian_inv(x) if jacobian else None
+        D_T = T @ se3.inverse(T0)
+        x, Jinv = se3.log_with_jacobian_inv(D_T) if jacobian else (se3.log(D_T), None)
         for k, (b, _, _) in enumerate(poses):
             disp[b.slice] = x[k]
             if jacobian:
