@@ -63,6 +63,13 @@ class Kinematics:
         return self.theta.reshape(-1, self.theta.shape[-1]).any(axis=0)
 
     @cached_property
+    def coefficients(self) -> np.ndarray:
+        """(n, N, 2): each joint's ``(a, b)`` per sample with ``exp(X t) = I + a X + b X^2`` for X the hat of an
+        exact joint screw (``ad(xi)`` alike, for the adjoint): revolute ``(sin t, 1 - cos t)`` (``X^3 = -X``),
+        prismatic ``(t, 1 - cos t)`` (``X^2 = 0``); theta (N, n)."""
+        return _coefficients(self.screws, self.theta, self.turns)
+
+    @cached_property
     def one_base(self) -> np.ndarray | None:
         """The base (4, 4) when every sample has the same one (a chain's own: finite bases are equal), else None."""
         P0 = self.prefixes[..., 0, :, :].reshape(-1, 4, 4)
@@ -103,6 +110,70 @@ def chain(screws, theta, base, home, tool, frames: bool = True) -> Kinematics:
     kin = Kinematics(theta, screws, prefixes, flange, _times(flange, tool))
     kin.__dict__.update(known)  # the cached properties' values: the Jacobians turn by the same
     return kin
+
+
+def sample_chain(screws, theta, base, home, tool) -> Kinematics:
+    """``chain`` with one product per joint over all samples, of the joints' exponentials in closed form
+    (``Kinematics.coefficients``: ``I + a X + b X^2``, every joint and sample in one product): the numbers of
+    ``chain`` to round-off (``chain``'s joint frames take two products and a turn per joint). For exact joint
+    screws, theta (N, n) and one finite base (4, 4); else ``chain``. A joint at zero in every sample is the
+    identity."""
+    theta = np.asarray(theta, dtype=float)
+    screws = np.asarray(screws, dtype=float)
+    base = np.asarray(base, dtype=float)
+    if theta.ndim != 2 or base.shape != (4, 4) or not np.isfinite(base).all() or not se3.exact_joint_screws(screws):
+        return chain(screws, theta, base, home, tool)
+    N, n = theta.shape
+    turns = np.cos(theta), np.sin(theta)
+    ab = _coefficients(screws, theta, turns)
+    moves = theta.any(axis=0)
+    E = ab @ _hat_powers(screws)  # (n, N, 16)
+    E += _EYE16
+    E = E.reshape(n, N, 4, 4)
+    P = np.empty((n + 1, N, 4, 4))
+    P[0] = base
+    for i in range(n):
+        if moves[i]:
+            np.matmul(P[i], E[i], out=P[i + 1])
+        else:  # exp(0) = I
+            P[i + 1] = P[i]
+    flange = _times(P[n], home)
+    prefixes = P.transpose(1, 0, 2, 3)
+    kin = Kinematics(theta, screws, prefixes, flange, _times(flange, tool))
+    kin.__dict__.update(turns=turns, moves=moves, coefficients=ab, one_base=prefixes[0, 0])
+    return kin
+
+
+_EYE16 = np.eye(4).ravel()
+
+
+def _coefficients(screws: np.ndarray, theta: np.ndarray, turns) -> np.ndarray:
+    """``Kinematics.coefficients``."""
+    cos, sin = turns
+    n = screws.shape[0]
+    ab = np.empty((n,) + cos.shape[:-1] + (2,))
+    ab[..., 0] = sin.T
+    np.subtract(1.0, cos.T, out=ab[..., 1])
+    prismatic = [j for j, x in enumerate(screws.tolist()) if x[3] * x[3] + x[4] * x[4] + x[5] * x[5] <= 0.5]
+    if prismatic:
+        ab[prismatic, ..., 0] = theta.T[prismatic]
+    return ab
+
+
+def _hat_powers(screws: np.ndarray) -> np.ndarray:
+    """``(hat(xi), hat(xi)^2)`` of each twist (n, 6), flattened: (n, 2, 16)."""
+    n = screws.shape[0]
+    out = np.zeros((n, 2, 16))
+    out[:, 0, _HAT_PLUS[0]] = screws[:, _HAT_PLUS[1]]
+    out[:, 0, _HAT_MINUS[0]] = -screws[:, _HAT_MINUS[1]]
+    X = out[:, 0].reshape(n, 4, 4)
+    out[:, 1] = (X @ X).reshape(n, 16)
+    return out
+
+
+# hat(xi) = [[0, -w3, w2, v1], [w3, 0, -w1, v2], [-w2, w1, 0, v3], 0] flattened: (positions, coordinates of xi)
+_HAT_PLUS = (np.array([2, 3, 4, 7, 9, 11]), np.array([4, 0, 5, 1, 3, 2]))
+_HAT_MINUS = (np.array([1, 6, 8]), np.array([5, 3, 4]))
 
 
 def _times(T: np.ndarray, X) -> np.ndarray:

@@ -169,12 +169,49 @@ def joint_jacobian(kin: Kinematics, G: np.ndarray, screws: np.ndarray, projected
 
 def prefix_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
     """``G Ad(P_j)`` (n + 1, N*k, 6) for every prefix of the chain: what its Jacobians share. Exact joint screws
-    go joint by joint through their frames (``_frame_projections``), other twists and loaded chains (whose
-    numbers stay those of the products of exponentials, ``fk.chain``) project every prefix."""
+    go joint by joint through each sample's joint adjoint (``_sample_projections``), other twists and loaded
+    chains (whose numbers stay those of the products of exponentials, ``fk.chain``) project every prefix."""
     if (G.ndim == 3 and kin.theta.shape == G.shape[:1] + kin.screws.shape[:1] and not isinstance(kin, LoadedKinematics)
             and se3.exact_joint_screws(kin.screws)):
-        return _frame_projections(kin, G)
+        return _sample_projections(kin, G)
     return _project_prefixes(G, kin.prefixes)
+
+
+def _sample_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
+    """``prefix_projections`` of exact joint screws: ``G Ad(P_{i+1}) = (G Ad(P_i)) Ad(exp(xi_i t))`` with
+    ``Ad(exp(xi t)) = I + a ad(xi) + b ad(xi)^2`` (``Kinematics.coefficients``; every joint and sample in one
+    product), then one product per joint over all samples; a joint at zero in every sample is the identity.
+    The numbers of ``_frame_projections`` (two products and a turn per joint) to round-off."""
+    N, k = G.shape[:2]
+    n = kin.theta.shape[1]
+    A = kin.coefficients @ _ad_powers(kin.screws)  # (n, N, 36)
+    A += _EYE36
+    A = A.reshape(n, N, 6, 6)
+    M = np.empty((n + 1, N, k, 6))
+    if kin.one_base is not None:  # one base for every sample (a chain's own)
+        M[0] = G @ se3.remembered(se3.adjoint, kin.one_base)
+    else:
+        M[0] = _project_prefixes(G, kin.prefixes[:, :1])[0].reshape(N, k, 6)
+    moves = kin.moves
+    for i in range(n):
+        if moves[i]:
+            np.matmul(M[i], A[i], out=M[i + 1])
+        else:
+            M[i + 1] = M[i]
+    return M.reshape(n + 1, N * k, 6)
+
+
+_EYE36 = np.eye(6).ravel()
+
+
+def _ad_powers(screws: np.ndarray) -> np.ndarray:
+    """``(ad(xi), ad(xi)^2)`` of each twist (n, 6), flattened: (n, 2, 36)."""
+    n = screws.shape[0]
+    out = np.empty((n, 2, 36))
+    ad = se3.ad(screws)
+    out[:, 0] = ad.reshape(n, 36)
+    out[:, 1] = (ad @ ad).reshape(n, 36)
+    return out
 
 
 def _frame_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
