@@ -157,3 +157,36 @@ def test_whole_calibrations_agree_with_the_replaced_kernels(cases, monkeypatch):
                 assert abs(a.std - b.std) <= 1e-10 * abs(b.std), (name, a.name, a.std, b.std)
             else:
                 assert not np.isfinite(a.std)
+
+
+def test_markers_points_are_remembered_on_the_kinematics_only_for_the_same_frames():
+    """A second residual on the same (remembered) kinematics reuses the marker points and residual; another
+    tracker, other markers or another experiment computes them (the base's numbers, bit for bit)."""
+    import dataclasses
+    from kincal.estimation import Problem
+    from kincal.experiments.base import remembered_kinematics
+    from kincal.simulate import Noise as SimNoise, generate_markers
+    robot = load("ur10")
+    ds = generate_markers(robot, "arm", n=15, rng=3, noise=SimNoise(position=5e-5), markers=2)[0]
+    problem = Problem.build(robot, [ds], "kinematic")
+    exp, state = problem.experiments[0], problem.start
+    fresh = exp.residual(state, want=None, jq=True)
+    with remembered_kinematics([exp]):
+        trial = exp.residual(state, want=set(), jq=False)
+        again = exp.residual(state, want=None, jq=True)
+        assert again.r.tobytes() == trial.r.tobytes() == fresh.r.tobytes()
+        assert all(again.jac[b].tobytes() == fresh.jac[b].tobytes() for b in fresh.jac)
+        for role, change in (("tracker", lambda W: se3.exp(np.full(6, 1e-3)) @ W), ("markers", lambda x: x + 1e-3)):
+            name = exp.frames[role]
+            moved = state.replace(state.arms, {**state.extras, name: change(state.extras[name])})
+            other = Problem.build(robot, [ds], "kinematic").experiments[0]
+            for e in (exp, other):
+                with remembered_kinematics([e]):
+                    got = e.residual(moved, want=set(), jq=False).r
+                want = dataclasses.replace(exp).residual(moved, want=set(), jq=False).r  # nothing remembered
+                assert got.tobytes() == want.tobytes() and got.tobytes() != fresh.r.tobytes()
+        other = dataclasses.replace(exp, dataset=dataclasses.replace(ds, measured={
+            **ds.measured, "p_tracker_marker": ds.measured["p_tracker_marker"] + 1e-3}))
+        kin = exp._kin(state, "arm")
+        assert other._points(kin, state.extras[exp.frames["tracker"]], np.asarray(state.extras[exp.frames["markers"]]),
+                             other.dataset.measured["p_tracker_marker"])[1].tobytes() != fresh.r.tobytes()
