@@ -190,3 +190,37 @@ def test_markers_points_are_remembered_on_the_kinematics_only_for_the_same_frame
         kin = exp._kin(state, "arm")
         assert other._points(kin, state.extras[exp.frames["tracker"]], np.asarray(state.extras[exp.frames["markers"]]),
                              other.dataset.measured["p_tracker_marker"])[1].tobytes() != fresh.r.tobytes()
+
+
+def _conform_cases(rng):
+    ur10 = load("ur10")["arm"]
+    yield ur10.screws, ur10.joint_types
+    for n in (1, 2, 6, 9, 16):
+        xi = rng.standard_normal((n, 6)) * rng.choice([1e-3, 1.0, 1e3], (n, 1))
+        xi = np.where(rng.random(xi.shape) < 0.25, rng.choice([0.0, -0.0], xi.shape), xi)
+        xi[:, 3:][~xi[:, 3:].any(axis=1)] = 1.0  # a revolute joint's axis is not zero
+        types = tuple(rng.choice(["revolute", "prismatic"], n))
+        for j, t in enumerate(types):
+            if t == "prismatic" and not xi[j, :3].any():
+                xi[j, 0] = -2.0
+        yield xi, types
+        yield ur10.screws + 1e-9 * rng.standard_normal(ur10.screws.shape), ur10.joint_types
+
+
+def test_conform_twists_on_floats_is_the_numpy_one_bit_for_bit(monkeypatch):
+    from kincal.kinematics import twists
+    rng = np.random.default_rng(8)
+    cases = list(_conform_cases(rng))
+    for mode in ("line", "thesis"):
+        got = [twists.conform_twists(xi, types, mode) for xi, types in cases]
+        with monkeypatch.context() as m:
+            m.setattr(twists, "_FEW", 0)  # every arm through numpy
+            want = [twists.conform_twists(xi, types, mode) for xi, types in cases]
+        for g, w in zip(got, want):
+            assert g.shape == w.shape and g.dtype == w.dtype and g.tobytes() == w.tobytes()
+    with np.errstate(all="ignore"):  # a zero axis: numpy's nan and inf, as before
+        zero = np.zeros((2, 6))
+        got = twists.conform_twists(zero, ("revolute", "prismatic"))
+        with monkeypatch.context() as m:
+            m.setattr(twists, "_FEW", 0)
+            assert got.tobytes() == twists.conform_twists(zero, ("revolute", "prismatic")).tobytes()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from kincal.kinematics.model import PRISMATIC, REVOLUTE
@@ -25,6 +27,11 @@ def conform_twists(screws: np.ndarray, joint_types, mode: str = "line") -> np.nd
     bad = [k for k in joint_types if k not in (REVOLUTE, PRISMATIC)]
     if bad:
         raise ValueError(f"unknown joint type {bad[0]!r}")
+    if xi.ndim == 2 and xi.shape[1] == 6 and len(xi) <= _FEW and len(joint_types) == len(xi):
+        try:
+            return _conform_few(xi.tolist(), [k == REVOLUTE for k in joint_types], mode == "line")
+        except ZeroDivisionError:  # a zero axis: numpy's inf and nan below
+            pass
     v, w = se3.split(xi)
     rev = np.array([k == REVOLUTE for k in joint_types], bool)
     out = np.zeros_like(xi)
@@ -37,6 +44,26 @@ def conform_twists(screws: np.ndarray, joint_types, mode: str = "line") -> np.nd
         vp = v[~rev]
         out[~rev, :3] = vp / np.sqrt(np.einsum("ij,ij->i", vp, vp))[:, None]
     return out
+
+
+def _conform_few(rows: list, revolute: list, line: bool) -> np.ndarray:
+    """``conform_twists`` joint by joint on Python floats (an arm's joints): the same IEEE operations in the same
+    order: ``einsum``'s sum of three products, ``0.0 + ((a_0 + a_2) + a_1)`` (its two-lane loop; onto 0.0, so
+    that -0.0 sums to +0.0), checked bit for bit against it by the tests."""
+    out = []
+    for (v0, v1, v2, w0, w1, w2), rev in zip(rows, revolute):
+        if rev:
+            ww = 0.0 + ((w0 * w0 + w2 * w2) + w1 * w1)
+            norm = math.sqrt(ww)
+            f = (0.0 + ((w0 * v0 + w2 * v2) + w1 * v1)) / ww
+            p = (v0 - f * w0, v1 - f * w1, v2 - f * w2)
+            if line:
+                p = (p[0] / norm, p[1] / norm, p[2] / norm)
+            out.append((*p, w0 / norm, w1 / norm, w2 / norm))
+        else:
+            norm = math.sqrt(0.0 + ((v0 * v0 + v2 * v2) + v1 * v1))
+            out.append((v0 / norm, v1 / norm, v2 / norm, 0.0, 0.0, 0.0))
+    return np.array(out, dtype=float).reshape(len(rows), 6)
 
 
 def _perpendicular_pairs(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
