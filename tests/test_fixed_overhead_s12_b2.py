@@ -76,7 +76,8 @@ def test_coefficients_give_each_joints_exponential():
         E = np.eye(4) + kin.coefficients[..., 0, None, None] * X[:, None] \
             + kin.coefficients[..., 1, None, None] * (X @ X)[:, None]
         _close(np.swapaxes(E, 0, 1), se3.exp_joint_screws(screws, theta), 10.0)
-        assert fk._hat_powers(screws).reshape(-1, 2, 4, 4)[:, 0].tobytes() == X.tobytes()
+        assert np.array_equal(fk.powers(screws, fk._HAT_BASIS).reshape(-1, 2, 4, 4)[:, 0], X)
+        assert np.array_equal(fk.powers(screws, jac._AD_BASIS).reshape(-1, 2, 6, 6)[:, 0], se3.ad(screws))
 
 
 def test_sample_chain_falls_back_to_the_chain():

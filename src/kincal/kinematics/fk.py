@@ -94,7 +94,8 @@ def chain(screws, theta, base, home, tool, frames: bool = True) -> Kinematics:
     Exact joint screws (``se3.exact_joint_screws``) go through their joint frames (``se3.joint_frames``):
     ``P_i = (P_{i-1} C_i) Z_i(theta_i) C_i^-1``, two products with constants over all samples at once and a
     change of two columns per joint; a joint at zero in every sample is the identity (its prefix is the last).
-    ``frames`` False: the products of the joints' exponentials (a loaded chain's, ``elastic.loaded_chain``)."""
+    ``frames`` False: the products of the joints' exponentials (a loaded chain's, ``elastic.loaded_chain``).
+    ``sample_chain``: the same to round-off with fewer operations (the experiments' unloaded arms)."""
     theta = np.asarray(theta, dtype=float)
     screws = np.asarray(screws, dtype=float)
     known = {}
@@ -127,7 +128,7 @@ def sample_chain(screws, theta, base, home, tool) -> Kinematics:
     turns = np.cos(theta), np.sin(theta)
     ab = _coefficients(screws, theta, turns)
     moves = theta.any(axis=0)
-    E = ab @ _hat_powers(screws)  # (n, N, 16)
+    E = ab @ powers(screws, _HAT_BASIS)  # (n, N, 16)
     E += _EYE16
     E = E.reshape(n, N, 4, 4)
     P = np.empty((n + 1, N, 4, 4))
@@ -150,30 +151,28 @@ _EYE16 = np.eye(4).ravel()
 def _coefficients(screws: np.ndarray, theta: np.ndarray, turns) -> np.ndarray:
     """``Kinematics.coefficients``."""
     cos, sin = turns
-    n = screws.shape[0]
-    ab = np.empty((n,) + cos.shape[:-1] + (2,))
-    ab[..., 0] = sin.T
-    np.subtract(1.0, cos.T, out=ab[..., 1])
+    ab = np.empty((2,) + cos.shape[::-1])
+    ab[0] = sin.T
+    np.subtract(1.0, cos.T, out=ab[1])
     prismatic = [j for j, x in enumerate(screws.tolist()) if x[3] * x[3] + x[4] * x[4] + x[5] * x[5] <= 0.5]
     if prismatic:
-        ab[prismatic, ..., 0] = theta.T[prismatic]
-    return ab
+        ab[0, prismatic] = theta.T[prismatic]
+    return ab.transpose(1, 2, 0)
 
 
-def _hat_powers(screws: np.ndarray) -> np.ndarray:
-    """``(hat(xi), hat(xi)^2)`` of each twist (n, 6), flattened: (n, 2, 16)."""
-    n = screws.shape[0]
-    out = np.zeros((n, 2, 16))
-    out[:, 0, _HAT_PLUS[0]] = screws[:, _HAT_PLUS[1]]
-    out[:, 0, _HAT_MINUS[0]] = -screws[:, _HAT_MINUS[1]]
-    X = out[:, 0].reshape(n, 4, 4)
-    out[:, 1] = (X @ X).reshape(n, 16)
-    return out
+def powers(screws: np.ndarray, basis: np.ndarray) -> np.ndarray:
+    """``(X, X^2)`` flattened, (n, 2, d * d), of the matrices ``X = sum_k xi_k basis_k`` of each twist (n, 6) for a
+    linear map ``basis`` (6, d * d) of twists to d x d matrices (``hat`` or ``ad`` of the unit twists): the
+    entries are the twist's coordinates, their signs or zero (one product over all twists)."""
+    n, dd = screws.shape[0], basis.shape[1]
+    d = int(round(dd ** 0.5))
+    out = np.empty((n, 2, d, d))
+    np.matmul(screws, basis, out=out[:, 0].reshape(n, dd))
+    np.matmul(out[:, 0], out[:, 0], out=out[:, 1])
+    return out.reshape(n, 2, dd)
 
 
-# hat(xi) = [[0, -w3, w2, v1], [w3, 0, -w1, v2], [-w2, w1, 0, v3], 0] flattened: (positions, coordinates of xi)
-_HAT_PLUS = (np.array([2, 3, 4, 7, 9, 11]), np.array([4, 0, 5, 1, 3, 2]))
-_HAT_MINUS = (np.array([1, 6, 8]), np.array([5, 3, 4]))
+_HAT_BASIS = se3.hat(np.eye(6)).reshape(6, 16)  # hat of the unit twists: hat(xi) = xi @ _HAT_BASIS
 
 
 def _times(T: np.ndarray, X) -> np.ndarray:

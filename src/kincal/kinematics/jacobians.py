@@ -35,7 +35,7 @@ from typing import Sequence
 import numpy as np
 
 from kincal.kinematics.elastic import LoadedKinematics, compliance_columns, deflection_map
-from kincal.kinematics.fk import Kinematics, turn_factors, turn_pairs
+from kincal.kinematics.fk import Kinematics, powers, turn_factors, turn_pairs
 from kincal.kinematics.gravity import _Projected, gravity_torque_derivatives
 from kincal.lie import se3
 
@@ -184,7 +184,7 @@ def _sample_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
     The numbers of ``_frame_projections`` (two products and a turn per joint) to round-off."""
     N, k = G.shape[:2]
     n = kin.theta.shape[1]
-    A = kin.coefficients @ _ad_powers(kin.screws)  # (n, N, 36)
+    A = kin.coefficients @ powers(kin.screws, _AD_BASIS)  # (n, N, 36)
     A += _EYE36
     A = A.reshape(n, N, 6, 6)
     M = np.empty((n + 1, N, k, 6))
@@ -204,21 +204,15 @@ def _sample_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
 _EYE36 = np.eye(6).ravel()
 
 
-def _ad_powers(screws: np.ndarray) -> np.ndarray:
-    """``(ad(xi), ad(xi)^2)`` of each twist (n, 6), flattened: (n, 2, 36)."""
-    n = screws.shape[0]
-    out = np.empty((n, 2, 36))
-    ad = se3.ad(screws)
-    out[:, 0] = ad.reshape(n, 36)
-    out[:, 1] = (ad @ ad).reshape(n, 36)
-    return out
+_AD_BASIS = se3.ad(np.eye(6)).reshape(6, 36)  # ad of the unit twists: ad(xi) = xi @ _AD_BASIS
 
 
 def _frame_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
     """``prefix_projections`` of exact joint screws: with ``exp(xi_i t) = C_i Z_i(t) C_i^-1``
     (``se3.joint_frames``), ``G Ad(P_{i+1}) = ((G Ad(P_i)) Ad(C_i)) Ad(Z_i) Ad(C_i^-1)``: two products with
     constant 6 x 6 matrices over all rows at once, and ``Ad(Z_i)`` turns two pairs of columns (revolute) or adds
-    the translation's term (prismatic); a joint at zero in every sample is the identity."""
+    the translation's term (prismatic); a joint at zero in every sample is the identity. ``prefix_projections``
+    uses ``_sample_projections`` (fewer operations); this one stays the reference the tests hold it to."""
     _, _, revolute, AdC, AdCi = se3.joint_frames(kin.screws)
     N, k = G.shape[:2]
     theta = kin.theta
@@ -255,7 +249,7 @@ def _twist_columns(M: np.ndarray, generators, step: int, N: int, k: int) -> np.n
     if len(widths) == 1:
         n, t = len(generators), widths.pop()
         D = M[0: step * n: step] - M[step: step * (n + 1): step]  # (n, N*k, 6)
-        return (D @ np.stack(generators)).reshape(n, N, k, t).transpose(1, 2, 0, 3).reshape(N, k, n * t)
+        return (D @ np.array(generators)).reshape(n, N, k, t).transpose(1, 2, 0, 3).reshape(N, k, n * t)
     out = np.empty((N, k, sum(g.shape[1] for g in generators)))
     c = 0
     for j, Gj in enumerate(generators):
