@@ -188,8 +188,8 @@ def _sample_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
     A += _EYE36
     A = A.reshape(n, N, 6, 6)
     M = np.empty((n + 1, N, k, 6))
-    if kin.one_base is not None:  # one base for every sample (a chain's own)
-        M[0] = G @ se3.remembered(se3.adjoint, kin.one_base)
+    if kin.one_base is not None:  # one base for every sample (a chain's own): one 2-d product
+        np.matmul(G.reshape(N * k, 6), se3.remembered(se3.adjoint, kin.one_base), out=M[0].reshape(N * k, 6))
     else:
         M[0] = _project_prefixes(G, kin.prefixes[:, :1])[0].reshape(N, k, 6)
     moves = kin.moves
