@@ -225,3 +225,24 @@ def test_conform_twists_on_floats_is_the_numpy_one_bit_for_bit(monkeypatch):
         with monkeypatch.context() as m:
             m.setattr(twists, "_FEW", 0)
             assert got.tobytes() == twists.conform_twists(zero, ("revolute", "prismatic")).tobytes()
+
+
+def test_tangent_frames_on_floats_are_the_numpy_ones_bit_for_bit(monkeypatch):
+    """The revolute frames written out on Python floats against the batched numpy ones (signed zeros, axes
+    along the coordinate axes and ties of magnitude included)."""
+    from kincal.kinematics import twists
+    rng = np.random.default_rng(12)
+    screws = [load("ur10")["arm"].screws]
+    for n in (1, 5, 16):
+        xi = rng.standard_normal((n, 6))
+        xi = np.where(rng.random(xi.shape) < 0.3, rng.choice([0.0, -0.0], xi.shape), xi)
+        xi[:, 3:][~xi[:, 3:].any(axis=1)] = [0.0, -1.0, 1.0]  # a tie of magnitudes
+        screws.append(xi)
+    for xi in screws:
+        types = ("revolute",) * len(xi)
+        got = twists.tangent_frames(xi, types)
+        with monkeypatch.context() as m:
+            m.setattr(twists, "_FEW", 0)  # the batched numpy frames
+            want = twists.tangent_frames(xi, types)
+        for g, w in zip(got, want):
+            assert all(a.shape == b.shape and a.tobytes() == b.tobytes() for a, b in zip(g, w))
