@@ -16,7 +16,7 @@ import numpy as np
 
 from kincal.data import Dataset
 from kincal.experiments._kernel import ARM_PARTS, arm_jacobians, coupled, tree_jacobians, tree_kin
-from kincal.kinematics import Kinematics, chain, loaded_chain
+from kincal.kinematics import Kinematics, loaded_chain, sample_chain
 from kincal.kinematics.branches import loading_branches
 from kincal.kinematics.model import lineage
 from kincal.noise import Quantity
@@ -228,7 +228,7 @@ class Experiment:
         theta0 = self.dataset.q[arm] + a.offsets
         w = self.dataset.measured.get("wrench_tool")
         if w is None and a.weights is None:
-            return chain(a.screws, theta0, a.base, a.home, a.tool)
+            return sample_chain(a.screws, theta0, a.base, a.home, a.tool)
         c = a.compliance_at(self.dataset.q[arm])  # (n,), or (N, n) when a joint's compliance depends on its angle
         return loaded_chain(a.screws, theta0, a.base, a.home, a.tool, c, w, a.weights, coupling=a.coupling)
 

@@ -11,6 +11,8 @@ block and its Jacobian terms in ``kincal.kinematics.jacobians``).
 
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 
 from kincal.experiments._kernel import fit_transform, point_jacobian
@@ -30,6 +32,9 @@ SCHEMA = Schema(
 )
 
 
+_POINTS = "_markers_points"  # where ``MarkersExperiment._points`` keeps its last values on the kinematics
+
+
 class MarkersExperiment(Experiment):
     SCHEMA = SCHEMA
 
@@ -44,8 +49,7 @@ class MarkersExperiment(Experiment):
         N, m = y.shape[:2]
         kin = self._kin(state, arm)
         F = kin.tool
-        pA = se3.transform_points(F[:, None], x)  # (N, m, 3) world
-        r = se3.transform_points(se3.remembered(se3.inverse, W), pA) - y
+        pA, r = self._points(kin, W, x, y)
         if self._residual_only(want, jq):
             return Residual(r.reshape(N, 3 * m), {}, {})
         Rt = W[:3, :3].T
@@ -64,6 +68,19 @@ class MarkersExperiment(Experiment):
         if self._wanted("tracker", want):
             jac[self.frames["tracker"]] = -GA.reshape(N, 3 * m, 6)
         return Residual(r.reshape(N, 3 * m), jac, jqs)
+
+    def _points(self, kin, W, x, y) -> tuple[np.ndarray, np.ndarray]:
+        """The markers in the world (N, m, 3) and the residual (N, m, 3) at ``kin``; those of the last call on the
+        same kinematics (remembered ones, ``base.remembered_kinematics``: an accepted trial, then its Jacobian)
+        when this experiment's tracker and markers are the same bit for bit."""
+        key = (W.tobytes(), x.shape, x.tobytes())
+        last = kin.__dict__.get(_POINTS)
+        if last is not None and last[0]() is self and last[1] == key:
+            return last[2], last[3]
+        pA = se3.transform_points(kin.tool[:, None], x)
+        r = se3.transform_points(se3.remembered(se3.inverse, W), pA) - y
+        kin.__dict__[_POINTS] = (weakref.ref(self), key, pA, r)
+        return pA, r
 
     def initial(self, state, known):
         F = self._fk(state, self.arms[0])

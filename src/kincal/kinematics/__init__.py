@@ -8,6 +8,7 @@ from kincal.kinematics.fk import (
     joint_array,
     joint_axes,
     kinematics,
+    sample_chain,
     space_jacobian,
 )
 from kincal.kinematics.elastic import (
@@ -39,6 +40,7 @@ __all__ = [
     "loaded_forward_kinematics",
     "loaded_kinematics",
     "kinematics",
+    "sample_chain",
     "space_jacobian",
     "TOOL_PARTS",
     "TWIST_COORDS",

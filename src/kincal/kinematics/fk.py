@@ -63,6 +63,13 @@ class Kinematics:
         return self.theta.reshape(-1, self.theta.shape[-1]).any(axis=0)
 
     @cached_property
+    def coefficients(self) -> np.ndarray:
+        """(n, N, 2): each joint's ``(a, b)`` per sample with ``exp(X t) = I + a X + b X^2`` for X the hat of an
+        exact joint screw (``ad(xi)`` alike, for the adjoint): revolute ``(sin t, 1 - cos t)`` (``X^3 = -X``),
+        prismatic ``(t, 1 - cos t)`` (``X^2 = 0``); theta (N, n)."""
+        return _coefficients(self.screws, self.theta, self.turns)
+
+    @cached_property
     def one_base(self) -> np.ndarray | None:
         """The base (4, 4) when every sample has the same one (a chain's own: finite bases are equal), else None."""
         P0 = self.prefixes[..., 0, :, :].reshape(-1, 4, 4)
@@ -87,7 +94,8 @@ def chain(screws, theta, base, home, tool, frames: bool = True) -> Kinematics:
     Exact joint screws (``se3.exact_joint_screws``) go through their joint frames (``se3.joint_frames``):
     ``P_i = (P_{i-1} C_i) Z_i(theta_i) C_i^-1``, two products with constants over all samples at once and a
     change of two columns per joint; a joint at zero in every sample is the identity (its prefix is the last).
-    ``frames`` False: the products of the joints' exponentials (a loaded chain's, ``elastic.loaded_chain``)."""
+    ``frames`` False: the products of the joints' exponentials (a loaded chain's, ``elastic.loaded_chain``).
+    ``sample_chain``: the same to round-off with fewer operations (the experiments' unloaded arms)."""
     theta = np.asarray(theta, dtype=float)
     screws = np.asarray(screws, dtype=float)
     known = {}
@@ -103,6 +111,68 @@ def chain(screws, theta, base, home, tool, frames: bool = True) -> Kinematics:
     kin = Kinematics(theta, screws, prefixes, flange, _times(flange, tool))
     kin.__dict__.update(known)  # the cached properties' values: the Jacobians turn by the same
     return kin
+
+
+def sample_chain(screws, theta, base, home, tool) -> Kinematics:
+    """``chain`` with one product per joint over all samples, of the joints' exponentials in closed form
+    (``Kinematics.coefficients``: ``I + a X + b X^2``, every joint and sample in one product): the numbers of
+    ``chain`` to round-off (``chain``'s joint frames take two products and a turn per joint). For exact joint
+    screws, theta (N, n) and one finite base (4, 4); else ``chain``. A joint at zero in every sample is the
+    identity."""
+    theta = np.asarray(theta, dtype=float)
+    screws = np.asarray(screws, dtype=float)
+    base = np.asarray(base, dtype=float)
+    if theta.ndim != 2 or base.shape != (4, 4) or not np.isfinite(base).all() or not se3.exact_joint_screws(screws):
+        return chain(screws, theta, base, home, tool)
+    N, n = theta.shape
+    turns = np.cos(theta), np.sin(theta)
+    ab = _coefficients(screws, theta, turns)
+    moves = theta.any(axis=0)
+    E = ab @ powers(screws, _HAT_BASIS)  # (n, N, 16)
+    E += _EYE16
+    E = E.reshape(n, N, 4, 4)
+    P = np.empty((n + 1, N, 4, 4))
+    P[0] = base
+    for i in range(n):
+        if moves[i]:
+            np.matmul(P[i], E[i], out=P[i + 1])
+        else:  # exp(0) = I
+            P[i + 1] = P[i]
+    flange = _times(P[n], home)
+    prefixes = P.transpose(1, 0, 2, 3)
+    kin = Kinematics(theta, screws, prefixes, flange, _times(flange, tool))
+    kin.__dict__.update(turns=turns, moves=moves, coefficients=ab, one_base=prefixes[0, 0])
+    return kin
+
+
+_EYE16 = np.eye(4).ravel()
+
+
+def _coefficients(screws: np.ndarray, theta: np.ndarray, turns) -> np.ndarray:
+    """``Kinematics.coefficients``."""
+    cos, sin = turns
+    ab = np.empty((2,) + cos.shape[::-1])
+    ab[0] = sin.T
+    np.subtract(1.0, cos.T, out=ab[1])
+    prismatic = [j for j, x in enumerate(screws.tolist()) if x[3] * x[3] + x[4] * x[4] + x[5] * x[5] <= 0.5]
+    if prismatic:
+        ab[0, prismatic] = theta.T[prismatic]
+    return ab.transpose(1, 2, 0)
+
+
+def powers(screws: np.ndarray, basis: np.ndarray) -> np.ndarray:
+    """``(X, X^2)`` flattened, (n, 2, d * d), of the matrices ``X = sum_k xi_k basis_k`` of each twist (n, 6) for a
+    linear map ``basis`` (6, d * d) of twists to d x d matrices (``hat`` or ``ad`` of the unit twists): the
+    entries are the twist's coordinates, their signs or zero (one product over all twists)."""
+    n, dd = screws.shape[0], basis.shape[1]
+    d = int(round(dd ** 0.5))
+    out = np.empty((n, 2, d, d))
+    np.matmul(screws, basis, out=out[:, 0].reshape(n, dd))
+    np.matmul(out[:, 0], out[:, 0], out=out[:, 1])
+    return out.reshape(n, 2, dd)
+
+
+_HAT_BASIS = se3.hat(np.eye(6)).reshape(6, 16)  # hat of the unit twists: hat(xi) = xi @ _HAT_BASIS
 
 
 def _times(T: np.ndarray, X) -> np.ndarray:

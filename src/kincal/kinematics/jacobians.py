@@ -35,7 +35,7 @@ from typing import Sequence
 import numpy as np
 
 from kincal.kinematics.elastic import LoadedKinematics, compliance_columns, deflection_map
-from kincal.kinematics.fk import Kinematics, turn_factors, turn_pairs
+from kincal.kinematics.fk import Kinematics, powers, turn_factors, turn_pairs
 from kincal.kinematics.gravity import _Projected, gravity_torque_derivatives
 from kincal.lie import se3
 
@@ -169,19 +169,50 @@ def joint_jacobian(kin: Kinematics, G: np.ndarray, screws: np.ndarray, projected
 
 def prefix_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
     """``G Ad(P_j)`` (n + 1, N*k, 6) for every prefix of the chain: what its Jacobians share. Exact joint screws
-    go joint by joint through their frames (``_frame_projections``), other twists and loaded chains (whose
-    numbers stay those of the products of exponentials, ``fk.chain``) project every prefix."""
+    go joint by joint through each sample's joint adjoint (``_sample_projections``), other twists and loaded
+    chains (whose numbers stay those of the products of exponentials, ``fk.chain``) project every prefix."""
     if (G.ndim == 3 and kin.theta.shape == G.shape[:1] + kin.screws.shape[:1] and not isinstance(kin, LoadedKinematics)
             and se3.exact_joint_screws(kin.screws)):
-        return _frame_projections(kin, G)
+        return _sample_projections(kin, G)
     return _project_prefixes(G, kin.prefixes)
+
+
+def _sample_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
+    """``prefix_projections`` of exact joint screws: ``G Ad(P_{i+1}) = (G Ad(P_i)) Ad(exp(xi_i t))`` with
+    ``Ad(exp(xi t)) = I + a ad(xi) + b ad(xi)^2`` (``Kinematics.coefficients``; every joint and sample in one
+    product), then one product per joint over all samples; a joint at zero in every sample is the identity.
+    The numbers of ``_frame_projections`` (two products and a turn per joint) to round-off."""
+    N, k = G.shape[:2]
+    n = kin.theta.shape[1]
+    A = kin.coefficients @ powers(kin.screws, _AD_BASIS)  # (n, N, 36)
+    A += _EYE36
+    A = A.reshape(n, N, 6, 6)
+    M = np.empty((n + 1, N, k, 6))
+    if kin.one_base is not None:  # one base for every sample (a chain's own): one 2-d product
+        np.matmul(G.reshape(N * k, 6), se3.remembered(se3.adjoint, kin.one_base), out=M[0].reshape(N * k, 6))
+    else:
+        M[0] = _project_prefixes(G, kin.prefixes[:, :1])[0].reshape(N, k, 6)
+    moves = kin.moves
+    for i in range(n):
+        if moves[i]:
+            np.matmul(M[i], A[i], out=M[i + 1])
+        else:
+            M[i + 1] = M[i]
+    return M.reshape(n + 1, N * k, 6)
+
+
+_EYE36 = np.eye(6).ravel()
+
+
+_AD_BASIS = se3.ad(np.eye(6)).reshape(6, 36)  # ad of the unit twists: ad(xi) = xi @ _AD_BASIS
 
 
 def _frame_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
     """``prefix_projections`` of exact joint screws: with ``exp(xi_i t) = C_i Z_i(t) C_i^-1``
     (``se3.joint_frames``), ``G Ad(P_{i+1}) = ((G Ad(P_i)) Ad(C_i)) Ad(Z_i) Ad(C_i^-1)``: two products with
     constant 6 x 6 matrices over all rows at once, and ``Ad(Z_i)`` turns two pairs of columns (revolute) or adds
-    the translation's term (prismatic); a joint at zero in every sample is the identity."""
+    the translation's term (prismatic); a joint at zero in every sample is the identity. ``prefix_projections``
+    uses ``_sample_projections`` (fewer operations); this one stays the reference the tests hold it to."""
     _, _, revolute, AdC, AdCi = se3.joint_frames(kin.screws)
     N, k = G.shape[:2]
     theta = kin.theta
@@ -218,7 +249,7 @@ def _twist_columns(M: np.ndarray, generators, step: int, N: int, k: int) -> np.n
     if len(widths) == 1:
         n, t = len(generators), widths.pop()
         D = M[0: step * n: step] - M[step: step * (n + 1): step]  # (n, N*k, 6)
-        return (D @ np.stack(generators)).reshape(n, N, k, t).transpose(1, 2, 0, 3).reshape(N, k, n * t)
+        return (D @ np.array(generators)).reshape(n, N, k, t).transpose(1, 2, 0, 3).reshape(N, k, n * t)
     out = np.empty((N, k, sum(g.shape[1] for g in generators)))
     c = 0
     for j, Gj in enumerate(generators):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from kincal.kinematics.model import PRISMATIC, REVOLUTE
@@ -25,6 +27,11 @@ def conform_twists(screws: np.ndarray, joint_types, mode: str = "line") -> np.nd
     bad = [k for k in joint_types if k not in (REVOLUTE, PRISMATIC)]
     if bad:
         raise ValueError(f"unknown joint type {bad[0]!r}")
+    if xi.ndim == 2 and xi.shape[1] == 6 and len(xi) <= _FEW and len(joint_types) == len(xi):
+        try:
+            return _conform_few(xi.tolist(), [k == REVOLUTE for k in joint_types], mode == "line")
+        except ZeroDivisionError:  # a zero axis: numpy's inf and nan below
+            pass
     v, w = se3.split(xi)
     rev = np.array([k == REVOLUTE for k in joint_types], bool)
     out = np.zeros_like(xi)
@@ -37,6 +44,26 @@ def conform_twists(screws: np.ndarray, joint_types, mode: str = "line") -> np.nd
         vp = v[~rev]
         out[~rev, :3] = vp / np.sqrt(np.einsum("ij,ij->i", vp, vp))[:, None]
     return out
+
+
+def _conform_few(rows: list, revolute: list, line: bool) -> np.ndarray:
+    """``conform_twists`` joint by joint on Python floats (an arm's joints): the same IEEE operations in the same
+    order: ``einsum``'s sum of three products, ``0.0 + ((a_0 + a_2) + a_1)`` (its two-lane loop; onto 0.0, so
+    that -0.0 sums to +0.0), checked bit for bit against it by the tests."""
+    out = []
+    for (v0, v1, v2, w0, w1, w2), rev in zip(rows, revolute):
+        if rev:
+            ww = 0.0 + ((w0 * w0 + w2 * w2) + w1 * w1)
+            norm = math.sqrt(ww)
+            f = (0.0 + ((w0 * v0 + w2 * v2) + w1 * v1)) / ww
+            p = (v0 - f * w0, v1 - f * w1, v2 - f * w2)
+            if line:
+                p = (p[0] / norm, p[1] / norm, p[2] / norm)
+            out.append((*p, w0 / norm, w1 / norm, w2 / norm))
+        else:
+            norm = math.sqrt(0.0 + ((v0 * v0 + v2 * v2) + v1 * v1))
+            out.append((v0 / norm, v1 / norm, v2 / norm, 0.0, 0.0, 0.0))
+    return np.array(out, dtype=float).reshape(len(rows), 6)
 
 
 def _perpendicular_pairs(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -104,19 +131,25 @@ _FEW = 16  # joints up to which ``tangent_frames`` goes joint by joint on Python
 
 def _revolute_frame(v, w) -> list:
     """``_revolute_frames`` of one joint (v, w lists of floats) with the same operations (``argmin`` keeps the
-    first of equal magnitudes, the norm sums the squares in order): B's then G's entries, row by row."""
-    cross = so3.cross_tuple
-    p = cross(w, v)
-    x, y, z = abs(w[0]), abs(w[1]), abs(w[2])
-    a = (1.0, 0.0, 0.0) if x <= y and x <= z else (0.0, 1.0, 0.0) if y <= z else (0.0, 0.0, 1.0)
-    u1 = so3.unit_tuple(cross(w, a))
-    u2 = cross(w, u1)
-    wu1, wu2 = u2, cross(w, u2)  # w x u1 is u2
-    c1, c2, g1, g2 = cross(u1, p), cross(u2, p), cross(wu1, p), cross(wu2, p)
-    return [-wu1[0], -wu2[0], -c1[0], -c2[0], -wu1[1], -wu2[1], -c1[1], -c2[1], -wu1[2], -wu2[2], -c1[2], -c2[2],
-            0.0, 0.0, u1[0], u2[0], 0.0, 0.0, u1[1], u2[1], 0.0, 0.0, u1[2], u2[2],
-            u1[0], u2[0], -g1[0], -g2[0], u1[1], u2[1], -g1[1], -g2[1], u1[2], u2[2], -g1[2], -g2[2],
-            0.0, 0.0, wu1[0], wu2[0], 0.0, 0.0, wu1[1], wu2[1], 0.0, 0.0, wu1[2], wu2[2]]
+    first of equal magnitudes, the norm sums the squares in order; the cross products written out, as
+    ``so3.cross_tuple``): B's then G's entries, row by row."""
+    v0, v1, v2 = v
+    w0, w1, w2 = w
+    p0, p1, p2 = w1 * v2 - w2 * v1, w2 * v0 - w0 * v2, w0 * v1 - w1 * v0  # w x v
+    x, y, z = abs(w0), abs(w1), abs(w2)
+    a0, a1, a2 = (1.0, 0.0, 0.0) if x <= y and x <= z else (0.0, 1.0, 0.0) if y <= z else (0.0, 0.0, 1.0)
+    c0, c1, c2 = w1 * a2 - w2 * a1, w2 * a0 - w0 * a2, w0 * a1 - w1 * a0  # w x a
+    n = math.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
+    u0, u1, u2 = c0 / n, c1 / n, c2 / n  # u1
+    s0, s1, s2 = w1 * u2 - w2 * u1, w2 * u0 - w0 * u2, w0 * u1 - w1 * u0  # u2 = w x u1 (= wu1)
+    t0, t1, t2 = w1 * s2 - w2 * s1, w2 * s0 - w0 * s2, w0 * s1 - w1 * s0  # wu2 = w x u2
+    d0, d1, d2 = u1 * p2 - u2 * p1, u2 * p0 - u0 * p2, u0 * p1 - u1 * p0  # u1 x p
+    e0, e1, e2 = s1 * p2 - s2 * p1, s2 * p0 - s0 * p2, s0 * p1 - s1 * p0  # u2 x p (= wu1 x p)
+    h0, h1, h2 = t1 * p2 - t2 * p1, t2 * p0 - t0 * p2, t0 * p1 - t1 * p0  # wu2 x p
+    return [-s0, -t0, -d0, -e0, -s1, -t1, -d1, -e1, -s2, -t2, -d2, -e2,
+            0.0, 0.0, u0, s0, 0.0, 0.0, u1, s1, 0.0, 0.0, u2, s2,
+            u0, s0, -e0, -h0, u1, s1, -e1, -h1, u2, s2, -e2, -h2,
+            0.0, 0.0, s0, t0, 0.0, 0.0, s1, t1, 0.0, 0.0, s2, t2]
 
 
 def _prismatic_frames(v: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
