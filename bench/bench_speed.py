@@ -92,6 +92,7 @@ PHASES = (
     ("retraction (twists, frames)", "kincal.params.ops:retract"),
     ("re-centring (conform twists, tangent bases)", "kincal.params.ops:recentre"),
     ("FK (chain, joint-screw exponentials)", "kincal.kinematics.fk:chain"),
+    ("FK (chain, joint-screw exponentials)", "kincal.kinematics.fk:sample_chain"),
     ("tool Jacobian (prefix projection)", "kincal.kinematics.jacobians:tool_jacobians"),
     ("marker residual (rest)", "kincal.experiments.markers:MarkersExperiment.residual"),
     ("stack and whiten (rest)", "kincal.estimation.problem:Problem.linearize"),
