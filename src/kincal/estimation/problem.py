@@ -367,12 +367,12 @@ def _same_arrays(x: Mapping, y: Mapping) -> bool:
     return list(x) == list(y) and all(same_bits(np.asarray(x[k]), np.asarray(y[k])) for k in x)
 
 
-def triangular_factor(columns: Sequence[np.ndarray], blocked: bool = False) -> np.ndarray:
+def triangular_factor(columns: Sequence[np.ndarray], panels: bool = False) -> np.ndarray:
     """``numpy.linalg.qr(np.column_stack(columns), mode="r")``, the same numbers without its two copies of the
     tall matrix: the columns are written once into a Fortran-ordered array that LAPACK's ``geqrf`` factorizes in
     place (numpy's ``qr`` copies its argument, then copies it again into Fortran order). C-ordered, as numpy's.
-    ``blocked``: LAPACK's ``geqrt`` on panels of ``QR_PANEL`` columns instead (``geqrf`` is unblocked below 128
-    columns): the same R to round-off, a third faster on tall matrices of some tens of columns."""
+    ``panels``: LAPACK's ``geqrt`` on panels of ``QR_PANEL`` columns instead when the matrix has ``QR_TALL`` rows
+    or more (``geqrf`` is unblocked below 128 columns): the same R to round-off, a third faster at 600 x 46."""
     from scipy.linalg.lapack import dgeqrf, dgeqrt  # here: importing scipy.linalg costs more than importing kincal
 
     cols = [c.reshape(len(c), -1) for c in columns]
@@ -383,7 +383,7 @@ def triangular_factor(columns: Sequence[np.ndarray], blocked: bool = False) -> n
         A[:, at: at + c.shape[1]] = c
         at += c.shape[1]
     k = min(m, n)
-    if blocked and k >= QR_PANEL:
+    if panels and m >= QR_TALL and n >= QR_PANEL:
         qr, _, info = dgeqrt(QR_PANEL, A, overwrite_a=1)
     else:
         qr, _, _, info = dgeqrf(A, lwork=max(1, 64 * n), overwrite_a=1)
@@ -394,8 +394,9 @@ def triangular_factor(columns: Sequence[np.ndarray], blocked: bool = False) -> n
     return R
 
 
-# Panel width of the blocked QR: fastest of 2..16 at 150-3000 rows and 31-46 columns (OpenBLAS, one thread)
-QR_PANEL = 8
+# The blocked QR's panel width (fastest of 2..16 at 150-3000 rows, 31-46 columns; OpenBLAS, one thread) and the
+# rows from which it pays (at 100 rows it is slower than ``geqrf``, from ~200 faster: 600 x 46 in 130 us, not 187)
+QR_PANEL, QR_TALL = 8, 256
 
 
 # ``~np.tri(k, n, -1, dtype=bool)`` of every k <= n up to its size is its leading block: one constant table
