@@ -19,7 +19,10 @@ from test_fixed_overhead_s12_a2 import _elastic
 from test_structure_cache import ur10_sets  # noqa: F401  (the UR10 data sets, a fixture)
 
 
-@pytest.mark.parametrize("shape", [(600, 46), (3000, 53), (256, 8), (300, 7), (150, 45), (20, 45), (300, 1), (400, 129)])
+SHAPES = [(600, 46), (3000, 53), (256, 8), (300, 7), (150, 45), (20, 45), (300, 1), (400, 129)]
+
+
+@pytest.mark.parametrize("shape", SHAPES)
 def test_blocked_triangular_factor_is_numpys_r_to_round_off(shape):
     rng = np.random.default_rng(sum(shape))
     A = rng.normal(size=shape) * np.exp(rng.normal(size=shape[1]))
