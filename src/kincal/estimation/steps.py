@@ -40,10 +40,10 @@ def linearize(problem: Problem, state: State, W, every: bool) -> Linearization:
     if not np.isfinite(r).all() or not np.isfinite(J).all():
         raise DegenerateExperimentError(NOT_FINITE)
     if every:
-        R = triangular_factor([J, problem.length_part(raw, W), r])
+        R = triangular_factor([J, problem.length_part(raw, W), r], panels=True)
         J = J[:, :p]
     else:
-        R = triangular_factor([J, r])
+        R = triangular_factor([J, r], panels=True)
     return Linearization(state, r, J, R, tuple(W), tuple(raw), problem.free_idx, fixed if every else None, scale)
 
 
