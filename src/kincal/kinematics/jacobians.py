@@ -249,7 +249,9 @@ def _twist_columns(M: np.ndarray, generators, step: int, N: int, k: int) -> np.n
     if len(widths) == 1:
         n, t = len(generators), widths.pop()
         D = M[0: step * n: step] - M[step: step * (n + 1): step]  # (n, N*k, 6)
-        return (D @ np.array(generators)).reshape(n, N, k, t).transpose(1, 2, 0, 3).reshape(N, k, n * t)
+        out = np.empty((N, k, n * t))  # the product written in place in the result's columns: no transposed copy
+        np.matmul(D, np.array(generators), out=out.reshape(N * k, n, t).transpose(1, 0, 2))
+        return out
     out = np.empty((N, k, sum(g.shape[1] for g in generators)))
     c = 0
     for j, Gj in enumerate(generators):

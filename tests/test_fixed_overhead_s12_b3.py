@@ -1,0 +1,85 @@
+"""Session 12 round 3 (helper b3): fewer passes over the rows of a linearization.
+
+``jacobians._twist_columns`` writes its product straight into the result's columns (no transposed copy),
+``columns.scatter_columns`` skips the zeros when its blocks write every column, and ``Problem._stack`` returns a
+single experiment's Jacobian without copying it. The same numbers bit for bit: compared with the code they
+replace, kernel by kernel and through whole calibrations (markers, pose, clamp, dual arm, elastic)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kincal.analysis import columns, scatter_columns
+from kincal.estimation import calibrate
+from kincal.estimation import problem as problem_module
+from kincal.kinematics import jacobians as jac
+from kincal.params import build_layout
+from kincal.robots import load
+from kincal.lie import se3
+from test_fixed_overhead_s11_a import _scatter_reference  # zeros first, then every block's columns
+from test_fixed_overhead_s12_c import cases  # noqa: F401 (the structures: markers, pose, clamp, dual, elastic)
+
+
+def _twist_reference(M, generators, step, N, k):
+    """``_twist_columns`` before (session 12 round 2); joints of several widths went joint by joint, as now."""
+    widths = {g.shape[1] for g in generators}
+    if len(widths) > 1:
+        return _TWIST_COLUMNS(M, generators, step, N, k)
+    n, t = len(generators), widths.pop()
+    D = M[0: step * n: step] - M[step: step * (n + 1): step]
+    return (D @ np.array(generators)).reshape(n, N, k, t).transpose(1, 2, 0, 3).reshape(N, k, n * t)
+
+
+_TWIST_COLUMNS = jac._twist_columns
+
+
+@pytest.mark.parametrize("N", [1, 3, 50, 200, 1001])
+@pytest.mark.parametrize("k", [1, 3, 6])
+def test_twist_columns_are_the_transposed_product_bit_for_bit(N, k):
+    rng = np.random.default_rng(N * 10 + k)
+    for n, step, widths in ((6, 1, [4] * 6), (3, 3, [4, 4, 4]), (7, 1, [2] * 7), (4, 1, [4, 2, 4, 2])):
+        M = rng.standard_normal((step * n + 1, N * k, 6)) * np.logspace(-3, 2, 6)
+        M[:, : k, 2] = -0.0  # signed zeros go through as the product gives them
+        gens = [rng.standard_normal((6, w)) for w in widths]
+        got = jac._twist_columns(M, gens, step, N, k)
+        want = _twist_reference(M, gens, step, N, k)
+        assert got.shape == want.shape and got.flags.c_contiguous
+        assert got.tobytes() == want.tobytes()
+
+
+def test_scatter_columns_without_zeros_only_when_every_column_is_written():
+    robot = load("ur10")
+    from kincal.params import State
+    state = State.from_robot(robot)
+    layout = build_layout(state, "kinematic")
+    rng = np.random.default_rng(0)
+    blocks = {b.name: rng.standard_normal((5, 3, b.stop - b.start)) for b in layout.blocks}
+    free = np.flatnonzero(layout.free)
+    selections = [free, np.arange(layout.size), free[::-1].copy(), np.concatenate([free, free[:2]]),
+                  np.zeros(0, int), np.arange(0, layout.size, 2)]
+    some = dict(list(blocks.items())[1:])  # a block missing: its columns zero
+    for _ in range(2):  # planned, then remembered
+        for cols in selections:
+            for b in (blocks, some):
+                for right in (None, {layout.blocks[-1].name: se3.adjoint(se3.exp(rng.standard_normal(6)))}):
+                    np.empty((5, 3, len(cols))).fill(np.nan)  # a reused buffer would show
+                    got = scatter_columns(b, layout, cols, (5, 3), right)
+                    assert got.tobytes() == _scatter_reference(b, layout, cols, (5, 3), right).tobytes()
+    columns.clear_plans()
+
+
+def test_whole_calibrations_are_the_replaced_code_bit_for_bit(cases, monkeypatch):  # noqa: F811
+    for name, robot, data, free, noise in cases:
+        new = calibrate(robot, data, free, noise=noise)
+        with monkeypatch.context() as m:
+            m.setattr(jac, "_twist_columns", _twist_reference)
+            m.setattr(problem_module, "scatter_columns", _scatter_reference)
+            m.setattr(problem_module, "_joined", lambda parts: np.concatenate(parts))
+            old = calibrate(robot, data, free, noise=noise)
+        assert new.status == old.status and tuple(new.messages) == tuple(old.messages), name
+        assert new.identifiability.rank == old.identifiability.rank, name
+        for a, b in zip(new.estimates, old.estimates, strict=True):
+            assert a.name == b.name and a.identifiable == b.identifiable, name
+            assert np.float64(a.value).tobytes() == np.float64(b.value).tobytes(), (name, a.name)
+            assert np.float64(a.std).tobytes() == np.float64(b.std).tobytes(), (name, a.name)
