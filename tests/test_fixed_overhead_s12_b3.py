@@ -2,7 +2,8 @@
 
 ``jacobians._twist_columns`` writes its product straight into the result's columns (no transposed copy),
 ``columns.scatter_columns`` skips the zeros when its blocks write every column, and ``Problem._stack`` returns a
-single experiment's Jacobian without copying it. The same numbers bit for bit: compared with the code they
+single experiment's Jacobian without copying it; the joints' exponentials and adjoints add their identity in the
+product of their coefficients (``Kinematics.unit_coefficients``). The same numbers bit for bit: compared with the code they
 replace, kernel by kernel and through whole calibrations (markers, pose, clamp, dual arm, elastic)."""
 
 from __future__ import annotations
@@ -13,11 +14,13 @@ import pytest
 from kincal.analysis import columns, scatter_columns
 from kincal.estimation import calibrate
 from kincal.estimation import problem as problem_module
+from kincal.kinematics import fk
 from kincal.kinematics import jacobians as jac
 from kincal.params import build_layout
 from kincal.robots import load
 from kincal.lie import se3
 from test_fixed_overhead_s11_a import _scatter_reference  # zeros first, then every block's columns
+from test_fixed_overhead_s12_b import _random_screws
 from test_fixed_overhead_s12_c import cases  # noqa: F401 (the structures: markers, pose, clamp, dual, elastic)
 
 
@@ -83,3 +86,23 @@ def test_whole_calibrations_are_the_replaced_code_bit_for_bit(cases, monkeypatch
             assert a.name == b.name and a.identifiable == b.identifiable, name
             assert np.float64(a.value).tobytes() == np.float64(b.value).tobytes(), (name, a.name)
             assert np.float64(a.std).tobytes() == np.float64(b.std).tobytes(), (name, a.name)
+
+
+@pytest.mark.parametrize("N", [1, 2, 7, 50, 200, 1000])
+def test_unit_coefficients_add_the_identity_in_the_product_bit_for_bit(N):
+    """``[a, b, 1] @ [X, X^2, I]`` (``sample_chain``, ``_sample_projections``) is ``(a X + b X^2) + I``, the sum
+    they computed before (exact screws of both kinds, joints at zero, negative angles: signed zeros)."""
+    rng = np.random.default_rng(N)
+    for screws in (load("ur10")["arm"].screws, _random_screws(rng, 7)):
+        theta = rng.uniform(-3.5, 3.5, (N, len(screws)))
+        theta[:, 0] = 0.0
+        theta[: N // 2, -1] = -0.0
+        kin = fk.sample_chain(screws, theta, np.eye(4), np.eye(4), np.eye(4))
+        assert kin.coefficients.shape == (len(screws), N, 2) and kin.unit_coefficients.shape == (len(screws), N, 3)
+        assert (kin.unit_coefficients[..., 2] == 1.0).all()
+        for basis, d in ((fk._HAT_BASIS, 4), (jac._AD_BASIS, 6)):
+            before = kin.coefficients @ fk.powers(screws, basis) + np.eye(d).ravel()
+            assert (kin.unit_coefficients @ fk.powers(screws, basis, unit=True)).tobytes() == before.tobytes()
+            assert fk.powers(screws, basis, unit=True)[:, :2].tobytes() == fk.powers(screws, basis).tobytes()
+        fresh = fk.Kinematics(kin.theta, kin.screws, kin.prefixes, kin.flange, kin.tool)
+        assert fresh.unit_coefficients.tobytes() == kin.unit_coefficients.tobytes()
