@@ -4,7 +4,10 @@
 ``columns.scatter_columns`` skips the zeros when its blocks write every column, and ``Problem._stack`` returns a
 single experiment's Jacobian without copying it; the joints' exponentials and adjoints add their identity in the
 product of their coefficients (``Kinematics.unit_coefficients``). The same numbers bit for bit: compared with the code they
-replace, kernel by kernel and through whole calibrations (markers, pose, clamp, dual arm, elastic)."""
+replace, kernel by kernel and through whole calibrations (markers, pose, clamp, dual arm, elastic).
+
+An experiment's unloaded chain takes the sines of its joint values by the angle sum from its readings' own,
+computed once (``Experiment._turns``, ``fk.shifted_turns``): round-off, so compared to 1e-10 relative."""
 
 from __future__ import annotations
 
@@ -14,6 +17,7 @@ import pytest
 from kincal.analysis import columns, scatter_columns
 from kincal.estimation import calibrate
 from kincal.estimation import problem as problem_module
+from kincal.experiments import base as experiments_base
 from kincal.kinematics import fk
 from kincal.kinematics import jacobians as jac
 from kincal.params import build_layout
@@ -21,6 +25,7 @@ from kincal.robots import load
 from kincal.lie import se3
 from test_fixed_overhead_s11_a import _scatter_reference  # zeros first, then every block's columns
 from test_fixed_overhead_s12_b import _random_screws
+from test_fixed_overhead_s12_b2 import _coefficients, _words
 from test_fixed_overhead_s12_c import cases  # noqa: F401 (the structures: markers, pose, clamp, dual, elastic)
 
 
@@ -106,3 +111,58 @@ def test_unit_coefficients_add_the_identity_in_the_product_bit_for_bit(N):
             assert fk.powers(screws, basis, unit=True)[:, :2].tobytes() == fk.powers(screws, basis).tobytes()
         fresh = fk.Kinematics(kin.theta, kin.screws, kin.prefixes, kin.flange, kin.tool)
         assert fresh.unit_coefficients.tobytes() == kin.unit_coefficients.tobytes()
+
+
+def _direct_turns(self, arm, offsets):
+    """``Experiment._turns`` computed directly: the sines of the rounded ``q + offsets``."""
+    theta = self.dataset.q[arm] + offsets
+    return np.cos(theta), np.sin(theta)
+
+
+def test_shifted_turns_are_the_sums_turns_to_round_off():
+    rng = np.random.default_rng(2)
+    q = rng.uniform(-7.0, 7.0, (500, 6))
+    q[:7] = [0.0, -0.0, np.pi, -np.pi / 2, 1e-300, 3.0]
+    for offsets in (rng.normal(0, 0.01, 6), rng.uniform(-4, 4, 6), np.zeros(6)):
+        c, s = fk.shifted_turns(np.cos(q), np.sin(q), offsets)
+        np.testing.assert_allclose(c, np.cos(q + offsets), rtol=0, atol=1.5e-15)
+        np.testing.assert_allclose(s, np.sin(q + offsets), rtol=0, atol=1.5e-15)
+    c, s = fk.shifted_turns(np.cos(q), np.sin(q), np.zeros(6))  # no offset: the readings' own, bit for bit
+    assert c.tobytes() == np.cos(q).tobytes() and np.array_equal(s, np.sin(q))
+
+
+def test_readings_turns_are_kept_by_their_bytes(cases):  # noqa: F811
+    _, robot, data, _, _ = cases[0]
+    from kincal.experiments import build as build_experiments
+    from kincal.params import State
+    (exp,), _, _ = build_experiments(data, State.from_robot(robot))
+    arm = exp.arms[0]
+    offsets = np.linspace(-0.01, 0.01, 6)
+    got = exp._turns(arm, offsets)
+    assert all(np.allclose(a, b, rtol=0, atol=1.5e-15) for a, b in zip(got, _direct_turns(exp, arm, offsets)))
+    assert not exp.dataset.q[arm].flags.writeable  # checked readings do not change in place
+    stale = np.zeros_like(got[0])
+    exp.__dict__["_reading_turns"][arm] = (b"other readings", stale, stale)  # kept for other bytes: a miss
+    assert all(np.array_equal(a, b) for a, b in zip(exp._turns(arm, offsets), got))
+
+
+def test_whole_calibrations_with_shifted_turns_agree_to_round_off(cases, monkeypatch):  # noqa: F811
+    """Rank, status, messages the same; estimates and std within 1e-10 relative (the dual arm's null-direction
+    coefficients are round-off's, ``test_fixed_overhead_s12_b2``: the same words there)."""
+    for name, robot, data, free, noise in cases:
+        new = calibrate(robot, data, free, noise=noise)
+        with monkeypatch.context() as m:
+            m.setattr(experiments_base.Experiment, "_turns", _direct_turns)
+            old = calibrate(robot, data, free, noise=noise)
+        assert new.status == old.status and new.identifiability.rank == old.identifiability.rank, name
+        if name == "dual":  # the same words; the coefficients of its null directions are round-off's
+            assert [_words(x) for x in new.messages] == [_words(x) for x in old.messages]
+            for x, y in zip(new.messages, old.messages):
+                np.testing.assert_allclose(_coefficients(x), _coefficients(y), rtol=0.2)
+        else:
+            assert tuple(new.messages) == tuple(old.messages), name
+        for a, b in zip(new.estimates, old.estimates, strict=True):
+            assert a.name == b.name and a.identifiable == b.identifiable, name
+            scale = max(abs(a.value), abs(b.value), abs(b.std) if a.identifiable else 1.0)
+            assert abs(a.value - b.value) <= 1e-10 * scale, (name, a.name, a.value, b.value)
+            assert abs(a.std - b.std) <= 1e-10 * abs(b.std) if np.isfinite(b.std) else not np.isfinite(a.std)

@@ -119,19 +119,19 @@ def chain(screws, theta, base, home, tool, frames: bool = True) -> Kinematics:
     return kin
 
 
-def sample_chain(screws, theta, base, home, tool) -> Kinematics:
+def sample_chain(screws, theta, base, home, tool, turns=None) -> Kinematics:
     """``chain`` with one product per joint over all samples, of the joints' exponentials in closed form
     (``Kinematics.coefficients``: ``I + a X + b X^2``, every joint and sample in one product): the numbers of
     ``chain`` to round-off (``chain``'s joint frames take two products and a turn per joint). For exact joint
     screws, theta (N, n) and one finite base (4, 4); else ``chain``. A joint at zero in every sample is the
-    identity."""
+    identity. ``turns``: ``(cos theta, sin theta)`` when the caller has them (``shifted_turns``)."""
     theta = np.asarray(theta, dtype=float)
     screws = np.asarray(screws, dtype=float)
     base = np.asarray(base, dtype=float)
     if theta.ndim != 2 or base.shape != (4, 4) or not np.isfinite(base).all() or not se3.exact_joint_screws(screws):
         return chain(screws, theta, base, home, tool)
     N, n = theta.shape
-    turns = np.cos(theta), np.sin(theta)
+    turns = (np.cos(theta), np.sin(theta)) if turns is None else turns
     ab = _coefficients(screws, theta, turns)
     moves = theta.any(axis=0)
     E = (ab @ powers(screws, _HAT_BASIS, unit=True)).reshape(n, N, 4, 4)  # I + a X + b X^2
@@ -148,6 +148,14 @@ def sample_chain(screws, theta, base, home, tool) -> Kinematics:
     kin.__dict__.update(turns=turns, moves=moves, coefficients=ab[..., :2], unit_coefficients=ab,
                         one_base=prefixes[0, 0])
     return kin
+
+
+def shifted_turns(cos: np.ndarray, sin: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(cos, sin)`` of ``q + offsets`` from those of q (N, n) and the offsets (n,) by the angle sum: the turns
+    of the rounded ``q + offsets`` to round-off (q's own at zero offsets), without a sine per sample (the
+    readings' are the data's, computed once: ``Experiment._turns``)."""
+    co, so = np.cos(offsets), np.sin(offsets)
+    return cos * co - sin * so, sin * co + cos * so
 
 
 def _coefficients(screws: np.ndarray, theta: np.ndarray, turns) -> np.ndarray:
