@@ -16,8 +16,10 @@ def scatter_columns(blocks: Mapping[str, np.ndarray], layout: Layout, cols: np.n
     columns of ``cols`` (layout indices) that fall in the block; columns of other coordinates stay zero.
     ``right``: per block, a (d, d) matrix multiplying its Jacobian first (retraction Jacobians of pose blocks
     stepped away from their linearization point)."""
-    J = np.zeros(tuple(shape) + (len(cols),))
-    for name, dst, sel in _plan(layout, cols):
+    plan, covered = _plan(layout, cols)
+    every = covered and all(name in blocks for name, _, _ in plan)  # every column written: no zeros first
+    J = (np.empty if every else np.zeros)(tuple(shape) + (len(cols),))
+    for name, dst, sel in plan:
         Jb = blocks.get(name)
         if Jb is None:
             continue
@@ -31,10 +33,10 @@ def scatter_columns(blocks: Mapping[str, np.ndarray], layout: Layout, cols: np.n
 
 
 def _plan(layout: Layout, cols: np.ndarray) -> tuple:
-    """Per layout block with a column in ``cols``: (name, destination columns, the block's selected coordinates or
-    None for all of them, in consecutive columns). Remembered by what it is made of, the blocks' names and
-    ranges, the layout's size and the bytes of ``cols``: the same for every evaluation of a solve and for every
-    calibration of the same structure (each builds its own layout)."""
+    """(per layout block with a column in ``cols``: (name, destination columns, the block's selected coordinates or
+    None for all of them, in consecutive columns), whether they write every column of ``cols``). Remembered by
+    what it is made of, the blocks' names and ranges, the layout's size and the bytes of ``cols``: the same for
+    every evaluation of a solve and for every calibration of the same structure (each builds its own layout)."""
     key = (tuple((b.name, b.start, b.stop) for b in layout.blocks), layout.size, np.asarray(cols).tobytes())
     plan = _PLANS.get(key)
     if plan is not None:
@@ -49,7 +51,8 @@ def _plan(layout: Layout, cols: np.ndarray) -> tuple:
             plan.append((b.name, slice(int(c[0]), int(c[-1]) + 1), None))
         elif sel.any():
             plan.append((b.name, _frozen(c[sel]), _frozen(sel)))
-    return remember(_PLANS, key, tuple(plan), PLAN_ENTRIES)
+    covered = int((col >= 0).sum()) == len(cols)  # repeated columns: some stay unwritten
+    return remember(_PLANS, key, (tuple(plan), covered), PLAN_ENTRIES)
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:

@@ -335,7 +335,7 @@ class Problem:
             if cols is not None:
                 Js.append(Jc)
         r = _joined(rs)
-        return (r, np.concatenate(Js, axis=0)) if cols is not None else (r, None)
+        return (r, _joined(Js)) if cols is not None else (r, None)
 
     def statistics(self, state: State, whiteners=None) -> list[ResidualStats]:
         """Per experiment: samples, position / orientation RMS and max (norm per sample), whitened chi^2."""

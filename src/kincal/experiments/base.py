@@ -17,6 +17,7 @@ import numpy as np
 from kincal.data import Dataset
 from kincal.experiments._kernel import ARM_PARTS, arm_jacobians, coupled, tree_jacobians, tree_kin
 from kincal.kinematics import Kinematics, loaded_chain, sample_chain
+from kincal.kinematics.fk import shifted_turns
 from kincal.kinematics.branches import loading_branches
 from kincal.kinematics.model import lineage
 from kincal.noise import Quantity
@@ -228,9 +229,21 @@ class Experiment:
         theta0 = self.dataset.q[arm] + a.offsets
         w = self.dataset.measured.get("wrench_tool")
         if w is None and a.weights is None:
-            return sample_chain(a.screws, theta0, a.base, a.home, a.tool)
+            return sample_chain(a.screws, theta0, a.base, a.home, a.tool, self._turns(arm, a.offsets))
         c = a.compliance_at(self.dataset.q[arm])  # (n,), or (N, n) when a joint's compliance depends on its angle
         return loaded_chain(a.screws, theta0, a.base, a.home, a.tool, c, w, a.weights, coupling=a.coupling)
+
+    def _turns(self, arm: str, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(cos, sin)`` of the arm's readings plus ``offsets`` (``fk.shifted_turns``) from the readings' own,
+        kept per arm with the readings' bytes: data, not state (the same at every evaluation of a solve); the
+        bytes, so that readings changed in place miss."""
+        q = self.dataset.q[arm]
+        kept = self.__dict__.setdefault("_reading_turns", {})  # a frozen dataclass: its own dict, no attribute
+        key = q.tobytes()
+        hit = kept.get(arm)
+        if hit is None or hit[0] != key:
+            hit = kept[arm] = (key, np.cos(q), np.sin(q))
+        return shifted_turns(hit[1], hit[2], offsets)
 
     def _fk(self, state: State, arm: str) -> np.ndarray:
         return self._kin(state, arm).tool

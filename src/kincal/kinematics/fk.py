@@ -67,6 +67,12 @@ class Kinematics:
         """(n, N, 2): each joint's ``(a, b)`` per sample with ``exp(X t) = I + a X + b X^2`` for X the hat of an
         exact joint screw (``ad(xi)`` alike, for the adjoint): revolute ``(sin t, 1 - cos t)`` (``X^3 = -X``),
         prismatic ``(t, 1 - cos t)`` (``X^2 = 0``); theta (N, n)."""
+        return self.unit_coefficients[..., :2]
+
+    @cached_property
+    def unit_coefficients(self) -> np.ndarray:
+        """(n, N, 3): ``(a, b, 1)``, so that ``exp(X t)`` of every joint and sample is one product with
+        ``powers(screws, basis, unit=True)`` (the identity's term added exactly, in the same product)."""
         return _coefficients(self.screws, self.theta, self.turns)
 
     @cached_property
@@ -113,24 +119,22 @@ def chain(screws, theta, base, home, tool, frames: bool = True) -> Kinematics:
     return kin
 
 
-def sample_chain(screws, theta, base, home, tool) -> Kinematics:
+def sample_chain(screws, theta, base, home, tool, turns=None) -> Kinematics:
     """``chain`` with one product per joint over all samples, of the joints' exponentials in closed form
     (``Kinematics.coefficients``: ``I + a X + b X^2``, every joint and sample in one product): the numbers of
     ``chain`` to round-off (``chain``'s joint frames take two products and a turn per joint). For exact joint
     screws, theta (N, n) and one finite base (4, 4); else ``chain``. A joint at zero in every sample is the
-    identity."""
+    identity. ``turns``: ``(cos theta, sin theta)`` when the caller has them (``shifted_turns``)."""
     theta = np.asarray(theta, dtype=float)
     screws = np.asarray(screws, dtype=float)
     base = np.asarray(base, dtype=float)
     if theta.ndim != 2 or base.shape != (4, 4) or not np.isfinite(base).all() or not se3.exact_joint_screws(screws):
         return chain(screws, theta, base, home, tool)
     N, n = theta.shape
-    turns = np.cos(theta), np.sin(theta)
+    turns = (np.cos(theta), np.sin(theta)) if turns is None else turns
     ab = _coefficients(screws, theta, turns)
     moves = theta.any(axis=0)
-    E = ab @ powers(screws, _HAT_BASIS)  # (n, N, 16)
-    E += _EYE16
-    E = E.reshape(n, N, 4, 4)
+    E = (ab @ powers(screws, _HAT_BASIS, unit=True)).reshape(n, N, 4, 4)  # I + a X + b X^2
     P = np.empty((n + 1, N, 4, 4))
     P[0] = base
     for i in range(n):
@@ -141,35 +145,48 @@ def sample_chain(screws, theta, base, home, tool) -> Kinematics:
     flange = _times(P[n], home)
     prefixes = P.transpose(1, 0, 2, 3)
     kin = Kinematics(theta, screws, prefixes, flange, _times(flange, tool))
-    kin.__dict__.update(turns=turns, moves=moves, coefficients=ab, one_base=prefixes[0, 0])
+    kin.__dict__.update(turns=turns, moves=moves, coefficients=ab[..., :2], unit_coefficients=ab,
+                        one_base=prefixes[0, 0])
     return kin
 
 
-_EYE16 = np.eye(4).ravel()
+def shifted_turns(cos: np.ndarray, sin: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(cos, sin)`` of ``q + offsets`` from those of q (N, n) and the offsets (n,) by the angle sum: the turns
+    of the rounded ``q + offsets`` to round-off (q's own at zero offsets), without a sine per sample (the
+    readings' are the data's, computed once: ``Experiment._turns``)."""
+    co, so = np.cos(offsets), np.sin(offsets)
+    return cos * co - sin * so, sin * co + cos * so
 
 
 def _coefficients(screws: np.ndarray, theta: np.ndarray, turns) -> np.ndarray:
-    """``Kinematics.coefficients``."""
+    """``Kinematics.unit_coefficients``."""
     cos, sin = turns
-    ab = np.empty((2,) + cos.shape[::-1])
+    ab = np.empty((3,) + cos.shape[::-1])
     ab[0] = sin.T
     np.subtract(1.0, cos.T, out=ab[1])
+    ab[2] = 1.0
     prismatic = [j for j, x in enumerate(screws.tolist()) if x[3] * x[3] + x[4] * x[4] + x[5] * x[5] <= 0.5]
     if prismatic:
         ab[0, prismatic] = theta.T[prismatic]
     return ab.transpose(1, 2, 0)
 
 
-def powers(screws: np.ndarray, basis: np.ndarray) -> np.ndarray:
+def powers(screws: np.ndarray, basis: np.ndarray, unit: bool = False) -> np.ndarray:
     """``(X, X^2)`` flattened, (n, 2, d * d), of the matrices ``X = sum_k xi_k basis_k`` of each twist (n, 6) for a
     linear map ``basis`` (6, d * d) of twists to d x d matrices (``hat`` or ``ad`` of the unit twists): the
-    entries are the twist's coordinates, their signs or zero (one product over all twists)."""
+    entries are the twist's coordinates, their signs or zero (one product over all twists). ``unit``: the
+    identity as a third, (n, 3, d * d) (``Kinematics.unit_coefficients``' partner)."""
     n, dd = screws.shape[0], basis.shape[1]
     d = int(round(dd ** 0.5))
-    out = np.empty((n, 2, d, d))
+    out = np.empty((n, 2 + unit, d, d))
     np.matmul(screws, basis, out=out[:, 0].reshape(n, dd))
     np.matmul(out[:, 0], out[:, 0], out=out[:, 1])
-    return out.reshape(n, 2, dd)
+    if unit:
+        out[:, 2] = _EYES[d] if d in _EYES else np.eye(d)
+    return out.reshape(n, 2 + unit, dd)
+
+
+_EYES = {4: np.eye(4), 6: np.eye(6)}
 
 
 _HAT_BASIS = se3.hat(np.eye(6)).reshape(6, 16)  # hat of the unit twists: hat(xi) = xi @ _HAT_BASIS

@@ -184,9 +184,7 @@ def _sample_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
     The numbers of ``_frame_projections`` (two products and a turn per joint) to round-off."""
     N, k = G.shape[:2]
     n = kin.theta.shape[1]
-    A = kin.coefficients @ powers(kin.screws, _AD_BASIS)  # (n, N, 36)
-    A += _EYE36
-    A = A.reshape(n, N, 6, 6)
+    A = (kin.unit_coefficients @ powers(kin.screws, _AD_BASIS, unit=True)).reshape(n, N, 6, 6)  # I + a ad + b ad^2
     M = np.empty((n + 1, N, k, 6))
     if kin.one_base is not None:  # one base for every sample (a chain's own): one 2-d product
         np.matmul(G.reshape(N * k, 6), se3.remembered(se3.adjoint, kin.one_base), out=M[0].reshape(N * k, 6))
@@ -199,9 +197,6 @@ def _sample_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
         else:
             M[i + 1] = M[i]
     return M.reshape(n + 1, N * k, 6)
-
-
-_EYE36 = np.eye(6).ravel()
 
 
 _AD_BASIS = se3.ad(np.eye(6)).reshape(6, 36)  # ad of the unit twists: ad(xi) = xi @ _AD_BASIS
@@ -249,7 +244,9 @@ def _twist_columns(M: np.ndarray, generators, step: int, N: int, k: int) -> np.n
     if len(widths) == 1:
         n, t = len(generators), widths.pop()
         D = M[0: step * n: step] - M[step: step * (n + 1): step]  # (n, N*k, 6)
-        return (D @ np.array(generators)).reshape(n, N, k, t).transpose(1, 2, 0, 3).reshape(N, k, n * t)
+        out = np.empty((N, k, n * t))  # the product written in place in the result's columns: no transposed copy
+        np.matmul(D, np.array(generators), out=out.reshape(N * k, n, t).transpose(1, 0, 2))
+        return out
     out = np.empty((N, k, sum(g.shape[1] for g in generators)))
     c = 0
     for j, Gj in enumerate(generators):
