@@ -1,7 +1,7 @@
 """Session 12, round 2 (helper d2): the end of a calibration in fewer Python/numpy calls, bit for bit.
 
 ``ArmModel.replace``'s geometric path gives the model (and the errors) the full validation gives;
-``values._replaced`` is ``dataclasses.replace`` of an ``ArmValues``; ``finalize._joint_sensitivity`` takes a
+``values.arm_replace`` (used by ``retract_twists``) is ``dataclasses.replace`` of an ``ArmValues``; ``finalize._joint_sensitivity`` takes a
 C-ordered Jacobian as it is where every row is of one quantity (the copy ``j[:, rows]`` made is the same)."""
 
 from __future__ import annotations
@@ -85,7 +85,7 @@ def test_replaced_is_dataclasses_replace(ur10_sets):
     a = values_module.ArmValues.from_model(ur10_sets[0].arms["arm"])
     a.basis  # a cached property: never carried over to the copy
     changes = dict(screws=a.screws * 1.0, bases=None, generators=None, lateral_axes=None)
-    got, want = values_module._replaced(a, **changes), dataclasses.replace(a, **changes)
+    got, want = values_module.arm_replace(a, **changes), dataclasses.replace(a, **changes)
     assert type(got) is values_module.ArmValues and "basis" not in got.__dict__
     assert got.__dict__.keys() == want.__dict__.keys()
     assert all(got.__dict__[k] is want.__dict__[k] for k in want.__dict__)

@@ -11,7 +11,7 @@ a frame's value (pose 4x4, point (3,), points (m, 3), ``Plane``).
 
 from __future__ import annotations
 
-from dataclasses import fields, replace
+from dataclasses import replace
 
 import numpy as np
 
@@ -20,28 +20,11 @@ from kincal.errors import ModelError
 from kincal.kinematics import PRISMATIC, REVOLUTE, TWIST_COORDS, conform_twists, tangent_frames
 from kincal.kinematics.lateral import LATERAL_COORDS
 from kincal.lie import se3, so3
-from kincal.params.values import ArmValues, Plane, retract_twists
+from kincal.params.values import Plane, arm_replace, retract_twists
 
 POSE_COORDS = TWIST_COORDS  # a pose increment is a twist
 POSE_UNITS = ("m", "m", "m", "rad", "rad", "rad")
 COMPLIANCE_UNITS = {REVOLUTE: "rad/Nm", PRISMATIC: "m/N"}
-_ARM_FIELDS = tuple(f.name for f in fields(ArmValues))
-_ARM_FIELD_SET = frozenset(_ARM_FIELDS)
-# constructing one runs no check of its own and sets every field from its argument
-_ARM_PLAIN = not hasattr(ArmValues, "__post_init__") and all(f.init for f in fields(ArmValues))
-
-
-def arm_replace(a: ArmValues, **changes) -> ArmValues:
-    """``dataclasses.replace(a, **changes)`` without its field-by-field ``__init__`` (several per solver step): the
-    same fields, none of ``a``'s cached properties (``basis``, ``basis_pinv``: they depend on the fields)."""
-    if type(a) is not ArmValues or not _ARM_PLAIN or not _ARM_FIELD_SET.issuperset(changes):
-        return replace(a, **changes)  # its checks and errors
-    new = object.__new__(ArmValues)
-    old, d = a.__dict__, new.__dict__
-    for name in _ARM_FIELDS:
-        d[name] = old[name]
-    d.update(changes)
-    return new
 
 
 class ParamKind:

@@ -8,7 +8,7 @@ joint-screw manifold during an inner solve; ``recentre`` (``kincal.params.ops``)
 from __future__ import annotations
 
 import weakref
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from functools import cached_property
 from typing import Mapping
 
@@ -134,6 +134,22 @@ class ArmValues:
 
 
 _ARM_FIELDS = tuple(f.name for f in fields(ArmValues))
+_ARM_FIELD_SET = frozenset(_ARM_FIELDS)
+# constructing one runs no check of its own and sets every field from its argument
+_ARM_PLAIN = not hasattr(ArmValues, "__post_init__") and all(f.init for f in fields(ArmValues))
+
+
+def arm_replace(a: ArmValues, **changes) -> ArmValues:
+    """``dataclasses.replace(a, **changes)`` without its field-by-field ``__init__`` (several per solver step): the
+    same fields, none of ``a``'s cached properties (``basis``, ``basis_pinv``: they depend on the fields)."""
+    if type(a) is not ArmValues or not _ARM_PLAIN or not _ARM_FIELD_SET.issuperset(changes):
+        return replace(a, **changes)  # its checks and errors
+    new = object.__new__(ArmValues)
+    old, d = a.__dict__, new.__dict__
+    for name in _ARM_FIELDS:
+        d[name] = old[name]
+    d.update(changes)
+    return new
 
 # ArmValues.from_model's memory: id(model) -> (weak reference to the model, its values), oldest first
 _FROM_MODEL: dict[int, tuple[weakref.ref, ArmValues]] = {}
@@ -160,7 +176,7 @@ def retract_twists(a: ArmValues, d: np.ndarray, tangents: bool = True, motion=No
     screws = np.einsum("jab,jb->ja", Ad, a.screws)
     axes = None if a.lateral_axes is None else np.einsum("jab,jkb->jka", Ad, a.lateral_axes)
     if not tangents:
-        return _replaced(a, screws=screws, bases=None, generators=None, lateral_axes=axes)
+        return arm_replace(a, screws=screws, bases=None, generators=None, lateral_axes=axes)
     Jl, ad = se3.left_jacobian(g), se3.ad(screws)
     if len({G.shape[1] for G in a.generators}) == 1:
         gens = Jl @ np.stack(a.generators)  # retracting again from here keeps basis == -ad(xi) G
@@ -168,16 +184,8 @@ def retract_twists(a: ArmValues, d: np.ndarray, tangents: bool = True, motion=No
     else:
         gens = tuple(Jl[j] @ G for j, G in enumerate(a.generators))
         bs = tuple(-ad[j] @ G for j, G in enumerate(gens))
-    return _replaced(a, screws=screws, bases=bs, generators=gens, lateral_axes=axes)
+    return arm_replace(a, screws=screws, bases=bs, generators=gens, lateral_axes=axes)
 
-
-def _replaced(a: ArmValues, **changes) -> ArmValues:
-    """``dataclasses.replace(a, **changes)`` without the frozen ``__init__``'s ``object.__setattr__`` per field
-    (ArmValues has no ``__post_init__``): the same fields, no cached property (``basis``) carried over."""
-    new = object.__new__(ArmValues)
-    own = a.__dict__
-    new.__dict__.update({k: own[k] for k in _ARM_FIELDS}, **changes)
-    return new
 
 
 def _compliance_fields(a: ArmValues) -> dict:
