@@ -148,7 +148,7 @@ def rotation_nulls(lin: Linearization, layout: Layout, experiments: Sequence,
     out = []
     for arm, i1, frames, outside, turns in candidates:
         a = lin.state.arms[arm]
-        xi = _adjoint(a.base, structure) @ a.screws[0]  # joint 1's screw in world coordinates
+        xi = se3.remembered(se3.adjoint, a.base) @ a.screws[0]  # joint 1's screw in world coordinates
         g = np.zeros(layout.size)
         g[i1] = 1.0
         for name, b in frames:
@@ -166,24 +166,6 @@ def rotation_nulls(lin: Linearization, layout: Layout, experiments: Sequence,
         if confirmed:
             out.append(gf)
     return out
-
-
-def _adjoint(T: np.ndarray, structure: Structure | None) -> np.ndarray:
-    """``se3.adjoint(T)``, remembered on the solve's ``structure`` by T's values: an arm's base changes only
-    where it is free, so most solves turn the same base at every linearization."""
-    if structure is None:
-        return se3.adjoint(T)
-    key = ("adjoint", T.dtype.str, T.shape, T.tobytes())
-    hit = structure.derived.get(key)
-    if hit is None:
-        hit = se3.adjoint(T)
-        hit.flags.writeable = False
-        if len(structure.derived) < _DERIVED_ENTRIES:  # a free base: a new key at every linearization
-            structure.derived[key] = hit
-    return hit
-
-
-_DERIVED_ENTRIES = 64
 
 
 def _rotation_candidates(state, layout: Layout, experiments: Sequence, free_idx: np.ndarray) -> list:
