@@ -18,6 +18,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from kincal._memo import remember
 from kincal.analysis.columns import scatter_columns
 from kincal.data import Dataset
 from kincal.errors import ModelError
@@ -38,6 +39,10 @@ SENSITIVITY_SAMPLES = 200
 # Configurations in all up to which a problem keeps the Jacobian blocks of its linearizations at the nominal
 # state and the last one for the collapse test (two copies of a Jacobian: a few MiB here).
 KEPT_SAMPLES = 1000
+
+
+# The whiteners' diagonals a problem keeps (``ResidualCache.made``): one per experiment and whitening of a solve.
+DIAGONAL_ENTRIES = 64
 
 
 class ResidualCache:
@@ -80,12 +85,10 @@ class ResidualCache:
 
     def made(self, W: np.ndarray) -> None:
         """Remember the diagonal of a whitener just made (held with it: its id is not reused meanwhile)."""
-        if len(self.diagonals) >= 64:
-            self.diagonals.clear()
         d = _constant_diagonal(W)
         if d is not None:
             d.flags.writeable = False  # shared by every evaluation
-        self.diagonals[id(W)] = (W, d)
+        remember(self.diagonals, id(W), (W, d), DIAGONAL_ENTRIES)
 
     def get(self, state: State):
         return self.residuals if self.state is state else None

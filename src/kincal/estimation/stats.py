@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from kincal.analysis.linalg import norms
 from kincal.noise import ORIENTATION, PIXEL, POSITION
 
 
@@ -52,9 +53,9 @@ def residual_norms(r: np.ndarray, components) -> dict:
         mask = np.array([c is q or c == q for c in components], bool)
         count = int(np.count_nonzero(mask))
         if count % 3 == 0 and key == "position" and count > 1:
-            e = _norms(r[:, mask].reshape(len(r), -1, 3)).ravel()
+            e = norms(r[:, mask].reshape(len(r), -1, 3), -1).ravel()
         elif key in ("orientation", "pixel"):
-            e = _norms(r[:, mask])
+            e = norms(r[:, mask], -1)
         else:
             e = np.abs(r[:, mask]).ravel()
         st[f"{key}_rms"] = math.sqrt(mean(e * e))  # np.sqrt's bits: both round correctly
@@ -65,9 +66,3 @@ def residual_norms(r: np.ndarray, components) -> dict:
 def mean(x: np.ndarray, axis: int | None = None):
     """``np.mean(x, axis)`` of a float array: numpy's own sum over the count, without its wrapper (the same bits)."""
     return np.add.reduce(x, axis=axis) / (x.size if axis is None else x.shape[axis])
-
-
-def _norms(x: np.ndarray) -> np.ndarray:
-    """``np.linalg.norm(x, axis=-1)`` of a real ``x``, numpy's own formula (``sqrt(add.reduce(x * x))``) without
-    its dispatch."""
-    return np.sqrt(np.add.reduce(x * x, axis=-1))
