@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from kincal._validate import det3
 from kincal.kinematics import Kinematics
 from kincal.kinematics.branches import branch_torque_derivatives, loaded_tree
 from kincal.kinematics.elastic import LoadedKinematics, deflection_map
@@ -255,10 +256,7 @@ _POINT_MINUS, _POINT_MINUS_OF = np.array([5, 9, 16]), np.array([1, 2, 0])
 def _det_sign(Q: np.ndarray) -> np.ndarray:
     """``np.sign(np.linalg.det(Q))`` of orthogonal matrices (determinant +-1, far from zero: any rounding gives
     the same sign); one 3 x 3 by its triple product on Python floats."""
-    if Q.shape != (3, 3):
-        return np.sign(np.linalg.det(Q))
-    (a, b, c), (d, e, f), (g, h, i) = Q.tolist()
-    return np.sign(np.float64(a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)))
+    return np.sign(np.linalg.det(Q)) if Q.shape != (3, 3) else np.sign(np.float64(det3(Q)))
 
 
 def pose_mean(T: np.ndarray) -> np.ndarray:
