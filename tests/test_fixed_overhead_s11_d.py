@@ -1,7 +1,7 @@
 """Session 11 (helper d): a small calibration's costs outside the outer loop, cut without changing a result.
 
 ``_check_joint_screws`` tests an arm's screws on Python floats (the numpy sums' verdicts, the same messages);
-``params.ops.displacement`` finds the blocks holding the wanted indices in one pass (``_blocks_holding``): the
+``params.ops.displacement`` finds the blocks holding the wanted indices in one pass (``Layout.holding``): the
 same displacement and Jacobian as the mask tested block by block."""
 
 from __future__ import annotations
@@ -13,7 +13,6 @@ import pytest
 
 from kincal.errors import ModelError
 from kincal.estimation import Problem
-from kincal.params import ops
 from kincal.params.ops import displacement
 from test_structure_cache import NOISE, ur10_sets  # noqa: F401  (the UR10 data sets, a fixture)
 
@@ -102,7 +101,7 @@ def test_displacement_of_some_blocks_as_the_mask_gave(ur10_sets):
             want = _masked_displacement(res.state, problem.nominal, layout, only, jac)
             assert got[0].tobytes() == want[0].tobytes()
             assert (got[1] is None) == (not jac) and (got[1] is None or got[1].tobytes() == want[1].tobytes())
-    held = ops._blocks_holding(layout, [layout.size - 1, 0])
+    held = layout.holding([layout.size - 1, 0])
     assert held == [layout.blocks[0], layout.blocks[-1]]
     with pytest.raises(IndexError):
         displacement(res.state, problem.nominal, layout, [layout.size])

@@ -1,7 +1,7 @@
 """Session 12 (helper c): the solver's plumbing with fewer numpy and Python calls, bit for bit.
 
 ``values.arm_replace`` (the kinds' too) is ``dataclasses.replace`` on ``ArmValues`` without its ``__init__``; ``layout.touched``
-finds the blocks a mask touches by one reduction (``ops._moved_blocks``, ``_blocks_holding``, ``Problem``'s
+finds the blocks a mask touches by one reduction (``ops._moved_blocks``, ``Layout.holding``, ``Problem``'s
 wanted blocks); ``ResidualCache.diagonal`` remembers the constant diagonal of the whiteners a problem made;
 ``Problem._stack`` hands a single residual part on without a copy; ``Problem.evaluate`` at no step evaluates at the
 state itself; ``recentre`` skips the kinds that keep their values; ``TWISTS.scale`` is remembered for a model's

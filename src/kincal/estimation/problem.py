@@ -408,10 +408,8 @@ _UPPER.flags.writeable = False
 
 
 def _blocks_of(layout, cols: np.ndarray) -> frozenset:
-    """The names of the blocks holding a column of ``cols`` (``Layout.touched``: an empty block is never found)."""
-    mask = np.zeros(layout.size, bool)
-    mask[cols] = True
-    return frozenset(b.name for b in layout.touched(mask))
+    """The names of the blocks holding a column of ``cols`` (``Layout.holding``: an empty block is never found)."""
+    return frozenset(b.name for b in layout.holding(cols))
 
 
 def _joined(parts: list) -> np.ndarray:

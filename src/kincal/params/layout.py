@@ -113,6 +113,12 @@ class Layout:
         """The blocks (in order) where the (size,) bool ``mask`` holds a True (``touched``)."""
         return touched(self, mask)
 
+    def holding(self, idx) -> list[Block]:
+        """The blocks (in order) holding any of the layout indices ``idx`` (negative ones counted from the end)."""
+        mask = np.zeros(self.size, bool)
+        mask[np.asarray(idx, dtype=int)] = True
+        return touched(self, mask)
+
 
 def block_runs(blocks: Sequence[Block]) -> tuple[tuple[int, ...], np.ndarray]:
     """The indices of the blocks holding a coordinate and their starts (blocks are contiguous runs in order).

@@ -100,7 +100,7 @@ def displacement(state: State, nominal: State, layout: Layout, only: np.ndarray 
     disp = np.zeros(layout.size)
     D = np.zeros((layout.size, layout.size)) if jacobian else None
     poses = []  # (block, pose, nominal pose) of the pose kinds: their logarithms in one batch
-    for b in layout.blocks if only is None else _blocks_holding(layout, only):
+    for b in layout.blocks if only is None else layout.holding(only):
         value, value0 = b.value(state), b.value(nominal)
         T = b.kind.pose_of(value)
         if T is not None:
@@ -118,14 +118,6 @@ def displacement(state: State, nominal: State, layout: Layout, only: np.ndarray 
             if jacobian:
                 D[b.slice, b.slice] = Jinv[k]
     return disp, D
-
-
-def _blocks_holding(layout: Layout, idx) -> list:
-    """The blocks of ``layout`` (in order) holding any of the indices ``idx`` (negative ones counted from the
-    end)."""
-    mask = np.zeros(layout.size, bool)
-    mask[np.asarray(idx, dtype=int)] = True
-    return layout.touched(mask)
 
 
 def scale_direction(state: State, layout: Layout) -> np.ndarray:
