@@ -259,20 +259,22 @@ def _exact_one(x: list, tol: float) -> bool:
 
 def log(T: np.ndarray) -> np.ndarray:
     """Twist with rotation angle in [0, pi]: (..., 4, 4) -> (..., 6)."""
-    T = np.asarray(T, dtype=float)
-    w = so3.log(T[..., :3, :3])
-    v = np.einsum("...ij,...j->...i", so3.left_jacobian_inv(w), T[..., :3, 3])
-    return join(v, w)
+    return _log(T)[0]
 
 
 def log_with_jacobian_inv(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(x, left_jacobian_inv(x))`` with ``x = log(T)``, the rotation's inverse Jacobian computed once (the same
     numbers as the two calls)."""
+    x, Ji = _log(T)
+    return x, _inverse_blocks(Ji, left_jacobian(x)[..., :3, 3:])
+
+
+def _log(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``log(T)`` and its rotation's inverse left Jacobian (3, 3), which maps the translation to ``v``."""
     T = np.asarray(T, dtype=float)
     w = so3.log(T[..., :3, :3])
     Ji = so3.left_jacobian_inv(w)
-    x = join(np.einsum("...ij,...j->...i", Ji, T[..., :3, 3]), w)
-    return x, _inverse_blocks(Ji, left_jacobian(x)[..., :3, 3:])
+    return join(np.einsum("...ij,...j->...i", Ji, T[..., :3, 3]), w), Ji
 
 
 def inverse(T: np.ndarray) -> np.ndarray:
