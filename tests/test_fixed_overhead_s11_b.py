@@ -168,8 +168,7 @@ def test_estimates_as_before(ur10_sets):
     nominal, _, pose = ur10_sets
     res = calibrate(nominal, [pose], "kinematic", noise=NOISE)
     p, ok = res.problem, np.array([e.identifiable for e in res.estimates])
-    std = np.array([e.std for e in res.estimates])
-    got = finalize_module._estimates(p, res.state, std, ok, res.covariance)
+    got = finalize_module._estimates(p, res.state, ok, res.covariance)
     assert repr(got) == repr(list(res.estimates))  # (nan std: repr compares the floats exactly)
     for e in got:
         assert type(e.value) is float and type(e.std) is float and type(e.identifiable) is bool

@@ -126,7 +126,7 @@ def test_estimates_and_uncertainty_are_the_function_forms(ur10_sets):
     _, D = displacement(state, problem.nominal, problem.layout, free)
     Df = D[np.ix_(free, free)]
     want = np.where(ok, np.sqrt(np.clip(np.sum((Df @ cov) * Df, axis=1), 0, None)), np.nan)
-    got = [e.std for e in finalize_module._estimates(problem, state, np.zeros(len(free)), ok, cov)]
+    got = [e.std for e in finalize_module._estimates(problem, state, ok, cov)]
     assert _bits(got) == _bits(want)
     assert _bits([e.std for e in res.estimates]) == _bits(want)  # the result's: of the displacements, from cov
 

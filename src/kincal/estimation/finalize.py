@@ -74,7 +74,7 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
             f"and their standard deviations assume a model that fits. {_misfit_advice(problem)}"))
     elif sigma2 > NOISE_NOTE_FACTOR and dof >= NOISE_NOTE_DOF:
         messages.append(_noise_note(sigma2))
-    estimates = tuple(_estimates(problem, run.state, None, ok, cov))  # std from cov through the displacement
+    estimates = tuple(_estimates(problem, run.state, ok, cov))  # std from cov through the displacement
     negative = negative_compliances(problem.layout, estimates)
     messages[:0] = negative_compliance_notes(negative)
     k = messages.index(_REPORT)
@@ -317,18 +317,17 @@ def _twists(problem: Problem, state, cov: np.ndarray) -> tuple[TwistEstimate, ..
     return tuple(TwistEstimate(n, float(v), float(s)) for n, v, s in zip(names, values, std))
 
 
-def _estimates(problem: Problem, state, std, ok, cov=None) -> list[Estimate]:
+def _estimates(problem: Problem, state, ok, cov: np.ndarray) -> list[Estimate]:
     """One Estimate per free coordinate: absolute kinds (offsets, compliance) their value, the others the
     displacement from nominal, whose std is the covariance ``cov`` (in the tangent coordinates at ``state``)
     propagated through the displacement's Jacobian, so value and std are in the same coordinates (a twist moved
     far from nominal: its tilts at the estimate are no longer its tilts from nominal)."""
     layout = problem.layout
     free = problem.free_idx
-    disp, D = displacement(state, problem.nominal, layout, free, jacobian=cov is not None)
-    if cov is not None:
-        Df = D.take(free, 0).take(free, 1)  # D[np.ix_(free, free)], copied by take without fancy indexing
-        var = ((Df @ cov) * Df).sum(axis=1)  # diag(Df cov Df^T) (a three-operand einsum loops in p^3 steps)
-        std = np.where(ok, np.sqrt(np.maximum(var, 0)), np.nan)  # np.clip(x, 0, None) is np.maximum(x, 0)
+    disp, D = displacement(state, problem.nominal, layout, free, jacobian=True)
+    Df = D.take(free, 0).take(free, 1)  # D[np.ix_(free, free)], copied by take without fancy indexing
+    var = ((Df @ cov) * Df).sum(axis=1)  # diag(Df cov Df^T) (a three-operand einsum loops in p^3 steps)
+    std = np.where(ok, np.sqrt(np.maximum(var, 0)), np.nan)  # np.clip(x, 0, None) is np.maximum(x, 0)
     nominal = np.zeros(layout.size)  # absolute kinds (offsets, compliance) report values, the others changes
     value = disp.copy()
     for b in layout.blocks:
