@@ -3,8 +3,8 @@
 ``fk.sample_chain`` multiplies each sample's joint exponentials ``I + a X + b X^2`` (``Kinematics.coefficients``)
 and ``jacobians._sample_projections`` each sample's joint adjoints ``I + a ad + b ad^2``: one product per joint
 instead of two and a turn. They reorder floating-point operations, so they are compared here with the kernels
-they replace (``fk.chain``, ``jacobians._frame_projections``, both kept) to round-off, on the UR10 and random exact
-screws (revolute and prismatic, joints at zero); whole calibrations of several structures (markers, pose, clamp,
+they replace (``fk.chain``, kept; the joint frames' projections, fd4f6a3's copy in test_fixed_overhead_s12_b)
+to round-off, on the UR10 and random exact screws (revolute and prismatic, joints at zero); whole calibrations of several structures (markers, pose, clamp,
 dual arm, elastic) give the same rank, status, messages and estimates/std within 1e-10 relative."""
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from kincal.kinematics import fk
 from kincal.kinematics import jacobians as jac
 from kincal.lie import se3
 from kincal.robots import load
-from test_fixed_overhead_s12_b import _random_screws
+from test_fixed_overhead_s12_b import _frame_projections, _random_screws
 from test_fixed_overhead_s12_c import cases  # noqa: F401 (the structures: markers, pose, clamp, dual, elastic)
 
 
@@ -102,14 +102,14 @@ def test_sample_projections_are_the_frame_ones_to_round_off(k):
                 theta = _angles(rng, N, len(screws), case)
                 G = rng.standard_normal((N, k, 6))
                 for kin in (fk.chain(screws, theta, base, home, tool), fk.sample_chain(screws, theta, base, home, tool)):
-                    want = jac._frame_projections(kin, G)
+                    want = _frame_projections(kin, G)
                     got = jac.prefix_projections(kin, G)
                     _close(got, want, 10.0 * (1.0 + np.abs(want).max()))
                     for i in np.flatnonzero(~theta.any(axis=0)):
                         assert got[i + 1].tobytes() == got[i].tobytes()
                 unequal = fk.chain(screws, theta, np.broadcast_to(base, (N, 4, 4)) + 0.0, home, tool)
                 unequal.__dict__["one_base"] = None  # the per-sample base's projection
-                _close(jac._sample_projections(unequal, G), jac._frame_projections(unequal, G),
+                _close(jac._sample_projections(unequal, G), _frame_projections(unequal, G),
                        10.0 * (1.0 + np.abs(want).max()))
 
 
@@ -139,7 +139,7 @@ def test_whole_calibrations_agree_with_the_replaced_kernels(cases, monkeypatch):
         new = calibrate(robot, data, free, noise=noise)
         with monkeypatch.context() as m:
             m.setattr(experiments_base, "sample_chain", fk.chain)
-            m.setattr(jac, "_sample_projections", jac._frame_projections)
+            m.setattr(jac, "_sample_projections", _frame_projections)
             old = calibrate(robot, data, free, noise=noise)
         assert new.status == old.status and len(new.messages) == len(old.messages), name
         if name == "dual":  # the same words; the coefficients of its null directions are round-off's (below)

@@ -35,7 +35,7 @@ from typing import Sequence
 import numpy as np
 
 from kincal.kinematics.elastic import LoadedKinematics, compliance_columns, deflection_map
-from kincal.kinematics.fk import Kinematics, powers, turn_factors, turn_pairs
+from kincal.kinematics.fk import Kinematics, powers
 from kincal.kinematics.gravity import _Projected, gravity_torque_derivatives
 from kincal.lie import se3
 
@@ -181,7 +181,8 @@ def _sample_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
     """``prefix_projections`` of exact joint screws: ``G Ad(P_{i+1}) = (G Ad(P_i)) Ad(exp(xi_i t))`` with
     ``Ad(exp(xi t)) = I + a ad(xi) + b ad(xi)^2`` (``Kinematics.coefficients``; every joint and sample in one
     product), then one product per joint over all samples; a joint at zero in every sample is the identity.
-    The numbers of ``_frame_projections`` (two products and a turn per joint) to round-off."""
+    The numbers of the joint frames' projections (``G Ad(P_i) Ad(C_i) Ad(Z_i) Ad(C_i^-1)``, two products and a turn
+    per joint, what it replaced) to round-off."""
     N, k = G.shape[:2]
     n = kin.theta.shape[1]
     A = (kin.unit_coefficients @ powers(kin.screws, _AD_BASIS, unit=True)).reshape(n, N, 6, 6)  # I + a ad + b ad^2
@@ -200,41 +201,6 @@ def _sample_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
 
 
 _AD_BASIS = se3.ad(np.eye(6)).reshape(6, 36)  # ad of the unit twists: ad(xi) = xi @ _AD_BASIS
-
-
-def _frame_projections(kin: Kinematics, G: np.ndarray) -> np.ndarray:
-    """``prefix_projections`` of exact joint screws: with ``exp(xi_i t) = C_i Z_i(t) C_i^-1``
-    (``se3.joint_frames``), ``G Ad(P_{i+1}) = ((G Ad(P_i)) Ad(C_i)) Ad(Z_i) Ad(C_i^-1)``: two products with
-    constant 6 x 6 matrices over all rows at once, and ``Ad(Z_i)`` turns two pairs of columns (revolute) or adds
-    the translation's term (prismatic); a joint at zero in every sample is the identity. ``prefix_projections``
-    uses ``_sample_projections`` (fewer operations); this one stays the reference the tests hold it to."""
-    _, _, revolute, AdC, AdCi = se3.joint_frames(kin.screws)
-    N, k = G.shape[:2]
-    theta = kin.theta
-    n = theta.shape[1]
-    M = np.empty((n + 1, N * k, 6))
-    if kin.one_base is not None:  # one base for every sample (a chain's own)
-        M[0] = G.reshape(N * k, 6) @ se3.remembered(se3.adjoint, kin.one_base)
-    else:
-        M[0] = _project_prefixes(G, kin.prefixes[:, :1])[0]
-    moves = kin.moves
-    c2, s2 = turn_factors(*kin.turns, k)  # per joint (1 or 2, N k)
-    KT = np.empty((6, N * k))  # K = M_i Ad(C_i) transposed: the turned columns are contiguous rows
-    Z = KT.reshape(2, 3, N * k)[:, :2]  # (x0, x1) of v and of w: rows (0, 1) and (3, 4)
-    for i in range(n):
-        if not moves[i]:
-            M[i + 1] = M[i]
-            continue
-        np.matmul(AdC[i].T, M[i].T, out=KT)
-        if revolute[i]:  # Ad(Rz(t)) = diag(Rz, Rz): c x0 + s x1, c x1 - s x0
-            turn_pairs(Z, c2[i], s2[i])
-        else:  # Ad(Tz(t)) = [[I, hat(t e_z)], [0, I]]: g^T hat(t e_z) = (g x t e_z)^T
-            t = theta[:, i, None]
-            K = KT.reshape(6, N, k)
-            K[3] += t * K[1]
-            K[4] -= t * K[0]
-        np.matmul(KT.T, AdCi[i], out=M[i + 1])
-    return M
 
 
 def _twist_columns(M: np.ndarray, generators, step: int, N: int, k: int) -> np.ndarray:
