@@ -43,6 +43,12 @@ class Factor:
         r = self.rank
         return (self.Vt[:r].T @ ((self.U[:, :r].T @ b) / self.S[:r])) / self.c
 
+    def inverse_gram_root(self, V: np.ndarray) -> np.ndarray:
+        """``M^-1`` (rank x rank) for ``V`` (p, rank) an orthonormal basis of the identifiable subspace, ``Rf V = U1 M``
+        (``covariance``): ``Rf V M^-1 = U1`` has orthonormal columns."""
+        r = self.rank
+        return (((self.Vt[:r] / self.c) / self.S[:r, None]) @ V).T
+
     def covariance(self, V: np.ndarray, sigma2: float = 1.0) -> np.ndarray:
         """``sigma2 * V (V^T Rf^T Rf V)^-1 V^T`` (``covariance.covariance``) for ``V`` (p, rank) an orthonormal basis
         of the identifiable subspace: ``Rf V = U1 M`` with ``M = S1 V1^T diag(c) V`` square, so the inverse Gram

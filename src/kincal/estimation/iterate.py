@@ -1,11 +1,14 @@
 """The outer loop of ``solve``: re-linearize around the current state, analyse the rank, restrict the step to the
 identifiable subspace (the gauge), take a Gauss-Newton step or solve the inner problem (``steps.inner_solve``:
 geodesic Levenberg-Marquardt, or ``scipy.optimize.least_squares`` with a robust loss), re-centre (conform
-twists, re-linearize tangent bases)."""
+twists, re-linearize tangent bases). A plain Gauss-Newton step between the first and the last linearization is
+taken with the null space carried from the last rank analysis where that linearization provably has the same rank
+(``_carried``, ``steps.carried_step``: the same step to round-off), without an analysis of its own."""
 
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,7 +61,7 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
     order = priority(problem, options.gauge)
     every = scale_test_needed(problem)
     state, W, lin, ana, hold, structure = problem.start, None, None, None, None, None
-    first, before = None, ()
+    first, before, lengths = None, (), []  # lengths: of the steps taken, whitened
     evaluations, status, it, fast = 0, "not converged", 0, True  # Gauss-Newton first while it converges fast
     for it in range(1, options.max_outer + 1):
         # Whiten at the start and once more at the first estimate, then hold: when the model cannot explain
@@ -68,27 +71,32 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
             W = None
         lin = steps.linearize(problem, state, W, every)
         W = lin.W
-        hold = rigid_gauges(problem, lin) if it == 1 else hold
-        # the problem's structure, read once: the same at every linearization of this solve (``Structure``)
-        structure = structure or Structure.of(lin, problem.layout, problem.experiments, options.rank_rtol)
-        ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=order,
-                       report=False, hold=hold, structure=structure)
-        if every and it == 1 and scale_visible(lin, problem.layout, structure):
-            every = False  # the data measure lengths: later linearizations skip the scale test's columns
-        if first is None:  # named only if a report asks for it (``Result.identifiability_before``)
-            first = DeferredReport.of(ana, lin, problem.layout, problem.experiments, order)
-            before = tuple(problem.statistics(state, W))
-            if first.degenerate:
-                status = "degenerate"
+        carried = None if it == 1 or _likely_last(lin, lengths) else _carried(lin, ana, options, fast, hold)
+        if carried is not None and not steps.negligible(lin, *carried):
+            V, z, r1sq = carried  # a step between two rank analyses (``_carried``)
+        else:
+            hold = rigid_gauges(problem, lin) if it == 1 else hold
+            # the problem's structure, read once: the same at every linearization of this solve (``Structure``)
+            structure = structure or Structure.of(lin, problem.layout, problem.experiments, options.rank_rtol)
+            ana = identify(lin, problem.layout, problem.experiments, rtol=options.rank_rtol, priority=order,
+                           report=False, hold=hold, structure=structure)
+            if every and it == 1 and scale_visible(lin, problem.layout, structure):
+                every = False  # the data measure lengths: later linearizations skip the scale test's columns
+            if first is None:  # named only if a report asks for it (``Result.identifiability_before``)
+                first = DeferredReport.of(ana, lin, problem.layout, problem.experiments, order)
+                before = tuple(problem.statistics(state, W))
+                if first.degenerate:
+                    status = "degenerate"
+                    break
+                _require_redundancy(problem, lin, ana.rank)
+            V = gauge_basis(lin.Rf, ana, options.gauge, order)
+            z, r1sq = steps.gauss_newton(lin, V, ana.factor if V is ana.range_space else None)
+            if it > 1 and steps.negligible(lin, V, z, r1sq):
+                status = "converged"  # the re-linearized problem asks for no step
                 break
-            _require_redundancy(problem, lin, ana.rank)
-        V = gauge_basis(lin.Rf, ana, options.gauge, order)
-        z, r1sq = steps.gauss_newton(lin, V, ana.factor if V is ana.range_space else None)
-        if it > 1 and steps.negligible(lin, V, z, r1sq):
-            status = "converged"  # the re-linearized problem asks for no step
-            break
-        state, done, fast, spent = _step(problem, options, lin, V, z, r1sq, fast, it)
+        state, done, fast, spent, length = _step(problem, options, lin, V, z, r1sq, fast, it)
         evaluations += spent
+        lengths.append(length)
         lin = None  # the state moved
         if done:
             status = "converged"
@@ -97,10 +105,34 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
                      None if lin is None else ana, hold)
 
 
+def _likely_last(lin: Linearization, lengths: list) -> bool:
+    """Whether Gauss-Newton's quadratic convergence, fitted to the last two steps (``s2 = K s1^2``), predicts a
+    negligible step at ``lin``: a carried step would then be computed only to be decided again on a rank analysis
+    (``_carried``). A guess that costs time when wrong, never a result."""
+    if len(lengths) < 2 or not lengths[-2] > 0:
+        return False
+    limit = steps.step_limit(math.sqrt(lin.cost2), 0.5 * lin.cost2, len(lin.r) - lin.p)
+    return lengths[-1] ** 3 < limit * lengths[-2] ** 2
+
+
+def _carried(lin: Linearization, ana: Identifiability, options: SolverOptions, fast: bool, hold):
+    """``(V, z, r1sq)``: the Gauss-Newton step at ``lin`` with the null space carried from the last rank analysis
+    ``ana`` (``steps.carried_step``: the same step to round-off), or None where the step needs a rank analysis of
+    its own: the first and the last linearization have theirs (the start's report; the result's rank, covariance
+    and report), so does any step that is not a plain Gauss-Newton step in the min-change gauge of an analysis from
+    its own SVD with nothing weak, held or pinned, or a linearization whose rank may differ. The loop only calls it
+    after a step, so the analysis is that of an earlier state; a step it finds negligible is decided again on a
+    rank analysis of ``lin`` (the loop's own test), so that the last linearization is always analysed."""
+    if not (fast and options.loss == "linear" and isinstance(options.gauge, str) and hold is None
+            and ana.factor is not None and not ana.weak):
+        return None
+    return steps.carried_step(lin, ana, options.rank_rtol)
+
+
 def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.ndarray, z: np.ndarray,
-          r1sq: float, fast: bool, it: int) -> tuple[State, bool, bool, int]:
+          r1sq: float, fast: bool, it: int) -> tuple[State, bool, bool, int, float]:
     """One step from ``lin`` in the subspace V: (new state, whether it was negligible, whether Gauss-Newton is
-    still fast, residual evaluations spent).
+    still fast, residual evaluations spent, the step's whitened length).
 
     The Gauss-Newton step ``z`` first (it costs one residual evaluation); ``steps.inner_solve`` (geodesic
     Levenberg-Marquardt, or TRF with a robust loss) solves the inner problem when the full step does not reduce
@@ -137,7 +169,7 @@ def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.nd
               "Gauss-Newton" if accepted else "inner solve", 2 * cost, step, biggest)
     # stop when the step is negligible against the residual (or, with noise, well below one sigma)
     done = finished and (steps.converged(step, np.sqrt(lin.cost2), cost, len(lin.r) - V.shape[1]) or biggest < 1e-13)
-    return state, done, fast, evaluations
+    return state, done, fast, evaluations, step
 
 
 # Singular values below this fraction of the largest are exact zeros (structure, not weak data).

@@ -13,9 +13,9 @@ import math
 
 import numpy as np
 
-from kincal.analysis import Linearization
+from kincal.analysis import Identifiability, Linearization
 from kincal.analysis.factor import Factor
-from kincal.analysis.linalg import lstsq, norm
+from kincal.analysis.linalg import complete_q, lstsq, norm
 from kincal.errors import DegenerateExperimentError
 from kincal.estimation import blocks, levenberg
 from kincal.estimation.problem import Problem, triangular_factor
@@ -137,8 +137,13 @@ def converged(step: float, r0_norm: float, cost: float, dof: int) -> bool:
     """A step is negligible against the residual, or (with noise) well below one sigma of scatter: the
     whitened step |J delta| is the step's length in standard deviations of the estimate, so 1e-2 moves no
     estimate by more than a hundredth of its standard deviation."""
+    return bool(step < step_limit(r0_norm, cost, dof))
+
+
+def step_limit(r0_norm: float, cost: float, dof: int) -> float:
+    """The whitened step length below which ``converged`` calls a step negligible."""
     scatter = math.sqrt(2 * cost / max(dof, 1))  # a float: numpy's sqrt of a scalar, without its call overhead
-    return bool(step < max(1e-6 * (1.0 + r0_norm), 1e-2 * scatter))
+    return max(1e-6 * (1.0 + r0_norm), 1e-2 * scatter)
 
 
 def gauss_newton(lin: Linearization, V: np.ndarray, factor: Factor | None = None) -> tuple[np.ndarray, float]:
@@ -150,6 +155,54 @@ def gauss_newton(lin: Linearization, V: np.ndarray, factor: Factor | None = None
     z = V.T @ factor.step(-qtr) if factor is not None else lstsq(RV, -qtr)
     e = qtr + RV @ z
     return z, max(lin.cost2 - float(qtr @ qtr) + float(e @ e), 0.0)
+
+
+# A step is carried from an earlier linearization's rank analysis (``carried_step``) while the factor on the
+# carried subspace, preconditioned to orthonormal columns at the analysed linearization, keeps every singular value
+# above this (checked by the bound 1 / |R^-1|_F on its triangular factor R): each identifiable direction of the
+# analysis has lost at most a factor 1e3 of its singular value, which the analysis found more than ``factor.GAP``
+# (1e10) above round-off, so none can have become unidentifiable.
+CARRY_MIN = 1e-3
+
+
+def carried_step(lin: Linearization, ana: Identifiability, rtol: float):
+    """``gauss_newton`` in the min-change gauge at ``lin`` from an earlier linearization's rank analysis ``ana`` at
+    ``rtol`` (one whose null space is its SVD's own, ``ana.factor``), without a rank analysis of ``lin``:
+    ``(V, z, r1sq)`` with V an orthonormal basis of the complement of ``lin``'s null space, as ``identify`` would
+    give it; None where ``lin``'s rank differs from ``ana``'s or its factor on ``ana``'s identifiable subspace is too
+    weak (``CARRY_MIN``).
+
+    With ``M^-1`` the factor's ``inverse_gram_root``, ``C = Rf V0 M^-1`` (V0 = ``ana.range_space``) has orthonormal
+    columns at the analysed linearization; its QR ``C = Q R`` carries the rest. Where ``C`` keeps its rank and the
+    column-scaled ``Rf`` has no part outside span(Q) above ``rtol`` of the analysed largest singular value (a
+    bound on its next singular value: no direction has become identifiable, as a compliance lifts the gauges it
+    couples at its first move from 0), ``lin`` has ``ana``'s rank and V0 is a complement of its null space. That
+    null space is then ``N0 + V0 X`` with ``Rf V0 X = -Rf N0`` (N0 = ``ana.null_space``), one solve with ``C``'s
+    factor; the least-squares step in V0 projected on its orthogonal complement is ``gauss_newton``'s step from a
+    rank analysis of ``lin``, up to round-off."""
+    from scipy.linalg.lapack import dtrtri, dtrtrs  # here: importing scipy.linalg costs more than importing kincal
+
+    V0, N0, factor = ana.range_space, ana.null_space, ana.factor
+    VP = V0 @ factor.inverse_gram_root(V0)
+    r = VP.shape[1]
+    C = lin.Rf @ VP
+    R = triangular_factor([C, lin.qtr])
+    if len(R) < r:
+        return None
+    inverse, info = dtrtri(R[:r, :r])  # the smallest singular value of C is at least 1 / |R^-1|_F
+    if info != 0 or not norm(inverse) <= 1.0 / CARRY_MIN:
+        return None
+    Q, Rs = C @ inverse, lin.Rf / factor.c
+    if not norm(Rs - Q @ (Q.T @ Rs)) <= rtol * factor.S[0]:
+        return None
+    w, info = dtrtrs(R[:r, :r], R[:r, r])
+    if info != 0:
+        return None
+    null = N0 - VP @ (inverse @ (Q.T @ (lin.Rf @ N0)))
+    V = complete_q(null, overwrite=True)[:, null.shape[1]:] if null.shape[1] else np.eye(lin.p)
+    z = V.T @ (VP @ -w)
+    e = lin.qtr + lin.Rf @ (V @ z)
+    return V, z, max(lin.cost2 - float(lin.qtr @ lin.qtr) + float(e @ e), 0.0)
 
 
 def negligible(lin: Linearization, V: np.ndarray, z: np.ndarray, r1sq: float) -> bool:
