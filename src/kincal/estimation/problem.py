@@ -31,6 +31,7 @@ from kincal.experiments import Experiment, build as build_experiments, checked, 
 from kincal.kinematics import Robot
 from kincal.noise import Noise, effective
 from kincal.params import Layout, Prior, State, build_layout, displacement, pose_retraction_jacobians, retract
+from kincal.params.layout import on_clear
 
 VARIANCE_FLOOR = 1e-18
 # The collapse test (``finalize``) reads the joint sensitivity of at most this many evenly spread configurations
@@ -134,13 +135,14 @@ class Problem:
         set and the starting state. ``keep``: the experiments' kinematics remembered until it closes
         (``experiments.build``): a solve within it reuses the nominal ones the frames' initial guesses computed."""
         require_memory(datasets)  # before frames are guessed from the data (forward kinematics of every sample)
+        fixed = tuple(fixed)
         nominal_arms = State.from_robot(robot)
         exps, extras, unknown = build_experiments(datasets, nominal_arms, keep)
         arms = [a for a in robot.arms if any(a in robot.lineage(b) for e in exps for b in e.arms)]  # with ancestors
         nominal = State({a: nominal_arms.arms[a] for a in arms}, extras, frame_kinds(exps), robot.mounts)
         layout = build_layout(nominal, free, fixed=fixed, priors=priors, free_extras=unknown, arms=arms)
-        require_memory(datasets, int(layout.free.sum()))  # before the solve allocates anything of the data's size
-        for name in unknown:
+        require_memory(datasets, np.count_nonzero(layout.free))  # before the solve allocates anything of the data's size
+        for name in unknown if len(fixed) else ():  # laid out free (``free_extras``): only ``fixed`` can hold them
             b = layout.block(name)
             if not layout.free[b.start: b.stop].all():
                 raise ModelError(f"'{name}' is unknown (not given in its data set) and cannot be fixed; give its value")
@@ -199,8 +201,8 @@ class Problem:
         """(experiment index, row range, sub-problem) of every block of configurations (``estimation.blocks``);
         the sub-problems hold no prior or constraint rows (``tail``)."""
         if self.cache.parts is None:
-            rows = sum(e.size * len(e.components()) for e in self.experiments)
-            per = chunk_rows(len(self.free_idx)) if by_blocks(rows, len(self.free_idx)) else rows
+            rows = self._rows
+            per = chunk_rows(len(self.free_idx)) if self._by_blocks else rows
             self.cache.parts = [(i, rows, blocks.part_problem(self, i, rows, ResidualCache(keeps=False)))
                                 for i, rows in blocks.split(self.experiments, lambda e: max(per // len(e.components()), 1))]
         return self.cache.parts
@@ -213,8 +215,18 @@ class Problem:
 
     @property
     def blocked(self) -> bool:
-        """Whether the problem is evaluated by blocks (``memory.by_blocks``; decided once, with ``parts``)."""
-        return len(self.parts()) > len(self.experiments)
+        """Whether the problem is evaluated by blocks (``memory.by_blocks``; decided once, with ``parts``). Not
+        by blocks, ``parts`` are the experiments whole: no need to make them to know."""
+        return self._by_blocks and len(self.parts()) > len(self.experiments)
+
+    @cached_property
+    def _rows(self) -> int:
+        """Residual rows of the experiments."""
+        return sum(e.size * len(e.components()) for e in self.experiments)
+
+    @cached_property
+    def _by_blocks(self) -> bool:
+        return by_blocks(self._rows, len(self.free_idx))
 
     @cached_property
     def _small(self) -> bool:
@@ -436,8 +448,46 @@ def _noise_per_experiment(noise, exps) -> list[Noise]:
         bad = set(noise) - {e.name for e in exps}
         if bad:
             raise ModelError(f"noise given for unknown data set(s) {sorted(bad)}; data sets: {[e.name for e in exps]}")
-    return [effective(noise.get(e.name) if isinstance(noise, Mapping) else noise, e.dataset.meta.get("noise"))
+    return [_effective(noise.get(e.name) if isinstance(noise, Mapping) else noise, e.dataset.meta.get("noise"))
             for e in exps]
+
+
+def _effective(explicit: Noise | None, stated: Mapping | None) -> Noise:
+    """``effective(explicit, stated)``, remembered by their values (a batch or a Monte Carlo study states the same
+    noise at every call, in a new ``Noise`` each time); the answer is shared, a ``Noise`` being immutable."""
+    key = _noise_key(explicit, stated)
+    hit = _NOISES.get(key) if key is not None else None
+    if hit is None:
+        hit = effective(explicit, stated)
+        if key is not None:
+            remember(_NOISES, key, hit, NOISE_ENTRIES)
+    return hit
+
+
+def _noise_key(explicit: Noise | None, stated: Mapping | None) -> str | None:
+    """The values ``effective`` reads, as their repr (exact for these types: it tells -0.0 from 0.0 and 1 from
+    1.0); None when one is of another type (nothing remembered then)."""
+    if explicit is not None and type(explicit) is not Noise:
+        return None
+    named = () if explicit is None else (explicit.position, explicit.orientation, explicit.joint, explicit.backlash)
+    other = () if explicit is None else tuple(explicit.other.items())
+    given = tuple((stated or {}).items())
+    if not all(type(v) in _KEY_TYPES for v in named) or not all(
+            type(k) is str and type(v) in _KEY_TYPES for k, v in other + given):
+        return None
+    return repr((explicit is None, named, other, given))
+
+
+# _effective's memory: the stated noises' values -> the noise in effect, oldest first
+_NOISES: dict[str, Noise] = {}
+NOISE_ENTRIES = 64
+_KEY_TYPES = (float, int, type(None))
+
+
+@on_clear
+def clear_noise_cache() -> None:
+    """Forget what ``_effective`` remembered (``kincal.params.clear_caches`` runs this)."""
+    _NOISES.clear()
 
 
 def stated_sigmas(exp: Experiment, noise: Noise) -> np.ndarray:

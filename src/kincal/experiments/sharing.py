@@ -9,7 +9,6 @@ agree), and an unknown one starts from the first data set's initial guess.
 
 from __future__ import annotations
 
-from collections import Counter
 from typing import Sequence
 
 import numpy as np
@@ -26,14 +25,17 @@ def frame_names(datasets: Sequence[Dataset], arms: Sequence[str]) -> list[dict[s
     """Per data set, role -> frame name. A name given in ``frames`` must be valid, and a frame may only be
     shared between data sets in which it plays the same role."""
     # every data set with the role counts, named or not, so naming one frame never renames another's
-    count = Counter(r for d in datasets for r in schema_of(d.kind).role_keys)
+    roles = [tuple(schema_of(d.kind).role_keys) for d in datasets]
+    count: dict[str, int] = {}
+    for r in (r for rs in roles for r in rs):
+        count[r] = count.get(r, 0) + 1
     owner: dict[str, tuple[str, str]] = {}  # frame name -> (first data set, role)
     out = []
-    for ds in datasets:
+    for ds, rs in zip(datasets, roles):
         bad = frames_problem(ds.kind, ds.frames, arms)
         if bad:
             raise DataFormatError(f"data set '{ds.name}': field {bad[0]}: {bad[1]}")
-        names = {r: ds.frames.get(r) or (r if count[r] == 1 else f"{ds.name}.{r}") for r in schema_of(ds.kind).role_keys}
+        names = {r: ds.frames.get(r) or (r if count[r] == 1 else f"{ds.name}.{r}") for r in rs}
         for role, name in names.items():
             first, first_role = owner.setdefault(name, (ds.name, role))
             if first_role != role:

@@ -245,13 +245,26 @@ _SHAPED = (POINT, POINTS)
 
 
 def clear_caches() -> None:
-    """Forget what ``build_layout``, ``block_runs``, ``ArmValues.from_model`` and ``TWISTS.scale`` remembered (tests,
-    cold-start timings)."""
+    """Forget what ``build_layout``, ``block_runs``, ``ArmValues.from_model`` and ``TWISTS.scale`` remembered, and
+    the memories of the layers above registered with ``on_clear`` (tests, cold-start timings)."""
     _SELECTIONS.clear()
     _BLOCKS.clear()
     _RUNS.clear()
     kinds._TWIST_SCALES.clear()
     values._FROM_MODEL.clear()
+    for clear in tuple(_CLEARS):
+        clear()
+
+
+# The clear functions of memories kept above this layer (which it may not import): ``clear_caches`` runs them.
+_CLEARS: list = []
+
+
+def on_clear(clear):
+    """Have ``clear_caches`` run ``clear`` too; returns it (a decorator)."""
+    if clear not in _CLEARS:
+        _CLEARS.append(clear)
+    return clear
 
 
 def _selection_key(names, blocks, free, fixed, priors, extras) -> tuple | None:
