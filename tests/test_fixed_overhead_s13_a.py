@@ -49,7 +49,8 @@ def test_the_noise_memory_misses_on_any_other_value():
         for stated in STATED:
             key = P._noise_key(explicit, stated)
             if key is not None:  # one key, one noise (None and {} state nothing alike)
-                assert seen.setdefault(key, _fields(effective(explicit, stated))) == _fields(effective(explicit, stated))
+                want = _fields(effective(explicit, stated))
+                assert seen.setdefault(key, want) == want
             P._effective(explicit, stated)
     assert len(seen) > len(EXPLICIT) and len(P._NOISES) == min(len(seen), P.NOISE_ENTRIES)
     keys = [P._noise_key(Noise(position=v), None) for v in (0.0, -0.0, 0, 1, 1.0, True)]
@@ -124,3 +125,18 @@ def test_repeated_data_set_names_are_refused(ur10_sets):
     nominal, markers, _ = ur10_sets
     with pytest.raises(DataFormatError, match=f"unique; repeated: {markers.name}$"):
         calibrate(nominal, [markers, markers], "kinematic")
+
+
+def test_shared_frames_of_different_shapes_are_refused(ur10_sets):
+    """The shapes are read where a frame is shared or given (``sharing._check_shapes``), and only there."""
+    from dataclasses import replace
+
+    nominal = ur10_sets[0]
+    one, two = (generate_markers(nominal, n=6, rng=k, markers=k)[0] for k in (1, 2))
+    one, two = (replace(d, name=f"set{k}", frames={"markers": "cluster"}) for k, d in ((1, one), (2, two)))
+    with pytest.raises(DataFormatError, match="share frame 'cluster' .* different shapes: \\(1, 3\\) in 'set1', "
+                                              "\\(2, 3\\) in 'set2'"):
+        Problem.build(nominal, [one, two], "offsets")
+    same = replace(two, name="set3")
+    problem = Problem.build(nominal, [two, same], "offsets")
+    assert problem.nominal.extras["cluster"].shape == (2, 3)

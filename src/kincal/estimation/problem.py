@@ -11,6 +11,7 @@ closed chain stays positive definite.
 
 from __future__ import annotations
 
+from collections import abc
 from contextlib import ExitStack
 from dataclasses import dataclass, field, replace
 from functools import cached_property
@@ -24,7 +25,7 @@ from kincal.data import Dataset
 from kincal.errors import ModelError
 from kincal.estimation import blocks
 from kincal.estimation.constraints import FrameDistance, constraint_rows
-from kincal.estimation.memory import by_blocks, chunk_rows, require_memory
+from kincal.estimation.memory import by_blocks, chunk_rows, require_memory, residual_rows
 from kincal.estimation.start import starting_state
 from kincal.estimation.stats import ResidualStats, residual_norms
 from kincal.experiments import Experiment, build as build_experiments, checked, frame_kinds, same_bits
@@ -134,14 +135,16 @@ class Problem:
         frames shared between data sets, the layout of the free and fixed parameters, stated noise per data
         set and the starting state. ``keep``: the experiments' kinematics remembered until it closes
         (``experiments.build``): a solve within it reuses the nominal ones the frames' initial guesses computed."""
-        require_memory(datasets)  # before frames are guessed from the data (forward kinematics of every sample)
+        rows = residual_rows(datasets)  # before frames are guessed from the data (forward kinematics of every sample):
+        require_memory(datasets, rows=rows)
         fixed = tuple(fixed)
         nominal_arms = State.from_robot(robot)
         exps, extras, unknown = build_experiments(datasets, nominal_arms, keep)
         arms = [a for a in robot.arms if any(a in robot.lineage(b) for e in exps for b in e.arms)]  # with ancestors
         nominal = State({a: nominal_arms.arms[a] for a in arms}, extras, frame_kinds(exps), robot.mounts)
         layout = build_layout(nominal, free, fixed=fixed, priors=priors, free_extras=unknown, arms=arms)
-        require_memory(datasets, np.count_nonzero(layout.free))  # before the solve allocates anything of the data's size
+        # before the solve allocates anything of the data's size
+        require_memory(datasets, np.count_nonzero(layout.free), rows)
         for name in unknown if len(fixed) else ():  # laid out free (``free_extras``): only ``fixed`` can hold them
             b = layout.block(name)
             if not layout.free[b.start: b.stop].all():
@@ -159,7 +162,7 @@ class Problem:
         prior = np.isfinite(layout.prior_sigma) & layout.free
         want = frozenset(b.name for b in layout.touched(layout.free))
         return cls(robot, tuple(experiments), layout, nominal, nominal if start is None else start, tuple(noise),
-                   tuple(constraints), tuple(unknown), np.flatnonzero(layout.free), np.flatnonzero(prior), want)
+                   tuple(constraints), tuple(unknown), layout.free.nonzero()[0], prior.nonzero()[0], want)
 
     def with_measurements(self, datasets: Sequence[Dataset]) -> "Problem | None":
         """This problem with ``datasets`` in place of its data sets when they differ from them in measured values only
@@ -201,8 +204,8 @@ class Problem:
         """(experiment index, row range, sub-problem) of every block of configurations (``estimation.blocks``);
         the sub-problems hold no prior or constraint rows (``tail``)."""
         if self.cache.parts is None:
-            rows = self._rows
-            per = chunk_rows(len(self.free_idx)) if self._by_blocks else rows
+            rows = sum(e.size * len(e.components()) for e in self.experiments)
+            per = chunk_rows(len(self.free_idx)) if by_blocks(rows, len(self.free_idx)) else rows
             self.cache.parts = [(i, rows, blocks.part_problem(self, i, rows, ResidualCache(keeps=False)))
                                 for i, rows in blocks.split(self.experiments, lambda e: max(per // len(e.components()), 1))]
         return self.cache.parts
@@ -213,20 +216,12 @@ class Problem:
             self.cache.tail = (blocks.tail_problem(self, ResidualCache(keeps=False)),)
         return self.cache.tail[0]
 
-    @property
+    @cached_property
     def blocked(self) -> bool:
         """Whether the problem is evaluated by blocks (``memory.by_blocks``; decided once, with ``parts``). Not
         by blocks, ``parts`` are the experiments whole: no need to make them to know."""
-        return self._by_blocks and len(self.parts()) > len(self.experiments)
-
-    @cached_property
-    def _rows(self) -> int:
-        """Residual rows of the experiments."""
-        return sum(e.size * len(e.components()) for e in self.experiments)
-
-    @cached_property
-    def _by_blocks(self) -> bool:
-        return by_blocks(self._rows, len(self.free_idx))
+        rows = sum(e.size * len(e.components()) for e in self.experiments)
+        return by_blocks(rows, len(self.free_idx)) and len(self.parts()) > len(self.experiments)
 
     @cached_property
     def _small(self) -> bool:
@@ -444,12 +439,12 @@ def _noise_per_experiment(noise, exps) -> list[Noise]:
     """The noise of every experiment by the one rule (``kincal.noise.effective``): ``noise`` (one ``Noise`` for
     all, or a mapping data set name -> Noise) where it states a quantity, else the data set's stated noise
     (``Dataset.meta["noise"]``), else ``kincal.noise.DEFAULT``."""
-    if isinstance(noise, Mapping):
+    by_set = isinstance(noise, abc.Mapping)  # ``typing.Mapping``'s check, without its wrapper
+    if by_set:
         bad = set(noise) - {e.name for e in exps}
         if bad:
             raise ModelError(f"noise given for unknown data set(s) {sorted(bad)}; data sets: {[e.name for e in exps]}")
-    return [_effective(noise.get(e.name) if isinstance(noise, Mapping) else noise, e.dataset.meta.get("noise"))
-            for e in exps]
+    return [_effective(noise.get(e.name) if by_set else noise, e.dataset.meta.get("noise")) for e in exps]
 
 
 def _effective(explicit: Noise | None, stated: Mapping | None) -> Noise:

@@ -86,12 +86,18 @@ def frame_kinds(experiments) -> dict[str, object]:
 def _check_shapes(experiments) -> None:
     """Known values have the shape their data need, and data sets sharing a frame need the same shape (for
     example the same number of markers)."""
+    uses: dict[str, int] = {}
+    for name in (n for exp in experiments for n in exp.frames.values()):
+        uses[name] = uses.get(name, 0) + 1
     first: dict[str, tuple[tuple, str]] = {}
     for exp in experiments:
-        shapes = exp.frame_shapes()
+        shapes = None
         for role, name in exp.frames.items():
-            shape = shapes[role]
             key = exp.ROLES[role]
+            if uses[name] == 1 and key not in exp.dataset.known:  # no value to check, no other data set to agree
+                continue
+            shapes = exp.frame_shapes() if shapes is None else shapes
+            shape = shapes[role]
             if key in exp.dataset.known and np.shape(exp.dataset.known[key]) != shape:
                 raise DataFormatError(f"data set '{exp.name}': field known['{key}'] has shape "
                                       f"{np.shape(exp.dataset.known[key])}, expected {shape}")

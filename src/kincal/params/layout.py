@@ -104,9 +104,10 @@ class Layout:
     def free_names(self) -> list[str]:
         return [n for n, f in zip(self.names, self.free) if f]
 
-    @cached_property
+    @property
     def runs(self) -> tuple[tuple[int, ...], np.ndarray]:
-        """``block_runs`` of the blocks, computed once (``touched``)."""
+        """``block_runs`` of the blocks (``touched``): remembered by the blocks tuple, which every layout of a
+        structure shares, so a new layout reads it without computing it."""
         return block_runs(self.blocks)
 
     def touched(self, mask: np.ndarray) -> list[Block]:
@@ -240,8 +241,8 @@ _BLOCKS: dict[tuple, tuple] = {}
 # block_runs' memory: id(blocks tuple) -> (the tuple, its runs)
 _RUNS: dict[int, tuple] = {}
 # Frame kinds whose coordinates follow from the frame's name alone, and from its name and value shape.
-_NAMED = (POSE, PLANE)
-_SHAPED = (POINT, POINTS)
+_NAMED = frozenset((POSE, PLANE))  # sets: kinds hash by identity, so a test calls no ``__eq__``
+_SHAPED = frozenset((POINT, POINTS))
 
 
 def clear_caches() -> None:
