@@ -140,3 +140,48 @@ def test_shared_frames_of_different_shapes_are_refused(ur10_sets):
     same = replace(two, name="set3")
     problem = Problem.build(nominal, [two, same], "offsets")
     assert problem.nominal.extras["cluster"].shape == (2, 3)
+
+
+def test_a_kinds_own_start_is_asked_and_the_default_one_skipped(ur10_sets, monkeypatch):
+    """``starting_state`` skips the kinds whose ``start`` is ``Experiment.start`` (never a correction), and only
+    those: an experiment's own ``start`` (here patched on the kind) is asked with the free arm poses."""
+    from kincal.experiments.markers import MarkersExperiment
+    from kincal.lie import se3
+
+    nominal, markers, _ = ur10_sets
+    assert Problem.build(nominal, [markers], "kinematic").start.arms["arm"].tool is nominal_tool(nominal)
+    X = se3.make(np.eye(3), np.array([0.0, 0.0, 0.01]))
+    asked = []
+
+    def start(self, state, free, unknown):
+        asked.append(tuple(free))
+        return {"arm.tool": X}
+    monkeypatch.setattr(MarkersExperiment, "start", start)
+    problem = Problem.build(nominal, [markers], "kinematic")
+    assert asked == [("arm.home",)]  # the kinematic level frees the home pose, not the tool
+    assert problem.start is not problem.nominal and problem.start.arms["arm"].tool is nominal_tool(nominal)
+    assert not np.array_equal(problem.start.arms["arm"].home, problem.nominal.arms["arm"].home)
+
+
+def nominal_tool(robot):
+    from kincal.params import ArmValues
+
+    return ArmValues.from_model(robot["arm"]).tool
+
+
+def test_role_kinds_are_the_schemas(ur10_sets):
+    from kincal.experiments import KINDS
+    from kincal.experiments import sharing
+    from kincal.params import FRAME_KINDS
+
+    clear_caches()
+    assert not sharing._ROLE_KINDS
+    nominal, markers, pose = ur10_sets
+    for ds in (markers, pose):
+        exp = KINDS[ds.kind](ds, {})
+        for _ in range(2):  # computed, then remembered
+            for r in exp.SCHEMA.roles:
+                assert sharing.role_kind(exp, r.name) is FRAME_KINDS[r.parameter]
+    assert len(sharing._ROLE_KINDS) == sum(len(KINDS[d.kind].SCHEMA.roles) for d in (markers, pose))
+    clear_caches()
+    assert not sharing._ROLE_KINDS

@@ -15,7 +15,9 @@ import numpy as np
 
 from kincal.data import Dataset, frames_problem
 from kincal.errors import DataFormatError
+from kincal._memo import remember
 from kincal.params import FRAME_KINDS, State
+from kincal.params.layout import on_clear
 from kincal.schema import schema_of
 
 KNOWN_ATOL = 1e-9  # two data sets giving a shared frame as known must agree to this (m, and rotation entries)
@@ -69,8 +71,26 @@ def frame_values(experiments, state: State) -> tuple[dict[str, object], list[str
 
 
 def role_kind(exp, role: str):
-    """The parameter kind (``kincal.params.kinds``) of an experiment role's frame, from the kind's schema."""
-    return FRAME_KINDS[exp.SCHEMA.role(role).parameter]
+    """The parameter kind (``kincal.params.kinds``) of an experiment role's frame, from the kind's schema;
+    remembered per schema object (held with the entry: its id is not reused meanwhile) and role, schemas being
+    immutable."""
+    schema = exp.SCHEMA
+    hit = _ROLE_KINDS.get((id(schema), role))
+    if hit is None or hit[0] is not schema:
+        hit = remember(_ROLE_KINDS, (id(schema), role), (schema, FRAME_KINDS[schema.role(role).parameter]),
+                       ROLE_KIND_ENTRIES)
+    return hit[1]
+
+
+# role_kind's memory: (id(schema), role) -> (the schema, the role's parameter kind), oldest first
+_ROLE_KINDS: dict[tuple, tuple] = {}
+ROLE_KIND_ENTRIES = 64
+
+
+@on_clear
+def clear_role_kinds() -> None:
+    """Forget what ``role_kind`` remembered (``kincal.params.clear_caches`` runs this)."""
+    _ROLE_KINDS.clear()
 
 
 def as_extra(exp, role: str, value):
