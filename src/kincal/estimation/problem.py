@@ -465,18 +465,18 @@ def _noise_key(explicit: Noise | None, stated: Mapping | None) -> str | None:
     if explicit is not None and type(explicit) is not Noise:
         return None
     named = () if explicit is None else (explicit.position, explicit.orientation, explicit.joint, explicit.backlash)
-    other = () if explicit is None else tuple(explicit.other.items())
-    given = tuple((stated or {}).items())
-    if not all(type(v) in _KEY_TYPES for v in named) or not all(
-            type(k) is str and type(v) in _KEY_TYPES for k, v in other + given):
+    other, given = ({} if explicit is None else explicit.other), (stated or {})
+    if not (_VALUE_TYPES.issuperset(map(type, named)) and _VALUE_TYPES.issuperset(map(type, other.values()))
+            and _VALUE_TYPES.issuperset(map(type, given.values())) and _NAME_TYPES.issuperset(map(type, other))
+            and _NAME_TYPES.issuperset(map(type, given))):
         return None
-    return repr((explicit is None, named, other, given))
+    return repr((explicit is None, named, tuple(other.items()), tuple(given.items())))
 
 
 # _effective's memory: the stated noises' values -> the noise in effect, oldest first
 _NOISES: dict[str, Noise] = {}
 NOISE_ENTRIES = 64
-_KEY_TYPES = (float, int, type(None))
+_VALUE_TYPES, _NAME_TYPES = frozenset((float, int, type(None))), frozenset((str,))
 
 
 @on_clear

@@ -99,7 +99,7 @@ def _check_finite(ds: Dataset) -> None:
     for group, store in (("measured", ds.measured), ("known", ds.known)):
         for key, value in store.items():
             v = np.asarray(value, dtype=float)
-            if np.isfinite(v).all():
+            if np.logical_and.reduce(np.isfinite(v), axis=None):  # ``.all()`` without its wrapper
                 continue
             bad = np.argwhere(~np.isfinite(v))
             where = f"sample {bad[0][0]} " if group == "measured" else ""
