@@ -185,3 +185,31 @@ def test_role_kinds_are_the_schemas(ur10_sets):
     assert len(sharing._ROLE_KINDS) == sum(len(KINDS[d.kind].SCHEMA.roles) for d in (markers, pose))
     clear_caches()
     assert not sharing._ROLE_KINDS
+
+
+def _markers_guess_earlier(exp, state, W):
+    """The marker guess of 0295a4a's ``MarkersExperiment.initial`` from the tracker ``W``."""
+    from kincal.lie import se3
+
+    F, y = exp._fk(state, exp.arms[0]), exp.dataset.measured["p_tracker_marker"]
+    local = se3.transform_points(se3.inverse(F)[:, None], se3.transform_points(W, y))
+    return np.add.reduce(local, axis=0) / len(local)
+
+
+@pytest.mark.parametrize("n, markers", [(1, 1), (7, 3), (50, 1), (300, 2)])
+def test_the_markers_initial_guess_is_the_earlier_forms_bit_for_bit(ur10_sets, n, markers):
+    from kincal.experiments import KINDS
+    from kincal.lie import se3
+    from kincal.params import State
+    from kincal.simulate import perturb_robot
+
+    nominal = ur10_sets[0]
+    true = perturb_robot(nominal, "fine", rng=np.random.default_rng(n))
+    ds, _, _ = generate_markers(true, n=n, rng=n + markers, markers=markers, noise=Noise(position=1e-4))
+    state = State.from_robot(nominal)
+    exp = KINDS[ds.kind](ds, {"tracker": "tracker", "markers": "markers"})
+    fitted = exp.initial(state, {})
+    other = se3.exp(np.array([0.3, -1.2, 2.5, 0.4, -0.2, 1.1])) @ fitted["tracker"]
+    for W, got in ((fitted["tracker"], fitted["markers"]), (other, exp.initial(state, {"tracker": other})["markers"])):
+        want = _markers_guess_earlier(exp, state, W)
+        assert got.shape == want.shape and got.tobytes() == want.tobytes()
