@@ -213,3 +213,15 @@ def test_the_markers_initial_guess_is_the_earlier_forms_bit_for_bit(ur10_sets, n
     for W, got in ((fitted["tracker"], fitted["markers"]), (other, exp.initial(state, {"tracker": other})["markers"])):
         want = _markers_guess_earlier(exp, state, W)
         assert got.shape == want.shape and got.tobytes() == want.tobytes()
+
+
+def test_named_frames_are_still_checked_against_the_arms(ur10_sets):
+    """``frame_names`` skips the check of a data set naming no frame, and only of those."""
+    from dataclasses import replace
+
+    nominal, markers, _ = ur10_sets
+    named = replace(markers, frames={"tracker": "arm.tracker"})
+    with pytest.raises(DataFormatError, match="does not start with an arm of the model \\('arm'"):
+        Problem.build(nominal, [named], "offsets")
+    assert "my_tracker" in Problem.build(nominal, [replace(markers, frames={"tracker": "my_tracker"})],
+                                         "offsets").nominal.extras

@@ -34,7 +34,7 @@ def frame_names(datasets: Sequence[Dataset], arms: Sequence[str]) -> list[dict[s
     owner: dict[str, tuple[str, str]] = {}  # frame name -> (first data set, role)
     out = []
     for ds, rs in zip(datasets, roles):
-        bad = frames_problem(ds.kind, ds.frames, arms)
+        bad = frames_problem(ds.kind, ds.frames, arms) if ds.frames else None  # none named: nothing to check
         if bad:
             raise DataFormatError(f"data set '{ds.name}': field {bad[0]}: {bad[1]}")
         names = {r: ds.frames.get(r) or (r if count[r] == 1 else f"{ds.name}.{r}") for r in rs}
