@@ -225,3 +225,30 @@ def test_named_frames_are_still_checked_against_the_arms(ur10_sets):
         Problem.build(nominal, [named], "offsets")
     assert "my_tracker" in Problem.build(nominal, [replace(markers, frames={"tracker": "my_tracker"})],
                                          "offsets").nominal.extras
+
+
+@pytest.mark.parametrize("tiny", [False, True])
+def test_calibrate_solves_within_the_kinematics_its_build_remembers(monkeypatch, ur10_sets, tiny):
+    """``calibrate`` solves by ``solver._solved`` inside the build's ``keep``: the experiments' kinematics are
+    remembered during the solve exactly as ``solve`` would remember them (none when solved by blocks), and the
+    result is ``solve``'s."""
+    from kincal.estimation import solver
+    from kincal.experiments import base
+
+    nominal, markers, _ = ur10_sets
+    seen = []
+    original = solver.iterate
+
+    def spy(problem, options):
+        seen.append((problem.blocked, [e in base._KINEMATICS for e in problem.experiments]))
+        return original(problem, options)
+    with monkeypatch.context() as m:
+        if tiny:
+            m.setattr(memory, "CHUNK_BYTES", 20_000)
+        m.setattr(solver, "iterate", spy)
+        got = calibrate(nominal, [markers], "kinematic", outliers="keep")
+        want = solver.solve(Problem.build(nominal, [markers], "kinematic"))
+    assert seen == [(tiny, [not tiny]), (tiny, [not tiny])]
+    assert (got.status, got.messages, got.iterations) == (want.status, want.messages, want.iterations)
+    for a, b in zip(got.estimates, want.estimates):
+        assert (a.name, a.value) == (b.name, b.value) and (a.std == b.std or np.isnan(a.std) and np.isnan(b.std))
