@@ -135,8 +135,8 @@ class Problem:
         frames shared between data sets, the layout of the free and fixed parameters, stated noise per data
         set and the starting state. ``keep``: the experiments' kinematics remembered until it closes
         (``experiments.build``): a solve within it reuses the nominal ones the frames' initial guesses computed."""
-        rows = residual_rows(datasets)  # before frames are guessed from the data (forward kinematics of every sample):
-        require_memory(datasets, rows=rows)
+        rows = residual_rows(datasets)  # counted once for both memory checks; the first before frames are guessed
+        require_memory(datasets, rows=rows)  # from the data (forward kinematics of every sample)
         fixed = tuple(fixed)
         nominal_arms = State.from_robot(robot)
         exps, extras, unknown = build_experiments(datasets, nominal_arms, keep)
