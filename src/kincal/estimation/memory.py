@@ -100,11 +100,11 @@ def residual_rows(datasets) -> int:
     return sum(ds.size * len(KINDS[ds.kind](ds, {}).components()) for ds in datasets)  # no frames needed
 
 
-def require_memory(datasets, free: int = 0) -> None:
+def require_memory(datasets, free: int = 0, rows: int | None = None) -> None:
     """Raise a one-line ResourceError when the solve over ``datasets`` with ``free`` free coordinates will not fit
     in ``memory_limit()``. With ``free=0`` (before the parameter layout is known) it refuses what the data
-    alone make too large."""
-    rows = residual_rows(datasets)
+    alone make too large. ``rows``: ``residual_rows(datasets)`` when known already."""
+    rows = residual_rows(datasets) if rows is None else rows
     need = need_bytes(rows, free)
     if need < UNCHECKED_BYTES and not os.environ.get(ENV, "").strip():
         return

@@ -215,7 +215,14 @@ def _within(flat: np.ndarray, bound: float) -> bool:
     Every |hi| and |lo| within 1e300 is ``max(hi) <= 1e300 and min(lo) >= -1e300`` (lo <= hi; a nan fails both);
     the span is taken last, of such columns only: it cannot overflow (no errstate needed)."""
     hi, lo = flat.max(axis=0), flat.min(axis=0)
+    if len(hi) <= _FEW_COLUMNS:  # the same tests on Python floats (a nan fails each), without numpy's calls
+        hi, lo = hi.tolist(), lo.tolist()
+        return all(h <= 1e300 for h in hi) and all(v >= -1e300 for v in lo) and all(
+            h - v <= bound for h, v in zip(hi, lo))
     return bool(hi.max(initial=-np.inf) <= 1e300 and lo.min(initial=np.inf) >= -1e300 and (hi - lo <= bound).all())
+
+
+_FEW_COLUMNS = 48
 
 
 def spread(x: np.ndarray) -> float:

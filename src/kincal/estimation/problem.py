@@ -11,6 +11,7 @@ closed chain stays positive definite.
 
 from __future__ import annotations
 
+from collections import abc
 from contextlib import ExitStack
 from dataclasses import dataclass, field, replace
 from functools import cached_property
@@ -24,13 +25,14 @@ from kincal.data import Dataset
 from kincal.errors import ModelError
 from kincal.estimation import blocks
 from kincal.estimation.constraints import FrameDistance, constraint_rows
-from kincal.estimation.memory import by_blocks, chunk_rows, require_memory
+from kincal.estimation.memory import by_blocks, chunk_rows, require_memory, residual_rows
 from kincal.estimation.start import starting_state
 from kincal.estimation.stats import ResidualStats, residual_norms
 from kincal.experiments import Experiment, build as build_experiments, checked, frame_kinds, same_bits
 from kincal.kinematics import Robot
 from kincal.noise import Noise, effective
 from kincal.params import Layout, Prior, State, build_layout, displacement, pose_retraction_jacobians, retract
+from kincal.params.layout import on_clear
 
 VARIANCE_FLOOR = 1e-18
 # The collapse test (``finalize``) reads the joint sensitivity of at most this many evenly spread configurations
@@ -133,14 +135,17 @@ class Problem:
         frames shared between data sets, the layout of the free and fixed parameters, stated noise per data
         set and the starting state. ``keep``: the experiments' kinematics remembered until it closes
         (``experiments.build``): a solve within it reuses the nominal ones the frames' initial guesses computed."""
-        require_memory(datasets)  # before frames are guessed from the data (forward kinematics of every sample)
+        rows = residual_rows(datasets)  # counted once for both memory checks; the first before frames are guessed
+        require_memory(datasets, rows=rows)  # from the data (forward kinematics of every sample)
+        fixed = tuple(fixed)
         nominal_arms = State.from_robot(robot)
         exps, extras, unknown = build_experiments(datasets, nominal_arms, keep)
         arms = [a for a in robot.arms if any(a in robot.lineage(b) for e in exps for b in e.arms)]  # with ancestors
         nominal = State({a: nominal_arms.arms[a] for a in arms}, extras, frame_kinds(exps), robot.mounts)
         layout = build_layout(nominal, free, fixed=fixed, priors=priors, free_extras=unknown, arms=arms)
-        require_memory(datasets, int(layout.free.sum()))  # before the solve allocates anything of the data's size
-        for name in unknown:
+        # before the solve allocates anything of the data's size
+        require_memory(datasets, np.count_nonzero(layout.free), rows)
+        for name in unknown if len(fixed) else ():  # laid out free (``free_extras``): only ``fixed`` can hold them
             b = layout.block(name)
             if not layout.free[b.start: b.stop].all():
                 raise ModelError(f"'{name}' is unknown (not given in its data set) and cannot be fixed; give its value")
@@ -157,7 +162,7 @@ class Problem:
         prior = np.isfinite(layout.prior_sigma) & layout.free
         want = frozenset(b.name for b in layout.touched(layout.free))
         return cls(robot, tuple(experiments), layout, nominal, nominal if start is None else start, tuple(noise),
-                   tuple(constraints), tuple(unknown), np.flatnonzero(layout.free), np.flatnonzero(prior), want)
+                   tuple(constraints), tuple(unknown), layout.free.nonzero()[0], prior.nonzero()[0], want)
 
     def with_measurements(self, datasets: Sequence[Dataset]) -> "Problem | None":
         """This problem with ``datasets`` in place of its data sets when they differ from them in measured values only
@@ -211,10 +216,12 @@ class Problem:
             self.cache.tail = (blocks.tail_problem(self, ResidualCache(keeps=False)),)
         return self.cache.tail[0]
 
-    @property
+    @cached_property
     def blocked(self) -> bool:
-        """Whether the problem is evaluated by blocks (``memory.by_blocks``; decided once, with ``parts``)."""
-        return len(self.parts()) > len(self.experiments)
+        """Whether the problem is evaluated by blocks (``memory.by_blocks``; decided once, with ``parts``). Not
+        by blocks, ``parts`` are the experiments whole: no need to make them to know."""
+        rows = sum(e.size * len(e.components()) for e in self.experiments)
+        return by_blocks(rows, len(self.free_idx)) and len(self.parts()) > len(self.experiments)
 
     @cached_property
     def _small(self) -> bool:
@@ -432,12 +439,50 @@ def _noise_per_experiment(noise, exps) -> list[Noise]:
     """The noise of every experiment by the one rule (``kincal.noise.effective``): ``noise`` (one ``Noise`` for
     all, or a mapping data set name -> Noise) where it states a quantity, else the data set's stated noise
     (``Dataset.meta["noise"]``), else ``kincal.noise.DEFAULT``."""
-    if isinstance(noise, Mapping):
+    by_set = isinstance(noise, abc.Mapping)  # ``typing.Mapping``'s check, without its wrapper
+    if by_set:
         bad = set(noise) - {e.name for e in exps}
         if bad:
             raise ModelError(f"noise given for unknown data set(s) {sorted(bad)}; data sets: {[e.name for e in exps]}")
-    return [effective(noise.get(e.name) if isinstance(noise, Mapping) else noise, e.dataset.meta.get("noise"))
-            for e in exps]
+    return [_effective(noise.get(e.name) if by_set else noise, e.dataset.meta.get("noise")) for e in exps]
+
+
+def _effective(explicit: Noise | None, stated: Mapping | None) -> Noise:
+    """``effective(explicit, stated)``, remembered by their values (a batch or a Monte Carlo study states the same
+    noise at every call, in a new ``Noise`` each time); the answer is shared, a ``Noise`` being immutable."""
+    key = _noise_key(explicit, stated)
+    hit = _NOISES.get(key) if key is not None else None
+    if hit is None:
+        hit = effective(explicit, stated)
+        if key is not None:
+            remember(_NOISES, key, hit, NOISE_ENTRIES)
+    return hit
+
+
+def _noise_key(explicit: Noise | None, stated: Mapping | None) -> str | None:
+    """The values ``effective`` reads, as their repr (exact for these types: it tells -0.0 from 0.0 and 1 from
+    1.0); None when one is of another type (nothing remembered then)."""
+    if explicit is not None and type(explicit) is not Noise:
+        return None
+    named = () if explicit is None else (explicit.position, explicit.orientation, explicit.joint, explicit.backlash)
+    other, given = ({} if explicit is None else explicit.other), (stated or {})
+    if not (_VALUE_TYPES.issuperset(map(type, named)) and _VALUE_TYPES.issuperset(map(type, other.values()))
+            and _VALUE_TYPES.issuperset(map(type, given.values())) and _NAME_TYPES.issuperset(map(type, other))
+            and _NAME_TYPES.issuperset(map(type, given))):
+        return None
+    return repr((explicit is None, named, tuple(other.items()), tuple(given.items())))
+
+
+# _effective's memory: the stated noises' values -> the noise in effect, oldest first
+_NOISES: dict[str, Noise] = {}
+NOISE_ENTRIES = 64
+_VALUE_TYPES, _NAME_TYPES = frozenset((float, int, type(None))), frozenset((str,))
+
+
+@on_clear
+def clear_noise_cache() -> None:
+    """Forget what ``_effective`` remembered (``kincal.params.clear_caches`` runs this)."""
+    _NOISES.clear()
 
 
 def stated_sigmas(exp: Experiment, noise: Noise) -> np.ndarray:

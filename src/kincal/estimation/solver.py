@@ -115,7 +115,7 @@ def _fit(robot: Robot, datasets: Sequence[Dataset], *, free, fixed, priors, nois
             )
         if problem.blocked:  # solved by blocks: nothing of the data's size kept (``solve``)
             keep.close()
-        return solve(problem, options)
+        return _solved(problem, options)  # ``solve``, whose kinematics ``keep`` remembers already (or, by blocks, none)
 
 
 def _without_outliers(result: Result, options: SolverOptions, threshold: float, refit) -> Result:
@@ -138,10 +138,15 @@ def _without_outliers(result: Result, options: SolverOptions, threshold: float, 
 def solve(problem: Problem, options: SolverOptions = SolverOptions()) -> Result:
     """Solve ``problem``: the outer loop (``iterate``) and its report (``finalize``). Raises when nothing is
     free or there are fewer equations than free coordinates; reports (``Result.status``) everything else."""
+    with remembered_kinematics(problem.experiments, not problem.blocked):  # an accepted trial's kinematics reused
+        return _solved(problem, options)
+
+
+def _solved(problem: Problem, options: SolverOptions) -> Result:
+    """``solve`` within the kinematics it remembers."""
     _require_equations(problem)
     _require_plausible_units(problem)
-    with remembered_kinematics(problem.experiments, not problem.blocked):  # an accepted trial's kinematics reused
-        return finalize(problem, options, iterate(problem, options))
+    return finalize(problem, options, iterate(problem, options))
 
 
 def evaluate(robot: Robot, datasets: Sequence[Dataset], noise=None) -> list[ResidualStats]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+from kincal.experiments import Experiment
 from kincal.experiments.sharing import as_extra
 from kincal.lie import se3
 from kincal.params import Layout, State
@@ -20,6 +21,8 @@ def starting_state(nominal: State, experiments, layout: Layout, unknown) -> tupl
     """(start, nominal) where ``start`` has corrected tool frames and both have the matching frame guesses."""
     arms = dict(nominal.arms)
     for exp in experiments:
+        if getattr(exp.start, "__func__", None) is Experiment.start:  # a kind that never corrects a tool
+            continue
         free = [f"{arm}.{p}" for arm in exp.arms if arms[arm] is nominal.arms[arm] for p in ("tool", "home")
                 if layout.free[layout.block(f"{arm}.{p}").start]]
         for part, X in exp.start(nominal, free, unknown).items():

@@ -73,8 +73,8 @@ def build(datasets: Sequence[Dataset], state: State, keep: ExitStack | None = No
     remembered (``remembered_kinematics``) until it closes, from the initial guesses of unknown frames on (forward
     kinematics at ``state``, which a solve from there reuses)."""
     names = [d.name for d in datasets]
-    dup = [n for n, c in Counter(names).items() if c > 1]
-    if dup:
+    if len(set(names)) < len(names):
+        dup = [n for n, c in Counter(names).items() if c > 1]
         raise DataFormatError(f"data set names must be unique; repeated: {', '.join(dup)}")
     experiments = []
     for ds, frames in zip(datasets, frame_names(datasets, tuple(state.arms))):
@@ -99,7 +99,7 @@ def _check_finite(ds: Dataset) -> None:
     for group, store in (("measured", ds.measured), ("known", ds.known)):
         for key, value in store.items():
             v = np.asarray(value, dtype=float)
-            if np.isfinite(v).all():
+            if np.logical_and.reduce(np.isfinite(v), axis=None):  # ``.all()`` without its wrapper
                 continue
             bad = np.argwhere(~np.isfinite(v))
             where = f"sample {bad[0][0]} " if group == "measured" else ""

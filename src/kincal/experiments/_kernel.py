@@ -274,7 +274,10 @@ def fit_transform(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
         src, dst = np.broadcast_arrays(src, dst)
     K = src.shape[-2]
     cs, cd = np.add.reduce(src, axis=-2) / K, np.add.reduce(dst, axis=-2) / K  # ``mean``'s sum and division
-    U, _, Vt = np.linalg.svd(np.swapaxes(dst - cd[..., None, :], -1, -2) @ (src - cs[..., None, :]))
-    U[..., :, 2] *= _det_sign(U @ Vt)[..., None]  # a proper rotation even for a reflected best fit
+    U, _, Vt = np.linalg.svd((dst - cd[..., None, :]).swapaxes(-1, -2) @ (src - cs[..., None, :]))
     R = U @ Vt
+    sign = _det_sign(R)
+    if U.ndim > 2 or sign != 1:  # a proper rotation even for a reflected best fit (one proper already: x * 1 is x)
+        U[..., :, 2] *= sign[..., None]
+        R = U @ Vt
     return se3.make(R, cd - np.einsum("...ij,...j->...i", R, cs))

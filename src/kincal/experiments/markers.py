@@ -92,6 +92,9 @@ class MarkersExperiment(Experiment):
             W = fit_transform(y.reshape(-1, 3), se3.transform_points(F[:, None], x).reshape(-1, 3))
             out["tracker"] = W
         if "markers" not in known:
-            local = se3.transform_points(se3.inverse(F)[:, None], se3.transform_points(W, y))
+            # ``transform_points(inverse(F)[:, None], W y)``: the same products, without making the inverses
+            Rt = F[:, :3, :3].swapaxes(-1, -2)
+            t = -np.einsum("...ij,...j->...i", Rt, F[:, :3, 3])
+            local = (np.ascontiguousarray(Rt)[:, None] @ se3.transform_points(W, y)[..., None])[..., 0] + t[:, None]
             out["markers"] = np.add.reduce(local, axis=0) / len(local)  # ``np.mean``'s sum and division
         return out

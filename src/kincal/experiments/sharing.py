@@ -9,14 +9,15 @@ agree), and an unknown one starts from the first data set's initial guess.
 
 from __future__ import annotations
 
-from collections import Counter
 from typing import Sequence
 
 import numpy as np
 
 from kincal.data import Dataset, frames_problem
 from kincal.errors import DataFormatError
+from kincal._memo import remember
 from kincal.params import FRAME_KINDS, State
+from kincal.params.layout import on_clear
 from kincal.schema import schema_of
 
 KNOWN_ATOL = 1e-9  # two data sets giving a shared frame as known must agree to this (m, and rotation entries)
@@ -26,14 +27,17 @@ def frame_names(datasets: Sequence[Dataset], arms: Sequence[str]) -> list[dict[s
     """Per data set, role -> frame name. A name given in ``frames`` must be valid, and a frame may only be
     shared between data sets in which it plays the same role."""
     # every data set with the role counts, named or not, so naming one frame never renames another's
-    count = Counter(r for d in datasets for r in schema_of(d.kind).role_keys)
+    roles = [tuple(schema_of(d.kind).role_keys) for d in datasets]
+    count: dict[str, int] = {}
+    for r in (r for rs in roles for r in rs):
+        count[r] = count.get(r, 0) + 1
     owner: dict[str, tuple[str, str]] = {}  # frame name -> (first data set, role)
     out = []
-    for ds in datasets:
-        bad = frames_problem(ds.kind, ds.frames, arms)
+    for ds, rs in zip(datasets, roles):
+        bad = frames_problem(ds.kind, ds.frames, arms) if ds.frames else None  # none named: nothing to check
         if bad:
             raise DataFormatError(f"data set '{ds.name}': field {bad[0]}: {bad[1]}")
-        names = {r: ds.frames.get(r) or (r if count[r] == 1 else f"{ds.name}.{r}") for r in schema_of(ds.kind).role_keys}
+        names = {r: ds.frames.get(r) or (r if count[r] == 1 else f"{ds.name}.{r}") for r in rs}
         for role, name in names.items():
             first, first_role = owner.setdefault(name, (ds.name, role))
             if first_role != role:
@@ -67,8 +71,26 @@ def frame_values(experiments, state: State) -> tuple[dict[str, object], list[str
 
 
 def role_kind(exp, role: str):
-    """The parameter kind (``kincal.params.kinds``) of an experiment role's frame, from the kind's schema."""
-    return FRAME_KINDS[exp.SCHEMA.role(role).parameter]
+    """The parameter kind (``kincal.params.kinds``) of an experiment role's frame, from the kind's schema;
+    remembered per schema object (held with the entry: its id is not reused meanwhile) and role, schemas being
+    immutable."""
+    schema = exp.SCHEMA
+    hit = _ROLE_KINDS.get((id(schema), role))
+    if hit is None or hit[0] is not schema:
+        hit = remember(_ROLE_KINDS, (id(schema), role), (schema, FRAME_KINDS[schema.role(role).parameter]),
+                       ROLE_KIND_ENTRIES)
+    return hit[1]
+
+
+# role_kind's memory: (id(schema), role) -> (the schema, the role's parameter kind), oldest first
+_ROLE_KINDS: dict[tuple, tuple] = {}
+ROLE_KIND_ENTRIES = 64
+
+
+@on_clear
+def clear_role_kinds() -> None:
+    """Forget what ``role_kind`` remembered (``kincal.params.clear_caches`` runs this)."""
+    _ROLE_KINDS.clear()
 
 
 def as_extra(exp, role: str, value):
@@ -84,12 +106,18 @@ def frame_kinds(experiments) -> dict[str, object]:
 def _check_shapes(experiments) -> None:
     """Known values have the shape their data need, and data sets sharing a frame need the same shape (for
     example the same number of markers)."""
+    uses: dict[str, int] = {}
+    for name in (n for exp in experiments for n in exp.frames.values()):
+        uses[name] = uses.get(name, 0) + 1
     first: dict[str, tuple[tuple, str]] = {}
     for exp in experiments:
-        shapes = exp.frame_shapes()
+        shapes = None
         for role, name in exp.frames.items():
-            shape = shapes[role]
             key = exp.ROLES[role]
+            if uses[name] == 1 and key not in exp.dataset.known:  # no value to check, no other data set to agree
+                continue
+            shapes = exp.frame_shapes() if shapes is None else shapes
+            shape = shapes[role]
             if key in exp.dataset.known and np.shape(exp.dataset.known[key]) != shape:
                 raise DataFormatError(f"data set '{exp.name}': field known['{key}'] has shape "
                                       f"{np.shape(exp.dataset.known[key])}, expected {shape}")

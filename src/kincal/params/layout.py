@@ -104,9 +104,10 @@ class Layout:
     def free_names(self) -> list[str]:
         return [n for n, f in zip(self.names, self.free) if f]
 
-    @cached_property
+    @property
     def runs(self) -> tuple[tuple[int, ...], np.ndarray]:
-        """``block_runs`` of the blocks, computed once (``touched``)."""
+        """``block_runs`` of the blocks (``touched``): remembered by the blocks tuple, which every layout of a
+        structure shares, so a new layout reads it without computing it."""
         return block_runs(self.blocks)
 
     def touched(self, mask: np.ndarray) -> list[Block]:
@@ -240,18 +241,31 @@ _BLOCKS: dict[tuple, tuple] = {}
 # block_runs' memory: id(blocks tuple) -> (the tuple, its runs)
 _RUNS: dict[int, tuple] = {}
 # Frame kinds whose coordinates follow from the frame's name alone, and from its name and value shape.
-_NAMED = (POSE, PLANE)
-_SHAPED = (POINT, POINTS)
+_NAMED = frozenset((POSE, PLANE))  # sets: kinds hash by identity, so a test calls no ``__eq__``
+_SHAPED = frozenset((POINT, POINTS))
 
 
 def clear_caches() -> None:
-    """Forget what ``build_layout``, ``block_runs``, ``ArmValues.from_model`` and ``TWISTS.scale`` remembered (tests,
-    cold-start timings)."""
+    """Forget what ``build_layout``, ``block_runs``, ``ArmValues.from_model`` and ``TWISTS.scale`` remembered, and
+    the memories of the layers above registered with ``on_clear`` (tests, cold-start timings)."""
     _SELECTIONS.clear()
     _BLOCKS.clear()
     _RUNS.clear()
     kinds._TWIST_SCALES.clear()
     values._FROM_MODEL.clear()
+    for clear in tuple(_CLEARS):
+        clear()
+
+
+# The clear functions of memories kept above this layer (which it may not import): ``clear_caches`` runs them.
+_CLEARS: list = []
+
+
+def on_clear(clear):
+    """Have ``clear_caches`` run ``clear`` too; returns it (a decorator)."""
+    if clear not in _CLEARS:
+        _CLEARS.append(clear)
+    return clear
 
 
 def _selection_key(names, blocks, free, fixed, priors, extras) -> tuple | None:
