@@ -46,7 +46,13 @@ def estimates_of(names, units, idx, values, nominals, stds, identifiable) -> lis
     new, out = object.__new__, []
     for i, v, n, s, o in zip(idx, values, nominals, stds, identifiable):
         e = new(Estimate)
-        e.__dict__.update(name=names[i], value=v, nominal=n, std=s, unit=units[i], identifiable=o)
+        d = e.__dict__  # one item at a time: no keyword dict built per instance
+        d["name"] = names[i]
+        d["value"] = v
+        d["nominal"] = n
+        d["std"] = s
+        d["unit"] = units[i]
+        d["identifiable"] = o
         out.append(e)
     return out
 
