@@ -4,7 +4,8 @@
 ``ParamKind.additive``, ``offset``) and takes ``T @ inverse(T0)`` pose by pose with the nominal poses' inverses
 remembered (``se3.remembered``); ``outliers.row_chi2`` scales rows by a constant diagonal whitener as the solve
 does; ``values.to_robot`` passes no compliance that is the model's own bit for bit; ``result.estimates_of`` fills
-each instance's dict item by item. Each against the path it replaces, on several structures (markers, pose,
+each instance's dict item by item; ``result.new_result`` sets a ``Result``'s fields in its dict at once;
+``stats.residual_norms`` takes a residual whose columns are all of one quantity as it is. Each against the path it replaces, on several structures (markers, pose,
 clamp, dual arm, elastic, lateral compliance), and through whole calibrations."""
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from test_fixed_overhead_s12_c import _bits, _digest, _with_compliance, cases  #
 
 from kincal import robots
 from kincal.estimation import Noise, Problem, calibrate
-from kincal.estimation.result import Estimate, estimates_of
+from kincal.estimation.result import Estimate, Result, estimates_of
 from kincal.kinematics import Robot
 from kincal.lie import se3
 from kincal.params import LATERAL, State, build_layout, clear_caches, displacement, retract
@@ -78,7 +79,10 @@ def _plain_paths(m):
         m.setattr(importlib.import_module(name), "displacement", _plain_displacement)
     m.setattr(OUT, "row_chi2", _plain_row_chi2)
     m.setattr(V, "_compliance_fields", _plain_compliance_fields)
-    m.setattr(importlib.import_module("kincal.estimation.finalize"), "estimates_of", _plain_estimates_of)
+    finalize = importlib.import_module("kincal.estimation.finalize")
+    m.setattr(finalize, "estimates_of", _plain_estimates_of)
+    m.setattr(finalize, "new_result", lambda **values: Result(**values))
+    m.setattr(importlib.import_module("kincal.estimation.problem"), "residual_norms", _plain_norms)
 
 
 def _robot_bits(robot) -> bytes:
@@ -226,3 +230,55 @@ def test_outlier_screen_and_rejection_are_unchanged(monkeypatch):
     assert [o.sample for o in res.outliers] == [o.sample for o in plain.outliers] == [7]
     assert _digest(res) == _digest(plain)
     assert OUT.any_beyond(res.problem, res.state, 1e-6) is False
+
+
+def _plain_norms(r, components):
+    """``stats.residual_norms`` as it was: each quantity's columns taken by a boolean mask, all of them too."""
+    from kincal.analysis.linalg import norms
+    from kincal.noise import ORIENTATION, PIXEL, POSITION
+    out = {}
+    for key, q in (("position", POSITION), ("orientation", ORIENTATION), ("pixel", PIXEL)):
+        mask = np.array([c == q for c in components], bool)
+        if not mask.any():
+            out[f"{key}_rms"] = out[f"{key}_max"] = None
+            continue
+        cols = r[:, mask]
+        three = key == "position" and mask.sum() % 3 == 0 and mask.sum() > 1
+        e = norms(cols.reshape(len(r), -1, 3), -1).ravel() if three else (
+            norms(cols, -1) if key != "position" else np.abs(cols).ravel())
+        out[f"{key}_rms"], out[f"{key}_max"] = float(np.sqrt(np.mean(e ** 2))), float(e.max())
+    return out
+
+
+def test_residual_norms_are_the_masked_ones(rng):
+    from kincal.estimation.stats import residual_norms
+    from kincal.noise import ORIENTATION, PIXEL, POSITION
+    for comps in ((POSITION,) * 3, (POSITION,) * 6, (POSITION,) * 3 + (ORIENTATION,) * 3, (POSITION,),
+                  (ORIENTATION,) * 3 + (POSITION,) * 2, (PIXEL,) * 2, (POSITION, PIXEL, POSITION, POSITION)):
+        for r in (rng.normal(size=(17, len(comps))), np.asfortranarray(rng.normal(size=(9, len(comps)))),
+                  rng.normal(size=(12, 2 * len(comps)))[:, ::2]):
+            got = residual_norms(r, comps)
+            plain = _plain_norms(r, comps)
+            assert {k: _bits(v) for k, v in got.items()} == {k: _bits(v) for k, v in plain.items()}, comps
+
+
+def test_new_result_is_the_dataclass(cases):
+    from dataclasses import fields
+
+    from kincal.estimation.result import new_result
+    name, robot, sets, free, noise = cases[0]
+    res = calibrate(robot, sets, free, noise=noise)
+    every = {f.name: res.__dict__[f.name] for f in fields(Result)}
+    required = {f.name: every[f.name] for f in fields(Result) if f.name in (
+        "robot", "nominal_robot", "state", "layout", "estimates", "covariance", "correlated", "identifiability",
+        "start_identifiability", "before", "after", "sigma2", "status", "iterations", "evaluations", "messages")}
+    for values in (every, required, {**required, "weights": np.ones(3), "stages": ("s",)}):
+        got, plain = new_result(**values), Result(**values)
+        assert type(got) is Result and list(vars(got)) == list(vars(plain))
+        assert all(vars(got)[k] is vars(plain)[k] or vars(got)[k] == vars(plain)[k] for k in vars(plain))
+    assert new_result(**required).extras == {} and new_result(**required).extras is not new_result(**required).extras
+    for wrong in ({k: v for k, v in required.items() if k != "status"}, {**required, "colour": 1}):
+        with pytest.raises(TypeError):
+            new_result(**wrong)
+    with pytest.raises(AttributeError):
+        new_result(**required).status = "x"

@@ -16,7 +16,7 @@ from kincal.estimation.options import SolverOptions
 from kincal.estimation.plausibility import negative_compliance_notes, negative_compliances
 from kincal.estimation.problem import SENSITIVITY_SAMPLES, Problem
 from kincal.estimation.result import (Deferred, Estimate, FinalReport, Result, TwistEstimate, estimates_of,
-                                      low_redundancy)
+                                      low_redundancy, new_result)
 from kincal.estimation.sandwich import Sandwich
 from kincal.estimation.stats import mean
 from kincal.experiments.markers import MarkersExperiment
@@ -83,7 +83,7 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
     if named_now is not None:
         report.__dict__["report"] = named_now  # named already (the loop stopped at its start)
     frozen_cov = cov.copy()  # what the deferred fields (read rarely) are computed from, whatever a reader does to cov
-    return Result(
+    return new_result(
         robot=run.state.to_robot(problem.robot), nominal_robot=problem.robot, state=run.state,
         layout=problem.layout, estimates=estimates, covariance=cov,
         correlated=Deferred(_correlated, frozen_cov, estimates, options.correlation_threshold, ok),
