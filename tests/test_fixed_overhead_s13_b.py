@@ -282,3 +282,12 @@ def test_new_result_is_the_dataclass(cases):
             new_result(**wrong)
     with pytest.raises(AttributeError):
         new_result(**required).status = "x"
+
+
+def test_linear_loss_weights_and_slopes_are_ones(rng):
+    finalize = importlib.import_module("kincal.estimation.finalize")
+    for r in (rng.normal(size=40), np.zeros(0), rng.normal(size=(3, 4))):
+        w, s = finalize.robust_weights(r, "linear", 0.5)
+        assert _bits(w) == _bits(np.ones_like(r)) == _bits(s)
+    assert finalize.covariance_scale(float("nan"), 3, 5) != finalize.covariance_scale(float("nan"), 3, 5)  # nan kept
+    assert finalize.covariance_scale(0.5, 3, 5) == 1.0 and finalize.covariance_scale(0.5, 30, 5) == 0.5

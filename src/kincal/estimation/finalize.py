@@ -115,7 +115,7 @@ def covariance_scale(sigma2: float, dof: int, rank: int) -> float:
     """The factor that scales the covariance: the residual variance factor; with low redundancy never below 1
     (the stated noise), since a variance factor from a few degrees of freedom may come out small by chance
     (with 3 degrees of freedom below 0.07 one time in 20)."""
-    if low_redundancy(dof, rank) and np.isfinite(sigma2):
+    if low_redundancy(dof, rank) and math.isfinite(sigma2):
         return max(sigma2, 1.0)
     return sigma2
 
@@ -133,7 +133,8 @@ def robust_weights(r: np.ndarray, loss: str, f_scale: float) -> tuple[np.ndarray
     ``psi = w r``, ``psi' = rho'(z) + 2 z rho''(z)`` (clipped at 0): how much each row still informs the fit.
     Both 1 for ``linear``."""
     if loss == "linear":
-        return np.ones_like(r), np.ones_like(r)
+        ones = np.ones_like(r)  # both: read, never written
+        return ones, ones
     z = (r / f_scale) ** 2
     if loss == "huber":
         w = np.where(z <= 1, 1.0, 1.0 / np.sqrt(np.maximum(z, 1.0)))
@@ -203,7 +204,7 @@ def _uncertainty(lin: Linearization, ana: Identifiability, options: SolverOption
     p = lin.p
     Rf = lin.Rf if options.loss == "linear" else weighted_factor(lin.J, weights)
     V = gauge_basis(Rf, ana, options.gauge, list(order))
-    s2 = sigma2 if np.isfinite(sigma2) else 1.0
+    s2 = sigma2 if math.isfinite(sigma2) else 1.0
     if not V.shape[1]:
         cov = np.zeros((p, p))
     elif sw is not None:
