@@ -314,7 +314,7 @@ def new_result(**values) -> Result:
     """``Result(**values)`` without the frozen dataclass' ``__init__`` (an ``object.__setattr__`` per field, 30 of
     them): every field's default, then ``values``, set in the instance's dict in the fields' order, where the lazy
     fields' descriptors (``_Lazy``, ``_Named``) keep theirs too. A field missing or unknown: ``Result``'s error."""
-    if not values.keys() <= _FIELDS.keys() or not _REQUIRED_FIELDS <= values.keys():
+    if not _PLAIN or not values.keys() <= _FIELDS.keys() or not _REQUIRED_FIELDS <= values.keys():
         return Result(**values)
     r = object.__new__(Result)
     d = r.__dict__
@@ -328,6 +328,8 @@ def new_result(**values) -> Result:
 _FIELDS = {f.name: None if f.default is MISSING else f.default for f in fields(Result)}
 _FACTORIES = tuple((f.name, f.default_factory) for f in fields(Result) if f.default_factory is not MISSING)
 _REQUIRED_FIELDS = frozenset(f.name for f in fields(Result) if f.default is MISSING and f.default_factory is MISSING)
+# constructing one runs no check of its own and sets every field from its argument
+_PLAIN = not hasattr(Result, "__post_init__") and all(f.init for f in fields(Result))
 
 
 def in_gauge(result: Result) -> tuple[GaugeView | None, tuple[Derived, ...]]:
