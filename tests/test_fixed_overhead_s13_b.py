@@ -32,8 +32,9 @@ OPS = importlib.import_module("kincal.params.ops")
 OUT = importlib.import_module("kincal.estimation.outliers")
 
 
-def _plain_displacement(state, nominal, layout, only=None, jacobian=True):
-    """``ops.displacement`` as it was (up to 7c28e65): each kind's own derivative, the poses' inverses in a batch."""
+def _plain_displacement(state, nominal, layout, only=None, jacobian=True, blocks=None):
+    """``ops.displacement`` as it was (up to 7c28e65): each kind's own derivative, the poses' inverses in a batch,
+    the blocks holding ``only`` found by ``Layout.holding`` (``blocks`` ignored)."""
     disp = np.zeros(layout.size)
     D = np.zeros((layout.size, layout.size)) if jacobian else None
     blocks = layout.blocks if only is None else layout.holding(only)
@@ -291,3 +292,16 @@ def test_linear_loss_weights_and_slopes_are_ones(rng):
         assert _bits(w) == _bits(np.ones_like(r)) == _bits(s)
     assert finalize.covariance_scale(float("nan"), 3, 5) != finalize.covariance_scale(float("nan"), 3, 5)  # nan kept
     assert finalize.covariance_scale(0.5, 3, 5) == 1.0 and finalize.covariance_scale(0.5, 30, 5) == 0.5
+
+
+def test_the_estimates_blocks_are_those_holding_a_free_coordinate(cases, rng):
+    """``_estimates`` takes the problem's wanted blocks for ``Layout.holding(free)``: the same blocks, in order, and
+    the same displacement; other blocks given, other numbers."""
+    for name, robot, sets, free, noise in cases:
+        p = Problem.build(robot, sets, free, noise=noise)
+        wanted = [b for b in p.layout.blocks if b.name in p.want]
+        assert wanted == p.layout.holding(p.free_idx), name
+        state = retract(p.nominal, p.layout, rng.normal(size=p.layout.size) * 1e-2)
+        given = displacement(state, p.nominal, p.layout, p.free_idx, blocks=wanted)
+        assert _bits(given) == _bits(displacement(state, p.nominal, p.layout, p.free_idx)), name
+        assert _bits(displacement(state, p.nominal, p.layout, p.free_idx, blocks=wanted[1:])) != _bits(given), name

@@ -325,7 +325,8 @@ def _estimates(problem: Problem, state, ok, cov: np.ndarray) -> list[Estimate]:
     far from nominal: its tilts at the estimate are no longer its tilts from nominal)."""
     layout = problem.layout
     free = problem.free_idx
-    disp, D = displacement(state, problem.nominal, layout, free, jacobian=True)
+    wanted = [b for b in layout.blocks if b.name in problem.want]  # those holding a free coordinate
+    disp, D = displacement(state, problem.nominal, layout, free, jacobian=True, blocks=wanted)
     Df = D.take(free, 0).take(free, 1)  # D[np.ix_(free, free)], copied by take without fancy indexing
     var = ((Df @ cov) * Df).sum(axis=1)  # diag(Df cov Df^T) (a three-operand einsum loops in p^3 steps)
     std = np.where(ok, np.sqrt(np.maximum(var, 0)), np.nan)  # np.clip(x, 0, None) is np.maximum(x, 0)

@@ -92,16 +92,18 @@ def pose_retraction_jacobians(layout: Layout, delta: np.ndarray) -> dict[str, np
 
 
 def displacement(state: State, nominal: State, layout: Layout, only: np.ndarray | None = None,
-                 jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+                 jacobian: bool = True, blocks: list | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """Local displacement of ``state`` from ``nominal`` (p,) and its derivative w.r.t. ``state``'s own local
     coordinates (diagonal blocks, returned as a dense (p, p) matrix; None with ``jacobian=False``). Used for
     priors and reports. ``only``: the layout indices wanted; blocks holding none of them are left zero (e.g.
-    fixed frames)."""
+    fixed frames). ``blocks``: the blocks holding ``only`` (``Layout.holding``), where the caller knows them."""
     disp = np.zeros(layout.size)
     D = np.zeros((layout.size, layout.size)) if jacobian else None
     diagonal = D.reshape(-1)[:: layout.size + 1] if jacobian else None  # a view: D's diagonal, written in place
     poses = []  # (block, pose, nominal pose) of the pose kinds: their logarithms in one batch
-    for b in layout.blocks if only is None else layout.holding(only):
+    if blocks is None:
+        blocks = layout.blocks if only is None else layout.holding(only)
+    for b in blocks:
         value, value0 = b.value(state), b.value(nominal)
         T = b.kind.pose_of(value)
         if T is not None:
