@@ -16,7 +16,7 @@ from kincal.estimation.options import SolverOptions
 from kincal.estimation.plausibility import negative_compliance_notes, negative_compliances
 from kincal.estimation.problem import SENSITIVITY_SAMPLES, Problem
 from kincal.estimation.result import (Deferred, Estimate, FinalReport, Result, TwistEstimate, estimates_of,
-                                      low_redundancy)
+                                      low_redundancy, new_result)
 from kincal.estimation.sandwich import Sandwich
 from kincal.estimation.stats import mean
 from kincal.experiments.markers import MarkersExperiment
@@ -83,7 +83,7 @@ def finalize(problem: Problem, options: SolverOptions, run: Iteration) -> Result
     if named_now is not None:
         report.__dict__["report"] = named_now  # named already (the loop stopped at its start)
     frozen_cov = cov.copy()  # what the deferred fields (read rarely) are computed from, whatever a reader does to cov
-    return Result(
+    return new_result(
         robot=run.state.to_robot(problem.robot), nominal_robot=problem.robot, state=run.state,
         layout=problem.layout, estimates=estimates, covariance=cov,
         correlated=Deferred(_correlated, frozen_cov, estimates, options.correlation_threshold, ok),
@@ -115,7 +115,7 @@ def covariance_scale(sigma2: float, dof: int, rank: int) -> float:
     """The factor that scales the covariance: the residual variance factor; with low redundancy never below 1
     (the stated noise), since a variance factor from a few degrees of freedom may come out small by chance
     (with 3 degrees of freedom below 0.07 one time in 20)."""
-    if low_redundancy(dof, rank) and np.isfinite(sigma2):
+    if low_redundancy(dof, rank) and math.isfinite(sigma2):
         return max(sigma2, 1.0)
     return sigma2
 
@@ -133,7 +133,8 @@ def robust_weights(r: np.ndarray, loss: str, f_scale: float) -> tuple[np.ndarray
     ``psi = w r``, ``psi' = rho'(z) + 2 z rho''(z)`` (clipped at 0): how much each row still informs the fit.
     Both 1 for ``linear``."""
     if loss == "linear":
-        return np.ones_like(r), np.ones_like(r)
+        ones = np.ones_like(r)  # both: read, never written
+        return ones, ones
     z = (r / f_scale) ** 2
     if loss == "huber":
         w = np.where(z <= 1, 1.0, 1.0 / np.sqrt(np.maximum(z, 1.0)))
@@ -203,7 +204,7 @@ def _uncertainty(lin: Linearization, ana: Identifiability, options: SolverOption
     p = lin.p
     Rf = lin.Rf if options.loss == "linear" else weighted_factor(lin.J, weights)
     V = gauge_basis(Rf, ana, options.gauge, list(order))
-    s2 = sigma2 if np.isfinite(sigma2) else 1.0
+    s2 = sigma2 if math.isfinite(sigma2) else 1.0
     if not V.shape[1]:
         cov = np.zeros((p, p))
     elif sw is not None:
@@ -324,7 +325,8 @@ def _estimates(problem: Problem, state, ok, cov: np.ndarray) -> list[Estimate]:
     far from nominal: its tilts at the estimate are no longer its tilts from nominal)."""
     layout = problem.layout
     free = problem.free_idx
-    disp, D = displacement(state, problem.nominal, layout, free, jacobian=True)
+    wanted = [b for b in layout.blocks if b.name in problem.want]  # those holding a free coordinate
+    disp, D = displacement(state, problem.nominal, layout, free, jacobian=True, blocks=wanted)
     Df = D.take(free, 0).take(free, 1)  # D[np.ix_(free, free)], copied by take without fancy indexing
     var = ((Df @ cov) * Df).sum(axis=1)  # diag(Df cov Df^T) (a three-operand einsum loops in p^3 steps)
     std = np.where(ok, np.sqrt(np.maximum(var, 0)), np.nan)  # np.clip(x, 0, None) is np.maximum(x, 0)

@@ -56,7 +56,8 @@ def row_chi2(problem, state) -> list[np.ndarray]:
     """Per experiment of ``problem``, the whitened chi^2 of each configuration (N,) at ``state``."""
     out = []
     for W, res in zip(problem.whiteners(state), problem.residuals(state)):
-        out.append((np.einsum("nij,nj->ni", W, res.r) ** 2).sum(axis=1))
+        d = problem.cache.diagonal(W)  # one diagonal for every sample: it scales rows, as the solve whitens them
+        out.append(((res.r * d if d is not None else np.einsum("nij,nj->ni", W, res.r)) ** 2).sum(axis=1))
     return out
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import MISSING, dataclass, field, fields, replace
 from functools import cached_property, partial
 from typing import Mapping
 
@@ -46,7 +46,13 @@ def estimates_of(names, units, idx, values, nominals, stds, identifiable) -> lis
     new, out = object.__new__, []
     for i, v, n, s, o in zip(idx, values, nominals, stds, identifiable):
         e = new(Estimate)
-        e.__dict__.update(name=names[i], value=v, nominal=n, std=s, unit=units[i], identifiable=o)
+        d = e.__dict__  # one item at a time: no keyword dict built per instance
+        d["name"] = names[i]
+        d["value"] = v
+        d["nominal"] = n
+        d["std"] = s
+        d["unit"] = units[i]
+        d["identifiable"] = o
         out.append(e)
     return out
 
@@ -302,6 +308,28 @@ class Result:
                      f"residual variance factor {self.sigma2:.3g}")
         lines += self.messages
         return "\n".join(lines)
+
+
+def new_result(**values) -> Result:
+    """``Result(**values)`` without the frozen dataclass' ``__init__`` (an ``object.__setattr__`` per field, 30 of
+    them): every field's default, then ``values``, set in the instance's dict in the fields' order, where the lazy
+    fields' descriptors (``_Lazy``, ``_Named``) keep theirs too. A field missing or unknown: ``Result``'s error."""
+    if not _PLAIN or not values.keys() <= _FIELDS.keys() or not _REQUIRED_FIELDS <= values.keys():
+        return Result(**values)
+    r = object.__new__(Result)
+    d = r.__dict__
+    d.update(_FIELDS)
+    d.update({name: make() for name, make in _FACTORIES if name not in values})
+    d.update(values)
+    return r
+
+
+# ``new_result``'s defaults: field name -> default (None in a required field's place, set by ``values``), in order
+_FIELDS = {f.name: None if f.default is MISSING else f.default for f in fields(Result)}
+_FACTORIES = tuple((f.name, f.default_factory) for f in fields(Result) if f.default_factory is not MISSING)
+_REQUIRED_FIELDS = frozenset(f.name for f in fields(Result) if f.default is MISSING and f.default_factory is MISSING)
+# constructing one runs no check of its own and sets every field from its argument
+_PLAIN = not hasattr(Result, "__post_init__") and all(f.init for f in fields(Result))
 
 
 def in_gauge(result: Result) -> tuple[GaugeView | None, tuple[Derived, ...]]:

@@ -50,14 +50,16 @@ def residual_norms(r: np.ndarray, components) -> dict:
     for key, q in (("position", POSITION), ("orientation", ORIENTATION), ("pixel", PIXEL)):
         if q not in components:  # (``in`` tries identity first: the quantities are module constants)
             continue
-        mask = np.array([c is q or c == q for c in components], bool)
-        count = int(np.count_nonzero(mask))
+        rows = [c is q or c == q for c in components]
+        count = rows.count(True)
+        # every column of one quantity: r[:, mask] would be r's C-ordered copy, which a C-ordered r is already
+        part = np.ascontiguousarray(r) if count == len(rows) else r[:, np.array(rows, bool)]
         if count % 3 == 0 and key == "position" and count > 1:
-            e = norms(r[:, mask].reshape(len(r), -1, 3), -1).ravel()
+            e = norms(part.reshape(len(r), -1, 3), -1).ravel()
         elif key in ("orientation", "pixel"):
-            e = norms(r[:, mask], -1)
+            e = norms(part, -1)
         else:
-            e = np.abs(r[:, mask]).ravel()
+            e = np.abs(part).ravel()
         st[f"{key}_rms"] = math.sqrt(mean(e * e))  # np.sqrt's bits: both round correctly
         st[f"{key}_max"] = float(e.max())
     return st

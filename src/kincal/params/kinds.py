@@ -35,6 +35,7 @@ class ParamKind:
     rank = 9
     absolute = False
     on_arm = False
+    additive = False  # displacement ``value - nominal`` (``offset``), its derivative the identity
 
     def coordinates(self, prefix: str, value) -> tuple[list[str], list[str]]:
         raise NotImplementedError
@@ -117,6 +118,7 @@ def _translation_scale(T) -> np.ndarray:
 
 class _Offsets(ParamKind):
     name, rank, absolute, on_arm = "offsets", 0, True, True
+    additive = True
 
     def coordinates(self, prefix, a):
         return ([f"{prefix}.{j}.offset" for j in a.joint_names],
@@ -126,7 +128,10 @@ class _Offsets(ParamKind):
         return arm_replace(a, offsets=a.offsets + d)
 
     def displacement(self, a, a0):
-        return a.offsets - a0.offsets, np.eye(a.dof)
+        return self.offset(a, a0), np.eye(a.dof)
+
+    def offset(self, a, a0):
+        return a.offsets - a0.offsets
 
     def scale(self, a):
         if PRISMATIC not in a.joint_types:  # revolute offsets are angles: nothing scales
@@ -247,6 +252,7 @@ class _Compliance(ParamKind):
     whose compliance depends on its angle (``arm.j2.compliance@-57deg``: the node angle to the nearest degree)."""
 
     name, rank, absolute, on_arm = "compliance", 5, True, True
+    additive = True
 
     def coordinates(self, prefix, a):
         names, units = [], []
@@ -260,8 +266,11 @@ class _Compliance(ParamKind):
         return arm_replace(a, compliance=a.joint_compliance + d)
 
     def displacement(self, a, a0):
-        k = a.joint_compliance
-        return k - a0.joint_compliance, np.eye(len(k))
+        d = self.offset(a, a0)
+        return d, np.eye(len(d))
+
+    def offset(self, a, a0):
+        return a.joint_compliance - a0.joint_compliance
 
     def scale(self, a):  # same deflection under a pure force: torques scale with length
         c = a.joint_compliance
@@ -279,6 +288,7 @@ class _Lateral(ParamKind):
     (``arm.j2.lateral_x``, ``arm.j2.lateral_y``, rad/(N m)); none for an arm without."""
 
     name, rank, absolute, on_arm = "lateral", 6, True, True
+    additive = True
 
     def coordinates(self, prefix, a):
         if a.lateral is None:
@@ -289,8 +299,11 @@ class _Lateral(ParamKind):
         return arm_replace(a, lateral=a.lateral + d.reshape(-1, 2)) if a.lateral is not None else a
 
     def displacement(self, a, a0):
-        d = np.ravel(a.lateral) - np.ravel(a0.lateral)
+        d = self.offset(a, a0)
         return d, np.eye(d.size)
+
+    def offset(self, a, a0):
+        return np.ravel(a.lateral) - np.ravel(a0.lateral)
 
     def scale(self, a):  # rotational compliance: torques scale with length
         return -np.ravel(a.lateral)
@@ -339,7 +352,7 @@ class _Pose(ParamKind):
 class _Points(ParamKind):
     """Points, ``p + d``: one point (3,) named ``x, y, z``, or several (m, 3) named ``m1.x ...``."""
 
-    absolute = True
+    absolute = additive = True
 
     def __init__(self, single: bool):
         self.single = single
@@ -355,8 +368,11 @@ class _Points(ParamKind):
         return p + d.reshape(np.shape(p))
 
     def displacement(self, p, p0):
-        d = (np.asarray(p) - np.asarray(p0)).ravel()
+        d = self.offset(p, p0)
         return d, np.eye(d.size)
+
+    def offset(self, p, p0):
+        return (np.asarray(p) - np.asarray(p0)).ravel()
 
     def scale(self, p):
         return np.asarray(p, dtype=float).ravel()

@@ -92,26 +92,32 @@ def pose_retraction_jacobians(layout: Layout, delta: np.ndarray) -> dict[str, np
 
 
 def displacement(state: State, nominal: State, layout: Layout, only: np.ndarray | None = None,
-                 jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+                 jacobian: bool = True, blocks: list | None = None) -> tuple[np.ndarray, np.ndarray | None]:
     """Local displacement of ``state`` from ``nominal`` (p,) and its derivative w.r.t. ``state``'s own local
     coordinates (diagonal blocks, returned as a dense (p, p) matrix; None with ``jacobian=False``). Used for
     priors and reports. ``only``: the layout indices wanted; blocks holding none of them are left zero (e.g.
-    fixed frames)."""
+    fixed frames). ``blocks``: the blocks holding ``only`` (``Layout.holding``), where the caller knows them."""
     disp = np.zeros(layout.size)
     D = np.zeros((layout.size, layout.size)) if jacobian else None
+    diagonal = D.reshape(-1)[:: layout.size + 1] if jacobian else None  # a view: D's diagonal, written in place
     poses = []  # (block, pose, nominal pose) of the pose kinds: their logarithms in one batch
-    for b in layout.blocks if only is None else layout.holding(only):
+    if blocks is None:
+        blocks = layout.blocks if only is None else layout.holding(only)
+    for b in blocks:
         value, value0 = b.value(state), b.value(nominal)
         T = b.kind.pose_of(value)
         if T is not None:
             poses.append((b, T, b.kind.pose_of(value0)))
-        elif jacobian:
+        elif jacobian and not b.kind.additive:
             disp[b.slice], D[b.slice, b.slice] = b.kind.displacement(value, value0)
-        else:
+        else:  # an additive kind's derivative is the identity: ones on D's diagonal, as its np.eye would give
             disp[b.slice] = b.kind.offset(value, value0)
+            if jacobian:
+                diagonal[b.slice] = 1.0
     if poses:
-        T, T0 = np.stack([t for _, t, _ in poses]), np.stack([t for _, _, t in poses])
-        D_T = T @ se3.inverse(T0)
+        # ``T @ inverse(T0)`` pose by pose (the same products as in a batch), the nominal poses' inverses remembered:
+        # the model's own, or the frames the solve's first evaluation met (``se3.remembered``)
+        D_T = np.stack([T @ se3.remembered(se3.inverse, T0) for _, T, T0 in poses])
         x, Jinv = se3.log_with_jacobian_inv(D_T) if jacobian else (se3.log(D_T), None)
         for k, (b, _, _) in enumerate(poses):
             disp[b.slice] = x[k]

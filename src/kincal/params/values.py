@@ -188,16 +188,19 @@ def retract_twists(a: ArmValues, d: np.ndarray, tangents: bool = True, motion=No
 
 
 
-def _compliance_fields(a: ArmValues) -> dict:
+def _compliance_fields(a: ArmValues, model: ArmModel | None = None) -> dict:
     """``compliance`` (n,) and ``compliance_nodes`` of an ArmModel from the coefficients, as estimated: one below 0
     is kept (``allow_negative_compliance``), so the model predicts what the solver fitted; the calibration's
-    verdict reports it (``kincal.estimation.plausibility.negative_compliances``)."""
+    verdict reports it (``kincal.estimation.plausibility.negative_compliances``). None of them where they are
+    ``model``'s own bit for bit (compliance not estimated, ``to_robot``): its checked copy is kept."""
     k = a.joint_compliance
-    below = bool((k < 0).any()) or (a.lateral is not None and bool((a.lateral < 0).any()))
+    below = any(c < 0 for c in k.tolist()) or (a.lateral is not None and any(c < 0 for c in a.lateral.ravel().tolist()))
     negative = {"allow_negative_compliance": True} if below else {}
     if a.lateral is not None:
         negative.update(lateral=a.lateral, lateral_axes=a.lateral_axes)
     if not a.compliance_nodes:
+        if not negative and model is not None and _same_bits(k, model.compliance):
+            return {}
         return {"compliance": k, **negative}
     c, nodes = np.zeros(a.dof), {}
     for (j, at), value in zip(a.compliance_columns(), k):
@@ -206,6 +209,11 @@ def _compliance_fields(a: ArmValues) -> dict:
         else:
             nodes.setdefault(a.joint_names[j], []).append((at, value))
     return {"compliance": c, "compliance_nodes": nodes, **negative}
+
+
+def _same_bits(x: np.ndarray, y: np.ndarray) -> bool:
+    """Whether float arrays ``x`` and ``y`` hold the same bits (dtype, shape, bytes: -0.0 is not 0.0)."""
+    return x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
 
 
 @dataclass(frozen=True)
@@ -274,5 +282,5 @@ class State:
             a = self.arms[key]
             screws = conform_twists(a.screws, a.joint_types)
             arms[key] = model.replace(
-                screws=screws, offsets=a.offsets, base=a.base, home=a.home, tool=a.tool, **_compliance_fields(a))
+                screws=screws, offsets=a.offsets, base=a.base, home=a.home, tool=a.tool, **_compliance_fields(a, model))
         return Robot(robot.name, arms, dict(robot.meta), robot.mounts)
