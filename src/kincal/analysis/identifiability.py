@@ -14,6 +14,21 @@ Null directions are presented in reduced row-echelon form over the parameters in
 (arm offsets, twists, home, base, tool, then experiment frames): each has one *pivot* parameter with
 coefficient 1 and the parameters it trades off against. The scale direction (all lengths scaled
 together, thesis Sec. 2.11) is tested explicitly and reported as scale.
+
+The words print only what the null space determines. The echelon form of a subspace is a function of the
+subspace and the order alone (units do not matter), and each coefficient's uncertainty follows from the form
+itself: row i, column j moves by at most ``a |R_i| sqrt(1 + |R[:, j]|^2)`` when the basis turns by the angle
+``a`` (``NAMING_ACCURACY``, 1e-10). A coefficient is printed to the digits that leaves (three at most), and a
+parameter is named as a partner where its coefficient is at least 1e-3 of its row's largest and ten times its
+uncertainty. With scale unidentifiable, the scale message stands for one row of the null space's echelon form
+(``_scale_pivot``: of the pivots that the scale direction moves at least half as much as the one it moves
+most, the last in order) and every other row is named as it is. Not the directions orthogonal to the solver's
+scale direction: that direction is one of many (scale plus any other null direction is scale too), round-off
+picks which (3e-4 of it in a dual arm with an unknown clamp, where the solve of ``symmetries.scale_null``
+inverts singular values near 1e-13), and the orthogonal complement carried the pick into every named
+direction, through an echelon form whose pivot block had condition 3.5e4: printed coefficients moved by up to
+28 % when every joint reading moved by one ulp, with partners of size 1e4 that came from that pick alone. The
+scale message's own list of the lengths it moves most still reads the solver's direction.
 """
 
 from __future__ import annotations
@@ -329,10 +344,10 @@ def analyse(
     weak_vectors = _weak_vectors(sv, weak_idx)
     messages: list[str] = []
     Nd, scale_null_found = N, False
-    if has_scale and N.shape[1]:
-        Nd, scale_null_found, words = _scale_message(N, scale, names, held_scale)
-        messages += words
     order = list(range(p)) if priority is None else priority
+    if has_scale and N.shape[1]:
+        Nd, scale_null_found, words = _scale_message(N, scale, names, held_scale, order)
+        messages += words
     directions = _directions(Nd, list(order), names, describe, context) if name else []
     messages += [d.words for d in directions]
     messages += _weak_messages(weak, sv, weak_idx)
@@ -428,8 +443,11 @@ def _weak_vectors(sv: _Spectrum, weak_idx: np.ndarray) -> np.ndarray:
     return v
 
 
-def _scale_message(N: np.ndarray, scale: np.ndarray, names, held_scale: bool):
-    """(null basis without the scale direction, whether scale is in the null space, its message)."""
+def _scale_message(N: np.ndarray, scale: np.ndarray, names, held_scale: bool, order):
+    """(null basis without the scale direction, whether scale is in the null space, its message). The basis left
+    is the null directions that hold one coordinate fixed (``_scale_pivot``), not those orthogonal to ``scale``:
+    the solver's scale direction is scale plus some other null direction, which round-off may pick (see the
+    module docstring)."""
     s = scale / np.linalg.norm(scale)
     if np.linalg.norm(N.T @ s) <= 1 - 1e-4:
         return N, False, []
@@ -443,26 +461,59 @@ def _scale_message(N: np.ndarray, scale: np.ndarray, names, held_scale: bool):
            "point; it is held at its current value" if held_scale else "")
         + "; fix or measure one length"
     )
-    return _orth(N - np.outer(s, s @ N), drop=1), True, [words]
+    moves = N[_scale_pivot(N, s, order)]  # N's combination moving that coordinate; the rest hold it fixed
+    moves = N @ (moves / np.linalg.norm(moves))
+    return _orth(N - np.outer(moves, moves @ N), drop=1), True, [words]
 
 
-def _directions(Nd: np.ndarray, order, names, describe, context: str) -> list[Direction]:
-    """The null directions in reduced row-echelon form, each named by its pivot in ``order``."""
+def _scale_pivot(N: np.ndarray, s: np.ndarray, order) -> int:
+    """The coordinate that the scale direction ``s`` (in span N) stands for among the pivots of N's reduced
+    row-echelon form in ``order``: the last in ``order`` that ``s`` moves by at least half as much as the pivot it
+    moves most. Its row of the echelon form is the one the scale message replaces; every other row is named as
+    it is (``_directions``), whichever representative of scale the solver found. Half the largest, not the
+    largest: two lengths of one size are common, a size near half the largest one is not."""
+    rows = np.array(_rref(N.T, order))
+    order = np.asarray(order, dtype=int)
+    pivots = order[np.argmax(np.abs(rows[:, order]) > 0.5, axis=1)]
+    size = np.abs(s[pivots])
+    large = set(pivots[size >= 0.5 * size.max()].tolist())
+    return next(j for j in reversed(order.tolist()) if j in large)
+
+
+# The principal angle (natural units) to which a null basis that ``_directions`` names is taken to be known. The
+# SVD gives a null space to about machine precision times sigma_max over the smallest kept singular value (the
+# dual arm's: 3e-15 measured against one-ulp changes of the joint readings, with the kept ones above 6e-2 of the
+# largest); 1e-10 still holds with the smallest kept singular value near 1e-5 of the largest, below which the
+# report calls directions weak.
+NAMING_ACCURACY = 1e-10
+
+
+def _directions(Nd: np.ndarray, order, names, describe, context: str,
+                accuracy: float = NAMING_ACCURACY) -> list[Direction]:
+    """The null directions in reduced row-echelon form, each named by its pivot in ``order``; a coefficient is
+    printed to the digits its uncertainty (``_uncertainty``, for a basis known to the angle ``accuracy``) leaves,
+    at most three, and a coordinate is a partner only where it is at least 1e-3 of the row's largest and ten
+    times its uncertainty (a coefficient not known to one digit is not claimed)."""
     directions, order = [], np.asarray(order, dtype=int)
     rows = _rref(Nd.T, order)
     if not rows:
         return directions
-    A = np.abs(np.array(rows))  # every row at once: pivots, partners by size, the ones worth naming
+    R = np.array(rows)
+    A = np.abs(R)  # every row at once: pivots, partners by size, the ones worth naming
+    U = _uncertainty(R, accuracy)
     pivots = order[np.argmax(A[:, order] > 0.5, axis=1)].tolist()
     # partners by size, equal sizes (to 1e-9 of the row's largest) in layout order: round-off never reorders them
     JS = np.argsort(-np.round(A / A.max(axis=1, keepdims=True) * 1e9), axis=1, kind="stable")
-    keep = (JS != np.array(pivots)[:, None]) & (np.take_along_axis(A, JS, 1) > 1e-3 * A.max(axis=1, keepdims=True))
-    for row, piv, js, kept in zip(rows, pivots, JS, keep):
+    AJ, UJ = np.take_along_axis(A, JS, 1), np.take_along_axis(U, JS, 1)
+    keep = (JS != np.array(pivots)[:, None]) & (AJ > 1e-3 * A.max(axis=1, keepdims=True)) & (AJ >= 10.0 * UJ)
+    digits = np.clip(np.floor(np.log10(np.maximum(AJ, 1e-300) / np.maximum(UJ, 1e-300))), 1, 3).astype(int)
+    for row, piv, js, kept, dg in zip(rows, pivots, JS, keep, digits):
+        shown = dg[kept].tolist()
         js = js[kept].tolist()
         partners = tuple(zip([names[j] for j in js], row[js].tolist()))
         words = f"{names[piv]} cannot be identified{(' from ' + context) if context else ''}"
         if partners:
-            words += f": it trades off against {_partner_list(partners)}"
+            words += f": it trades off against {_partner_list(partners, shown)}"
         else:
             words += ": it does not affect any residual"
         extra = describe(row) if describe else ""
@@ -472,9 +523,19 @@ def _directions(Nd: np.ndarray, order, names, describe, context: str) -> list[Di
     return directions
 
 
-def _partner_list(partners, limit: int = 6) -> str:
-    """``_list`` of the partners' words, formatting only those shown."""
-    shown = [f"{n} ({v:+.3g})" for n, v in partners[:limit]]
+def _uncertainty(R: np.ndarray, accuracy: float) -> np.ndarray:
+    """(k, p) first-order bounds on how far the echelon rows R (k, p) of a null space move when it turns by the
+    angle ``accuracy``: ``accuracy * |R_i| * sqrt(1 + |R[:, j]|^2)``. R^T = N M^-1 (N an orthonormal basis, M its
+    pivot rows), so N + N_perp E moves R^T by (I - R^T S) N_perp E M^-1 (S: the pivot rows' selection); column i
+    of M^-1 has R_i's norm (N is orthonormal) and row j of (I - R^T S) N_perp that of (I - R^T S), which is
+    sqrt(1 + |R[:, j]|^2) off the pivots (0 on them: pivots are exact)."""
+    return accuracy * norms(R, 1)[:, None] * np.sqrt(1.0 + np.add.reduce(R * R, axis=0))[None, :]
+
+
+def _partner_list(partners, digits=None, limit: int = 6) -> str:
+    """``_list`` of the partners' words, formatting only those shown, each to its ``digits`` (3 by default)."""
+    digits = [3] * len(partners) if digits is None else digits
+    shown = [f"{n} ({v:+.{d}g})" for (n, v), d in zip(partners[:limit], digits)]
     more = len(partners) - len(shown)
     return ", ".join(shown) + (f" and {more} more" if more > 0 else "")
 
