@@ -168,3 +168,8 @@ def test_scale_pivot_is_the_last_of_the_pivots_the_scale_moves_much():
         t = s + np.array([tilt, -tilt, 0, 0, 0, 0])
         assert ident._scale_pivot(N, t / np.linalg.norm(t), list(range(p))) == 1
     assert ident._scale_pivot(N, s / np.linalg.norm(s), [1, 0, 2, 3, 4, 5]) == 0
+    # an order without coordinate 2 gives no echelon form spanning N: none (the message names the directions
+    # orthogonal to s instead)
+    assert ident._scale_pivot(N, s / np.linalg.norm(s), [0, 1, 3, 4, 5]) is None
+    kept, found, _ = ident._scale_message(N, s, [f"c{i}" for i in range(p)], False, [0, 1, 3, 4, 5])
+    assert found and kept.shape == (p, 2) and np.allclose(kept.T @ s, 0.0)

@@ -22,7 +22,8 @@ itself: row i, column j moves by at most ``a |R_i| sqrt(1 + |R[:, j]|^2)`` when 
 parameter is named as a partner where its coefficient is at least 1e-3 of its row's largest and ten times its
 uncertainty. With scale unidentifiable, the scale message stands for one row of the null space's echelon form
 (``_scale_pivot``: of the pivots that the scale direction moves at least half as much as the one it moves
-most, the last in order) and every other row is named as it is. Not the directions orthogonal to the solver's
+most, the last in order) and every other row is named as it is: the null directions left when that coordinate
+is held, as fixing it (the scale message's advice) would hold it. Not the directions orthogonal to the solver's
 scale direction: that direction is one of many (scale plus any other null direction is scale too), round-off
 picks which (3e-4 of it in a dual arm with an unknown clamp, where the solve of ``symmetries.scale_null``
 inverts singular values near 1e-13), and the orthogonal complement carried the pick into every named
@@ -461,18 +462,23 @@ def _scale_message(N: np.ndarray, scale: np.ndarray, names, held_scale: bool, or
            "point; it is held at its current value" if held_scale else "")
         + "; fix or measure one length"
     )
-    moves = N[_scale_pivot(N, s, order)]  # N's combination moving that coordinate; the rest hold it fixed
-    moves = N @ (moves / np.linalg.norm(moves))
+    j = _scale_pivot(N, s, order)
+    if j is None:  # the echelon form does not span N (columns outside ``order``): the directions orthogonal to s
+        return _orth(N - np.outer(s, s @ N), drop=1), True, [words]
+    moves = N @ (N[j] / np.linalg.norm(N[j]))  # N's combination moving that coordinate; the rest hold it fixed
     return _orth(N - np.outer(moves, moves @ N), drop=1), True, [words]
 
 
-def _scale_pivot(N: np.ndarray, s: np.ndarray, order) -> int:
+def _scale_pivot(N: np.ndarray, s: np.ndarray, order) -> int | None:
     """The coordinate that the scale direction ``s`` (in span N) stands for among the pivots of N's reduced
     row-echelon form in ``order``: the last in ``order`` that ``s`` moves by at least half as much as the pivot it
     moves most. Its row of the echelon form is the one the scale message replaces; every other row is named as
     it is (``_directions``), whichever representative of scale the solver found. Half the largest, not the
-    largest: two lengths of one size are common, a size near half the largest one is not."""
+    largest: two lengths of one size are common, a size near half the largest one is not. None where the echelon
+    form in ``order`` does not span N."""
     rows = np.array(_rref(N.T, order))
+    if len(rows) < N.shape[1]:
+        return None
     order = np.asarray(order, dtype=int)
     pivots = order[np.argmax(np.abs(rows[:, order]) > 0.5, axis=1)]
     size = np.abs(s[pivots])
