@@ -506,15 +506,19 @@ def _directions(Nd: np.ndarray, order, names, describe, context: str,
         return directions
     R = np.array(rows)
     A = np.abs(R)  # every row at once: pivots, partners by size, the ones worth naming
-    U = _uncertainty(R, accuracy)
     pivots = order[np.argmax(A[:, order] > 0.5, axis=1)].tolist()
     # partners by size, equal sizes (to 1e-9 of the row's largest) in layout order: round-off never reorders them
     JS = np.argsort(-np.round(A / A.max(axis=1, keepdims=True) * 1e9), axis=1, kind="stable")
-    AJ, UJ = np.take_along_axis(A, JS, 1), np.take_along_axis(U, JS, 1)
-    keep = (JS != np.array(pivots)[:, None]) & (AJ > 1e-3 * A.max(axis=1, keepdims=True)) & (AJ >= 10.0 * UJ)
-    digits = np.clip(np.floor(np.log10(np.maximum(AJ, 1e-300) / np.maximum(UJ, 1e-300))), 1, 3).astype(int)
+    AJ = np.take_along_axis(A, JS, 1)
+    keep = (JS != np.array(pivots)[:, None]) & (AJ > 1e-3 * A.max(axis=1, keepdims=True))
+    U = _uncertainty(R, accuracy)
+    digits = [None] * len(rows)  # three each, unless some coefficient worth naming holds fewer
+    if U is not None:
+        UJ = np.take_along_axis(U, JS, 1)
+        keep &= AJ >= 10.0 * UJ
+        digits = np.clip(np.floor(np.log10(np.maximum(AJ, 1e-300) / np.maximum(UJ, 1e-300))), 1, 3).astype(int)
     for row, piv, js, kept, dg in zip(rows, pivots, JS, keep, digits):
-        shown = dg[kept].tolist()
+        shown = None if dg is None else dg[kept].tolist()
         js = js[kept].tolist()
         partners = tuple(zip([names[j] for j in js], row[js].tolist()))
         words = f"{names[piv]} cannot be identified{(' from ' + context) if context else ''}"
@@ -529,19 +533,27 @@ def _directions(Nd: np.ndarray, order, names, describe, context: str,
     return directions
 
 
-def _uncertainty(R: np.ndarray, accuracy: float) -> np.ndarray:
+def _uncertainty(R: np.ndarray, accuracy: float) -> np.ndarray | None:
     """(k, p) first-order bounds on how far the echelon rows R (k, p) of a null space move when it turns by the
     angle ``accuracy``: ``accuracy * |R_i| * sqrt(1 + |R[:, j]|^2)``. R^T = N M^-1 (N an orthonormal basis, M its
     pivot rows), so N + N_perp E moves R^T by (I - R^T S) N_perp E M^-1 (S: the pivot rows' selection); column i
     of M^-1 has R_i's norm (N is orthonormal) and row j of (I - R^T S) N_perp that of (I - R^T S), which is
-    sqrt(1 + |R[:, j]|^2) off the pivots (0 on them: pivots are exact)."""
-    return accuracy * norms(R, 1)[:, None] * np.sqrt(1.0 + np.add.reduce(R * R, axis=0))[None, :]
+    sqrt(1 + |R[:, j]|^2) off the pivots (0 on them: pivots are exact). None where no bound exceeds 1e-6: every
+    coefficient worth naming (1e-3 of its row's largest, which is at least the pivot's 1) then holds three
+    digits."""
+    R2 = R * R
+    rows, cols = np.sqrt(np.add.reduce(R2, axis=1)), np.sqrt(1.0 + np.add.reduce(R2, axis=0))
+    if accuracy * float(rows.max()) * float(cols.max()) <= 1e-6:
+        return None
+    return accuracy * rows[:, None] * cols[None, :]
 
 
 def _partner_list(partners, digits=None, limit: int = 6) -> str:
-    """``_list`` of the partners' words, formatting only those shown, each to its ``digits`` (3 by default)."""
-    digits = [3] * len(partners) if digits is None else digits
-    shown = [f"{n} ({v:+.{d}g})" for (n, v), d in zip(partners[:limit], digits)]
+    """``_list`` of the partners' words, formatting only those shown, each to its ``digits`` (None: 3 each)."""
+    if digits is None:
+        shown = [f"{n} ({v:+.3g})" for n, v in partners[:limit]]
+    else:
+        shown = [f"{n} ({v:+.{d}g})" for (n, v), d in zip(partners[:limit], digits)]
     more = len(partners) - len(shown)
     return ", ".join(shown) + (f" and {more} more" if more > 0 else "")
 
