@@ -20,16 +20,14 @@ subspace and the order alone (units do not matter), and each coefficient's uncer
 itself: row i, column j moves by at most ``a |R_i| sqrt(1 + |R[:, j]|^2)`` when the basis turns by the angle
 ``a`` (``NAMING_ACCURACY``, 1e-10). A coefficient is printed to the digits that leaves (three at most), and a
 parameter is named as a partner where its coefficient is at least 1e-3 of its row's largest and ten times its
-uncertainty. With scale unidentifiable, the scale message stands for one row of the null space's echelon form
-(``_scale_pivot``: of the pivots that the scale direction moves at least half as much as the one it moves
-most, the last in order) and every other row is named as it is: the null directions left when that coordinate
-is held, as fixing it (the scale message's advice) would hold it. Not the directions orthogonal to the solver's
-scale direction: that direction is one of many (scale plus any other null direction is scale too), round-off
-picks which (3e-4 of it in a dual arm with an unknown clamp, where the solve of ``symmetries.scale_null``
-inverts singular values near 1e-13), and the orthogonal complement carried the pick into every named
-direction, through an echelon form whose pivot block had condition 3.5e4: printed coefficients moved by up to
-28 % when every joint reading moved by one ulp, with partners of size 1e4 that came from that pick alone. The
-scale message's own list of the lengths it moves most still reads the solver's direction.
+uncertainty. With scale unidentifiable, the named directions are those orthogonal to the scale direction
+``s + u`` (``symmetries.scale_null``: ``Rf u = b``, free parameters standing in for the fixed lengths), so u must
+be the data's: ``analyse`` solves for it with its own spectrum of ``Rf``, cut at the rank (``_scale_at_rank``),
+and takes the minimum-norm solution in natural units (``_minimum_norm``, against the null basis it builds anyway).
+numpy's ``lstsq`` cut at eps, which keeps null singular values near 1e-13 in a dual arm: round-off added other
+null directions to u (3e-4 under one-ulp changes of the joint readings), and the echelon form of the directions
+orthogonal to it (a pivot block of condition 3.5e4) moved printed coefficients by up to 28 %. Where numpy's cut
+cuts every null singular value (a well-determined single arm), the two are the same to round-off.
 """
 
 from __future__ import annotations
@@ -117,7 +115,8 @@ def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol:
     if structure is not None and not structure.fits(lin, layout, experiments, rtol):
         structure = None
     names = structure.names if structure is not None else [layout.names[i] for i in lin.free]
-    scale = scale_null(lin, layout, structure) if lin.every else None
+    # evaluated by ``analyse`` after its spectrum of lin.Rf, which cuts the scale's solve at the rank
+    scale = partial(scale_null, lin, layout, structure) if lin.every else None
     held = rotation_nulls(lin, layout, experiments, structure)
     gauges = partial(consistent_nulls, lin, layout, experiments, rtol, structure=structure)
     J, pins, colnorm = lin.Rf, [], lin.colnorm
@@ -126,6 +125,7 @@ def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol:
         J = lin.Rf.copy()
         J[:, pins] = 0.0  # the pinned coordinates do not move: exact nulls, the rest analysed without them
         colnorm = None
+        scale = scale() if scale is not None else None  # numpy's solve: the spectrum is not Rf's own
         scale, held, gauges = _unpinned(hold, pins, scale, held, gauges)
     ana = analyse(J, names, rtol=rtol, priority=priority, scale=scale, held=held, gauges=gauges, name=False,
                   colnorm=colnorm)
@@ -317,7 +317,9 @@ def analyse(
     *,
     rtol: float = 1e-9,
     weak_rtol: float = 1e-5,
-    scale: np.ndarray | None = None,  # the scale direction (p,) when no measured length enters: always held
+    # the scale direction (p,) when no measured length enters, always held; or a function of a solver of
+    # ``J u = b`` giving it (``symmetries.scale_null``: the solve is then cut at the spectrum's rank)
+    scale: np.ndarray | Callable | None = None,
     held: Sequence[np.ndarray] = (),  # other exact symmetries of the cost (p,), held even where residuals lift them
     # (p, k) basis of the noise-free problem's exact null space, held likewise; or a function of the plain null
     # space's dimension giving it (``symmetries.consistent_nulls``: a known structure skips the work)
@@ -336,19 +338,26 @@ def analyse(
     sv = _spectrum(J, rtol, colnorm)
     if callable(gauges):
         gauges = gauges(p - sv.rank)
+    u = None
+    if callable(scale):
+        scale, u = _scale_at_rank(scale, J, sv)
     has_scale = scale is not None and norm(scale) > 0
-    Ns, rank, lifted, held_scale = _hold(sv, ([scale] if has_scale else []) + list(held), has_scale, gauges)
+    Ns, rank, lifted, held_scale, own = _hold(sv, ([scale] if has_scale else []) + list(held), has_scale, gauges)
     identifiable = norms(Ns, 1) < IDENTIFIABLE_TOL
     N, R = _null_and_range(Ns / sv.c[:, None], scratch=True)
+    if has_scale and u is not None and sv.rank < p:
+        # N's first columns span Ns's first (the spectrum's null space, where the gauges did not replace it)
+        N0 = N[:, :p - sv.rank] if own else complete_q(sv.Vt[sv.rank:].T / sv.c[:, None])[:, :p - sv.rank]
+        scale = _minimum_norm(scale, u, N0)
     weak_idx = _weak_indices(sv, rank, rtol, weak_rtol, lifted)
     weak = tuple(_top_names(sv.Vt[i], names) for i in weak_idx)
     weak_vectors = _weak_vectors(sv, weak_idx)
     messages: list[str] = []
     Nd, scale_null_found = N, False
-    order = list(range(p)) if priority is None else priority
     if has_scale and N.shape[1]:
-        Nd, scale_null_found, words = _scale_message(N, scale, names, held_scale, order)
+        Nd, scale_null_found, words = _scale_message(N, scale, names, held_scale)
         messages += words
+    order = list(range(p)) if priority is None else priority
     directions = _directions(Nd, list(order), names, describe, context) if name else []
     messages += [d.words for d in directions]
     messages += _weak_messages(weak, sv, weak_idx)
@@ -383,11 +392,38 @@ def _spectrum(J: np.ndarray, rtol: float, colnorm: np.ndarray | None = None) -> 
     return _Spectrum(S_full, Vt, c_safe, smax, rank, U)
 
 
+def _scale_at_rank(scale: Callable, J: np.ndarray, sv: _Spectrum):
+    """(the scale direction ``scale(solve)``, the solve's u in natural units or None). Where the spectrum has
+    U, ``solve`` of ``J u = b`` is the minimum-norm solution in scaled coordinates cut at the rank (``V1 S1^-1
+    U1^T b``): decided by the data, not by which null singular values round-off leaves above numpy's cut;
+    elsewhere (and for any other matrix) numpy's ``lstsq``, as before."""
+    if sv.U is None:
+        return scale(lstsq), None
+    cut = []
+
+    def solve(A, b):
+        if A is not J:
+            return lstsq(A, b)
+        r = sv.rank
+        cut.append((sv.Vt[:r].T @ ((sv.U[:, :r].T @ b) / sv.S[:r])) / sv.c)
+        return cut[-1]
+
+    d = scale(solve)
+    return d, (cut[-1] if cut and d is not None else None)
+
+
+def _minimum_norm(d: np.ndarray, u: np.ndarray, N0: np.ndarray) -> np.ndarray:
+    """``d = s + u`` with u's part along the spectrum's null space ``N0`` (natural units, orthonormal) removed:
+    the minimum-norm solution in natural units, what numpy's ``lstsq`` gives where its cut-off cuts every null
+    singular value."""
+    return d - N0 @ (N0.T @ u)
+
+
 def _hold(sv: _Spectrum, symmetries: list, has_scale: bool, gauges: np.ndarray | None = None):
     """The scaled null basis with the exact gauges of the noise-free problem added (``gauges``, a basis), then
     the exact symmetries of the cost where residuals left lift them out of it (scale without a measured length:
     shrinking every length shrinks them; the rotations of ``held``): (null basis, rank, lifted directions,
-    whether the scale was lifted)."""
+    whether the scale was lifted, whether its first columns are the spectrum's own null space)."""
     Ns, rank = sv.Vt[sv.rank:].T, sv.rank
     lifted, held_scale = [], False
     if gauges is not None and gauges.shape[1]:
@@ -400,6 +436,7 @@ def _hold(sv: _Spectrum, symmetries: list, has_scale: bool, gauges: np.ndarray |
         if lifted:
             Ns = np.column_stack([G, _outside(Ns, G)])
             rank = len(sv.c) - Ns.shape[1]
+    own = not lifted
     for k, h in enumerate(symmetries):
         hc = sv.c * h
         hc /= norm(hc)
@@ -409,7 +446,7 @@ def _hold(sv: _Spectrum, symmetries: list, has_scale: bool, gauges: np.ndarray |
             rank -= 1
             lifted.append(hc)
             held_scale = held_scale or (has_scale and k == 0)
-    return Ns, rank, lifted, held_scale
+    return Ns, rank, lifted, held_scale, own
 
 
 def _outside(A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -444,11 +481,8 @@ def _weak_vectors(sv: _Spectrum, weak_idx: np.ndarray) -> np.ndarray:
     return v
 
 
-def _scale_message(N: np.ndarray, scale: np.ndarray, names, held_scale: bool, order):
-    """(null basis without the scale direction, whether scale is in the null space, its message). The basis left
-    is the null directions that hold one coordinate fixed (``_scale_pivot``), not those orthogonal to ``scale``:
-    the solver's scale direction is scale plus some other null direction, which round-off may pick (see the
-    module docstring)."""
+def _scale_message(N: np.ndarray, scale: np.ndarray, names, held_scale: bool):
+    """(null basis without the scale direction, whether scale is in the null space, its message)."""
     s = scale / np.linalg.norm(scale)
     if np.linalg.norm(N.T @ s) <= 1 - 1e-4:
         return N, False, []
@@ -462,28 +496,7 @@ def _scale_message(N: np.ndarray, scale: np.ndarray, names, held_scale: bool, or
            "point; it is held at its current value" if held_scale else "")
         + "; fix or measure one length"
     )
-    j = _scale_pivot(N, s, order)
-    if j is None:  # the echelon form does not span N (columns outside ``order``): the directions orthogonal to s
-        return _orth(N - np.outer(s, s @ N), drop=1), True, [words]
-    moves = N @ (N[j] / np.linalg.norm(N[j]))  # N's combination moving that coordinate; the rest hold it fixed
-    return _orth(N - np.outer(moves, moves @ N), drop=1), True, [words]
-
-
-def _scale_pivot(N: np.ndarray, s: np.ndarray, order) -> int | None:
-    """The coordinate that the scale direction ``s`` (in span N) stands for among the pivots of N's reduced
-    row-echelon form in ``order``: the last in ``order`` that ``s`` moves by at least half as much as the pivot it
-    moves most. Its row of the echelon form is the one the scale message replaces; every other row is named as
-    it is (``_directions``), whichever representative of scale the solver found. Half the largest, not the
-    largest: two lengths of one size are common, a size near half the largest one is not. None where the echelon
-    form in ``order`` does not span N."""
-    rows = np.array(_rref(N.T, order))
-    if len(rows) < N.shape[1]:
-        return None
-    order = np.asarray(order, dtype=int)
-    pivots = order[np.argmax(np.abs(rows[:, order]) > 0.5, axis=1)]
-    size = np.abs(s[pivots])
-    large = set(pivots[size >= 0.5 * size.max()].tolist())
-    return next(j for j in reversed(order.tolist()) if j in large)
+    return _orth(N - np.outer(s, s @ N), drop=1), True, [words]
 
 
 # The principal angle (natural units) to which a null basis that ``_directions`` names is taken to be known. The
