@@ -14,6 +14,20 @@ Null directions are presented in reduced row-echelon form over the parameters in
 (arm offsets, twists, home, base, tool, then experiment frames): each has one *pivot* parameter with
 coefficient 1 and the parameters it trades off against. The scale direction (all lengths scaled
 together, thesis Sec. 2.11) is tested explicitly and reported as scale.
+
+The words print only what the null space determines. The echelon form of a subspace is a function of the
+subspace and the order alone (units do not matter), and each coefficient's uncertainty follows from the form
+itself: row i, column j moves by at most ``a |R_i| sqrt(1 + |R[:, j]|^2)`` when the basis turns by the angle
+``a`` (``NAMING_ACCURACY``, 1e-10). A coefficient is printed to the digits that leaves (three at most), and a
+parameter is named as a partner where its coefficient is at least 1e-3 of its row's largest and ten times its
+uncertainty. With scale unidentifiable, the named directions are those orthogonal to the scale direction
+``s + u`` (``symmetries.scale_null``: ``Rf u = b``, free parameters standing in for the fixed lengths), so u must
+be the data's: ``analyse`` solves for it with its own spectrum of ``Rf``, cut at the rank (``_scale_at_rank``),
+and takes the minimum-norm solution in natural units (``_minimum_norm``, against the null basis it builds anyway).
+numpy's ``lstsq`` cut at eps, which keeps null singular values near 1e-13 in a dual arm: round-off added other
+null directions to u (3e-4 under one-ulp changes of the joint readings), and the echelon form of the directions
+orthogonal to it (a pivot block of condition 3.5e4) moved printed coefficients by up to 28 %. Where numpy's cut
+cuts every null singular value (a well-determined single arm), the two are the same to round-off.
 """
 
 from __future__ import annotations
@@ -101,7 +115,8 @@ def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol:
     if structure is not None and not structure.fits(lin, layout, experiments, rtol):
         structure = None
     names = structure.names if structure is not None else [layout.names[i] for i in lin.free]
-    scale = scale_null(lin, layout, structure) if lin.every else None
+    # evaluated by ``analyse`` after its spectrum of lin.Rf, which cuts the scale's solve at the rank
+    scale = partial(scale_null, lin, layout, structure) if lin.every else None
     held = rotation_nulls(lin, layout, experiments, structure)
     gauges = partial(consistent_nulls, lin, layout, experiments, rtol, structure=structure)
     J, pins, colnorm = lin.Rf, [], lin.colnorm
@@ -110,6 +125,7 @@ def identify(lin: Linearization, layout: Layout, experiments: Sequence, *, rtol:
         J = lin.Rf.copy()
         J[:, pins] = 0.0  # the pinned coordinates do not move: exact nulls, the rest analysed without them
         colnorm = None
+        scale = scale() if scale is not None else None  # numpy's solve: the spectrum is not Rf's own
         scale, held, gauges = _unpinned(hold, pins, scale, held, gauges)
     ana = analyse(J, names, rtol=rtol, priority=priority, scale=scale, held=held, gauges=gauges, name=False,
                   colnorm=colnorm)
@@ -301,7 +317,9 @@ def analyse(
     *,
     rtol: float = 1e-9,
     weak_rtol: float = 1e-5,
-    scale: np.ndarray | None = None,  # the scale direction (p,) when no measured length enters: always held
+    # the scale direction (p,) when no measured length enters, always held; or a function of a solver of
+    # ``J u = b`` giving it (``symmetries.scale_null``: the solve is then cut at the spectrum's rank)
+    scale: np.ndarray | Callable | None = None,
     held: Sequence[np.ndarray] = (),  # other exact symmetries of the cost (p,), held even where residuals lift them
     # (p, k) basis of the noise-free problem's exact null space, held likewise; or a function of the plain null
     # space's dimension giving it (``symmetries.consistent_nulls``: a known structure skips the work)
@@ -320,10 +338,17 @@ def analyse(
     sv = _spectrum(J, rtol, colnorm)
     if callable(gauges):
         gauges = gauges(p - sv.rank)
+    u = None
+    if callable(scale):
+        scale, u = _scale_at_rank(scale, J, sv)
     has_scale = scale is not None and norm(scale) > 0
-    Ns, rank, lifted, held_scale = _hold(sv, ([scale] if has_scale else []) + list(held), has_scale, gauges)
+    Ns, rank, lifted, held_scale, own = _hold(sv, ([scale] if has_scale else []) + list(held), has_scale, gauges)
     identifiable = norms(Ns, 1) < IDENTIFIABLE_TOL
     N, R = _null_and_range(Ns / sv.c[:, None], scratch=True)
+    if has_scale and u is not None and sv.rank < p:
+        # N's first columns span Ns's first (the spectrum's null space, where the gauges did not replace it)
+        N0 = N[:, :p - sv.rank] if own else complete_q(sv.Vt[sv.rank:].T / sv.c[:, None])[:, :p - sv.rank]
+        scale = _minimum_norm(scale, u, N0)
     weak_idx = _weak_indices(sv, rank, rtol, weak_rtol, lifted)
     weak = tuple(_top_names(sv.Vt[i], names) for i in weak_idx)
     weak_vectors = _weak_vectors(sv, weak_idx)
@@ -367,11 +392,38 @@ def _spectrum(J: np.ndarray, rtol: float, colnorm: np.ndarray | None = None) -> 
     return _Spectrum(S_full, Vt, c_safe, smax, rank, U)
 
 
+def _scale_at_rank(scale: Callable, J: np.ndarray, sv: _Spectrum):
+    """(the scale direction ``scale(solve)``, the solve's u in natural units or None). Where the spectrum has
+    U, ``solve`` of ``J u = b`` is the minimum-norm solution in scaled coordinates cut at the rank (``V1 S1^-1
+    U1^T b``): decided by the data, not by which null singular values round-off leaves above numpy's cut;
+    elsewhere (and for any other matrix) numpy's ``lstsq``, as before."""
+    if sv.U is None:
+        return scale(lstsq), None
+    cut = []
+
+    def solve(A, b):
+        if A is not J:
+            return lstsq(A, b)
+        r = sv.rank
+        cut.append((sv.Vt[:r].T @ ((sv.U[:, :r].T @ b) / sv.S[:r])) / sv.c)
+        return cut[-1]
+
+    d = scale(solve)
+    return d, (cut[-1] if cut and d is not None else None)
+
+
+def _minimum_norm(d: np.ndarray, u: np.ndarray, N0: np.ndarray) -> np.ndarray:
+    """``d = s + u`` with u's part along the spectrum's null space ``N0`` (natural units, orthonormal) removed:
+    the minimum-norm solution in natural units, what numpy's ``lstsq`` gives where its cut-off cuts every null
+    singular value."""
+    return d - N0 @ (N0.T @ u)
+
+
 def _hold(sv: _Spectrum, symmetries: list, has_scale: bool, gauges: np.ndarray | None = None):
     """The scaled null basis with the exact gauges of the noise-free problem added (``gauges``, a basis), then
     the exact symmetries of the cost where residuals left lift them out of it (scale without a measured length:
     shrinking every length shrinks them; the rotations of ``held``): (null basis, rank, lifted directions,
-    whether the scale was lifted)."""
+    whether the scale was lifted, whether its first columns are the spectrum's own null space)."""
     Ns, rank = sv.Vt[sv.rank:].T, sv.rank
     lifted, held_scale = [], False
     if gauges is not None and gauges.shape[1]:
@@ -384,6 +436,7 @@ def _hold(sv: _Spectrum, symmetries: list, has_scale: bool, gauges: np.ndarray |
         if lifted:
             Ns = np.column_stack([G, _outside(Ns, G)])
             rank = len(sv.c) - Ns.shape[1]
+    own = not lifted
     for k, h in enumerate(symmetries):
         hc = sv.c * h
         hc /= norm(hc)
@@ -393,7 +446,7 @@ def _hold(sv: _Spectrum, symmetries: list, has_scale: bool, gauges: np.ndarray |
             rank -= 1
             lifted.append(hc)
             held_scale = held_scale or (has_scale and k == 0)
-    return Ns, rank, lifted, held_scale
+    return Ns, rank, lifted, held_scale, own
 
 
 def _outside(A: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -446,23 +499,44 @@ def _scale_message(N: np.ndarray, scale: np.ndarray, names, held_scale: bool):
     return _orth(N - np.outer(s, s @ N), drop=1), True, [words]
 
 
-def _directions(Nd: np.ndarray, order, names, describe, context: str) -> list[Direction]:
-    """The null directions in reduced row-echelon form, each named by its pivot in ``order``."""
+# The principal angle (natural units) to which a null basis that ``_directions`` names is taken to be known. The
+# SVD gives a null space to about machine precision times sigma_max over the smallest kept singular value (the
+# dual arm's: 3e-15 measured against one-ulp changes of the joint readings, with the kept ones above 6e-2 of the
+# largest); 1e-10 still holds with the smallest kept singular value near 1e-5 of the largest, below which the
+# report calls directions weak.
+NAMING_ACCURACY = 1e-10
+
+
+def _directions(Nd: np.ndarray, order, names, describe, context: str,
+                accuracy: float = NAMING_ACCURACY) -> list[Direction]:
+    """The null directions in reduced row-echelon form, each named by its pivot in ``order``; a coefficient is
+    printed to the digits its uncertainty (``_uncertainty``, for a basis known to the angle ``accuracy``) leaves,
+    at most three, and a coordinate is a partner only where it is at least 1e-3 of the row's largest and ten
+    times its uncertainty (a coefficient not known to one digit is not claimed)."""
     directions, order = [], np.asarray(order, dtype=int)
     rows = _rref(Nd.T, order)
     if not rows:
         return directions
-    A = np.abs(np.array(rows))  # every row at once: pivots, partners by size, the ones worth naming
+    R = np.array(rows)
+    A = np.abs(R)  # every row at once: pivots, partners by size, the ones worth naming
     pivots = order[np.argmax(A[:, order] > 0.5, axis=1)].tolist()
     # partners by size, equal sizes (to 1e-9 of the row's largest) in layout order: round-off never reorders them
     JS = np.argsort(-np.round(A / A.max(axis=1, keepdims=True) * 1e9), axis=1, kind="stable")
-    keep = (JS != np.array(pivots)[:, None]) & (np.take_along_axis(A, JS, 1) > 1e-3 * A.max(axis=1, keepdims=True))
-    for row, piv, js, kept in zip(rows, pivots, JS, keep):
+    AJ = np.take_along_axis(A, JS, 1)
+    keep = (JS != np.array(pivots)[:, None]) & (AJ > 1e-3 * A.max(axis=1, keepdims=True))
+    U = _uncertainty(R, accuracy)
+    digits = [None] * len(rows)  # three each, unless some coefficient worth naming holds fewer
+    if U is not None:
+        UJ = np.take_along_axis(U, JS, 1)
+        keep &= AJ >= 10.0 * UJ
+        digits = np.clip(np.floor(np.log10(np.maximum(AJ, 1e-300) / np.maximum(UJ, 1e-300))), 1, 3).astype(int)
+    for row, piv, js, kept, dg in zip(rows, pivots, JS, keep, digits):
+        shown = None if dg is None else dg[kept].tolist()
         js = js[kept].tolist()
         partners = tuple(zip([names[j] for j in js], row[js].tolist()))
         words = f"{names[piv]} cannot be identified{(' from ' + context) if context else ''}"
         if partners:
-            words += f": it trades off against {_partner_list(partners)}"
+            words += f": it trades off against {_partner_list(partners, shown)}"
         else:
             words += ": it does not affect any residual"
         extra = describe(row) if describe else ""
@@ -472,9 +546,27 @@ def _directions(Nd: np.ndarray, order, names, describe, context: str) -> list[Di
     return directions
 
 
-def _partner_list(partners, limit: int = 6) -> str:
-    """``_list`` of the partners' words, formatting only those shown."""
-    shown = [f"{n} ({v:+.3g})" for n, v in partners[:limit]]
+def _uncertainty(R: np.ndarray, accuracy: float) -> np.ndarray | None:
+    """(k, p) first-order bounds on how far the echelon rows R (k, p) of a null space move when it turns by the
+    angle ``accuracy``: ``accuracy * |R_i| * sqrt(1 + |R[:, j]|^2)``. R^T = N M^-1 (N an orthonormal basis, M its
+    pivot rows), so N + N_perp E moves R^T by (I - R^T S) N_perp E M^-1 (S: the pivot rows' selection); column i
+    of M^-1 has R_i's norm (N is orthonormal) and row j of (I - R^T S) N_perp that of (I - R^T S), which is
+    sqrt(1 + |R[:, j]|^2) off the pivots (0 on them: pivots are exact). None where no bound exceeds 1e-6: every
+    coefficient worth naming (1e-3 of its row's largest, which is at least the pivot's 1) then holds three
+    digits."""
+    R2 = R * R
+    rows, cols = np.sqrt(np.add.reduce(R2, axis=1)), np.sqrt(1.0 + np.add.reduce(R2, axis=0))
+    if accuracy * float(rows.max()) * float(cols.max()) <= 1e-6:
+        return None
+    return accuracy * rows[:, None] * cols[None, :]
+
+
+def _partner_list(partners, digits=None, limit: int = 6) -> str:
+    """``_list`` of the partners' words, formatting only those shown, each to its ``digits`` (None: 3 each)."""
+    if digits is None:
+        shown = [f"{n} ({v:+.3g})" for n, v in partners[:limit]]
+    else:
+        shown = [f"{n} ({v:+.{d}g})" for (n, v), d in zip(partners[:limit], digits)]
     more = len(partners) - len(shown)
     return ", ".join(shown) + (f" and {more} more" if more > 0 else "")
 

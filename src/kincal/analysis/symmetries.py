@@ -10,7 +10,7 @@ import math
 import weakref
 from collections import OrderedDict
 from dataclasses import dataclass, field, replace
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -62,7 +62,8 @@ class Structure:
                 and all(a is b for a, b in zip(experiments, self.experiments)))
 
 
-def scale_null(lin: Linearization, layout: Layout, structure: Structure | None = None) -> np.ndarray | None:
+def scale_null(lin: Linearization, layout: Layout, structure: Structure | None = None,
+               solve: Callable[[np.ndarray, np.ndarray], np.ndarray] = lstsq) -> np.ndarray | None:
     """The free direction equivalent to scaling every length, if the data cannot see scale; else None.
 
     Scale is unidentifiable when (1) no measured length enters the residuals: scaling every length, fixed ones
@@ -71,7 +72,9 @@ def scale_null(lin: Linearization, layout: Layout, structure: Structure | None =
     is no information about its size), and (2) the fixed length coordinates add no rank to the free ones
     (e.g. a fixed base is absorbed by free twists and home). The direction is then ``s_free + u`` with
     ``J u = J_fixed s_fixed`` (free parameters standing in for the fixed lengths). Everything is read off the
-    linearization's triangular factor.
+    linearization's triangular factor. ``solve(Rf, b)``: a solution u of ``Rf u = b`` (``lstsq``: numpy's
+    minimum norm, whose cut at eps keeps null singular values near 1e-13, so round-off adds null directions to u;
+    ``identifiability.analyse`` passes one cut at the rank of its own spectrum of ``Rf``).
     """
     p = lin.p
     if not (structure.free_length if structure is not None else layout.lengths[lin.free].any()):
@@ -86,7 +89,7 @@ def scale_null(lin: Linearization, layout: Layout, structure: Structure | None =
         outside = norms(Ra[p:, p + lengths], 0) / colnorm[p + lengths]
         if outside.max() > 1e-6:
             return None
-    u = lstsq(lin.Rf, Ra[:p, p:] @ s[p:])
+    u = solve(lin.Rf, Ra[:p, p:] @ s[p:])
     d = s[:p] + u
     return d if norm(d) > 0 else None
 
