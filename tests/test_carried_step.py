@@ -138,3 +138,19 @@ def test_calibrations_are_those_of_fresh_rank_analyses(monkeypatch, cases):
             if not np.isnan(b.std):
                 assert a.std == pytest.approx(b.std, rel=1e-9), (name, a.name)
     assert any(carried), "no case carried a step: the comparison above compared nothing"
+
+
+def test_each_linearization_is_analysed_or_carried_and_the_structure_read_once(monkeypatch, cases):
+    """The default path: every linearization has a rank analysis or a carried step, never both and never neither
+    (finalize reuses the last linearization's analysis), and the solve reads its structure once."""
+    made, seen, carried = [], [], []
+    structure_of, identify_, carry = ITERATE.Structure.of, ITERATE.identify, ITERATE._carried
+    monkeypatch.setattr(ITERATE.Structure, "of", classmethod(lambda cls, *a: made.append(structure_of(*a)) or made[-1]))
+    monkeypatch.setattr(ITERATE, "identify", lambda *a, **k: seen.append(k["structure"]) or identify_(*a, **k))
+    monkeypatch.setattr(ITERATE, "_carried", lambda *a: (lambda out: carried.append(out is not None) or out)(carry(*a)))
+    name, nominal, data, free, noise = cases[0]
+    res = calibrate(nominal, data, free, noise=noise)
+    analysed_and_carried = [ok for ok in carried if ok]
+    assert analysed_and_carried, "no step carried: the count below would not test the carried path"
+    assert len(seen) + len(analysed_and_carried) == res.iterations and len(made) == 1
+    assert all(s is made[0] for s in seen)

@@ -266,10 +266,11 @@ def _joint_sensitivity(exp, state, comps, res=None) -> dict:
         jq = exp.residual(state, want=set(), jq=True).jq
     out = {}
     for q in dict.fromkeys(comps):
-        rows = [c is q or c == q for c in comps]
-        # every row of one quantity: j[:, rows] would be j's C-ordered copy, which a C-ordered j is already
-        rows = None if all(rows) else np.array(rows, bool)
-        means = [_mean_square(np.ascontiguousarray(j) if rows is None else j[:, rows]) for j in jq.values()]
+        # the rows of the quantity copied out even where they are all of them: the copy's memory order is numpy's
+        # choice for the source's layout, and a mean sums in memory order (a C-ordered copy of a transposed
+        # Jacobian sums in another order, one ulp apart)
+        rows = np.array([c is q or c == q for c in comps], bool)
+        means = [_mean_square(j[:, rows]) for j in jq.values()]
         # the mean of one mean is itself (x / 1): np.mean's list conversion only where there are more
         out[q] = math.sqrt(means[0] if len(means) == 1 else np.mean(means)) if jq else 0.0
     return out
