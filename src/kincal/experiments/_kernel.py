@@ -233,24 +233,23 @@ def pose_gap_in_b(TA: np.ndarray, TB: np.ndarray):
 
 
 def point_jacobian(p: np.ndarray) -> np.ndarray:
-    """d p / d(left increment of the frame carrying p): [I, -hat(p)], (..., 3, 6); written entry by entry from a
-    constant row (``-hat``'s diagonal is -0.0, as negating ``so3.hat`` gives)."""
+    """d p / d(left increment of the frame carrying p): [I, -hat(p)], (..., 3, 6); each entry taken from the
+    point, its negation or a constant (``-hat``'s diagonal is -0.0, as negating ``so3.hat`` gives)."""
     p = np.asarray(p, dtype=float)
     flat = p.reshape(-1, 3)
-    out = np.empty((len(flat), 18))
-    out[...] = _POINT_ROW
-    out[:, _POINT_PLUS] = flat[:, _POINT_PLUS_OF]
-    out[:, _POINT_MINUS] = -flat[:, _POINT_MINUS_OF]
-    return out.reshape(p.shape[:-1] + (3, 6))
+    terms = np.empty((len(flat), 9))  # p, -p, then the constants 0.0, 1.0, -0.0
+    terms[:, :3] = flat
+    np.negative(flat, out=terms[:, 3:6])
+    terms[:, 6:] = _POINT_CONSTANTS
+    return terms.take(_POINT_TAKE, axis=1).reshape(p.shape[:-1] + (3, 6))
 
 
-# [I, -hat(p)] flattened row by row (3 x 6): ones at 0, 7, 14; -0.0 on -hat's diagonal (3, 10, 17); p_k at
-# _POINT_PLUS, -p_k at _POINT_MINUS (-hat(p) = [[0, z, -y], [-z, 0, x], [y, -x, 0]]).
-_POINT_ROW = np.zeros(18)
-_POINT_ROW[[0, 7, 14]] = 1.0
-_POINT_ROW[[3, 10, 17]] = -0.0
-_POINT_PLUS, _POINT_PLUS_OF = np.array([4, 11, 15]), np.array([2, 0, 1])
-_POINT_MINUS, _POINT_MINUS_OF = np.array([5, 9, 16]), np.array([1, 2, 0])
+# [I, -hat(p)] flattened row by row (3 x 6) as indices into ``terms`` (p_0..p_2, -p_0..-p_2, 0.0, 1.0, -0.0):
+# -hat(p) = [[-0, z, -y], [-z, -0, x], [y, -x, -0]].
+_POINT_CONSTANTS = np.array([0.0, 1.0, -0.0])
+_POINT_TAKE = np.array([7, 6, 6, 8, 2, 4,
+                        6, 7, 6, 5, 8, 0,
+                        6, 6, 7, 1, 3, 8])
 
 
 def _det_sign(Q: np.ndarray) -> np.ndarray:

@@ -83,7 +83,23 @@ def _same_geometry(a: tuple, b: tuple) -> bool:
 
 
 def _same_values(a, b) -> bool:
-    return all(same_bits(getattr(a, f.name), getattr(b, f.name)) for f in fields(a) if f.name not in _TANGENT_FIELDS)
+    for name in _compared_fields(type(a)):
+        x, y = getattr(a, name), getattr(b, name)
+        if x is not y and not same_bits(x, y):  # a retraction keeps the fields it does not move: the same objects
+            return False
+    return True
+
+
+# Per values class, the names of the fields ``_same_values`` compares (its fields but the tangent ones), in order:
+# the class's own declaration, read once (``dataclasses.fields`` builds its tuple at every call).
+_COMPARED: dict[type, tuple[str, ...]] = {}
+
+
+def _compared_fields(cls: type) -> tuple[str, ...]:
+    names = _COMPARED.get(cls)
+    if names is None:
+        names = _COMPARED[cls] = tuple(f.name for f in fields(cls) if f.name not in _TANGENT_FIELDS)
+    return names
 
 
 def same_bits(x, y) -> bool:
