@@ -20,7 +20,7 @@ from kincal.analysis import prediction
 from kincal.estimation import problem as P
 from kincal.experiments import _kernel, base, camera, distance, markers, plane, socket
 from kincal.kinematics import twists
-from kincal.lie import so3
+from kincal.lie import se3, so3
 from kincal.params import kinds, values
 from test_fixed_overhead_s12_a import _cases
 from test_fixed_overhead_s12_a2 import _elastic
@@ -72,7 +72,21 @@ def _evaluate_before(self, state0, delta_free, whiteners, jac=True):
     return self._stack(state, res, whiteners, self.free_idx, Rl)
 
 
+def _few_exps_before(xi, t):
+    a, b, c3 = se3.exp_coeffs(t)
+    out = []
+    for (v0, v1, v2, x, y, z), ak, bk, ck, c in zip(xi.tolist(), a, b, c3, np.cos(t).tolist()):
+        wv = so3.cross_tuple((x, y, z), (v0, v1, v2))
+        wwv = so3.cross_tuple((x, y, z), wv)
+        bxy, bxz, byz = bk * x * y, bk * x * z, bk * y * z
+        out += [c + bk * x * x, bxy - ak * z, bxz + ak * y, v0 + bk * wv[0] + ck * wwv[0],
+                bxy + ak * z, c + bk * y * y, byz - ak * x, v1 + bk * wv[1] + ck * wwv[1],
+                bxz - ak * y, byz + ak * x, c + bk * z * z, v2 + bk * wv[2] + ck * wwv[2], 0.0, 0.0, 0.0, 1.0]
+    return np.array(out).reshape(len(xi), 4, 4)
+
+
 def _earlier_forms(m):
+    m.setattr(se3, "_few_exps", _few_exps_before)
     m.setattr(base, "_same_values", _same_values_before)
     for module in (twists, kinds, values):
         m.setattr(module, "tangent_frames", _tangent_frames_before)
@@ -168,6 +182,30 @@ def test_a_trial_evaluation_is_the_earlier_forms(monkeypatch):
             want = _evaluate_before(problem, problem.start, step, W, jac=jac)
             for g, h in zip(got, want):
                 assert (g is None and h is None) or g.tobytes() == h.tobytes()
+
+
+@pytest.mark.parametrize("scale", [0.0, 1e-9, 1e-3, 0.5, 3.0])
+def test_few_exponentials_are_the_earlier_form_bit_for_bit(scale):
+    xi = np.random.default_rng(7).normal(size=(9, 6)) * scale
+    xi[0, 3:] = 0.0  # a pure translation
+    for m in (1, 7, 9):
+        t = so3.angle(xi[:m, 3:])
+        assert se3._few_exps(xi[:m], t).tobytes() == _few_exps_before(xi[:m], t).tobytes()
+        assert se3.exp(xi[:m]).tobytes() == _few_exps_before(xi[:m], t).tobytes()
+
+
+@pytest.mark.parametrize("case", ["markers", "tree lateral", "tree"])
+def test_the_free_columns_want_the_blocks_assemble_found(case):
+    """``linearize`` of the free columns asks the experiments for ``Problem.want``: ``_blocks_of`` of them."""
+    problem = _markers_problem() if case == "markers" else _tree_problem(case == "tree lateral")
+    assert problem.want == P._blocks_of(problem.layout, problem.free_idx)
+    fixed = np.flatnonzero(~problem.layout.free)
+    wider = np.concatenate([problem.free_idx, fixed[:7]])
+    assert P._blocks_of(problem.layout, wider) >= problem.want
+    W = problem.whiteners(problem.start)
+    r, J = problem.linearize(problem.start, W)[:2]
+    r2, J2 = problem.linearize(problem.start, W, problem.free_idx.copy())[:2]  # another array: looked up
+    assert r.tobytes() == r2.tobytes() and J.tobytes() == J2.tobytes()
 
 
 # ------------------------------------------------------------------------------------------- whole solves

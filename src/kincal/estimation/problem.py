@@ -273,7 +273,7 @@ class Problem:
         Returns ``(r, J, whiteners, residuals)``, the last the experiments' residuals before whitening.
         """
         cols = self.free_idx if cols is None else np.asarray(cols)
-        want = self.cache.wants.get(cols.tobytes())
+        want = self.want if cols is self.free_idx else self.cache.wants.get(cols.tobytes())  # ``assemble``'s
         if want is None:
             want = self.cache.wants[cols.tobytes()] = _blocks_of(self.layout, cols)
         fresh = whiteners is None
