@@ -19,7 +19,7 @@ import pytest
 from kincal.analysis import prediction
 from kincal.estimation import problem as P
 from kincal.experiments import _kernel, base, camera, distance, markers, plane, socket
-from kincal.kinematics import twists
+from kincal.kinematics import fk, twists
 from kincal.lie import se3, so3
 from kincal.params import kinds, values
 from test_fixed_overhead_s12_a import _cases
@@ -85,8 +85,30 @@ def _few_exps_before(xi, t):
     return np.array(out).reshape(len(xi), 4, 4)
 
 
+def _parts_before(self, arm, want):
+    return tuple(p for p in _kernel.ARM_PARTS if want is None or f"{arm}.{p}" in want)
+
+
+def _arm_jacobians_before(a, kin, G, parts=_kernel.ARM_PARTS, with_jq=True, q=None):
+    basis = None if q is None else a.compliance_basis(q)
+    return _kernel.tool_jacobians(kin, G, a.screws, a.generators, a.joint_compliance, parts, with_jq, basis)
+
+
+def _turns_before(self, arm, offsets):
+    q = self.dataset.q[arm]
+    return _shifted_turns_before(np.cos(q), np.sin(q), offsets)
+
+
+def _shifted_turns_before(cos, sin, offsets):
+    co, so = np.cos(offsets), np.sin(offsets)
+    return cos * co - sin * so, sin * co + cos * so
+
+
 def _earlier_forms(m):
     m.setattr(se3, "_few_exps", _few_exps_before)
+    m.setattr(base.Experiment, "_parts", _parts_before)
+    m.setattr(base, "arm_jacobians", _arm_jacobians_before)
+    m.setattr(base.Experiment, "_turns", _turns_before)
     m.setattr(base, "_same_values", _same_values_before)
     for module in (twists, kinds, values):
         m.setattr(module, "tangent_frames", _tangent_frames_before)
@@ -206,6 +228,42 @@ def test_the_free_columns_want_the_blocks_assemble_found(case):
     r, J = problem.linearize(problem.start, W)[:2]
     r2, J2 = problem.linearize(problem.start, W, problem.free_idx.copy())[:2]  # another array: looked up
     assert r.tobytes() == r2.tobytes() and J.tobytes() == J2.tobytes()
+
+
+def test_parts_kept_per_wanted_blocks_are_the_fresh_ones_and_another_set_misses():
+    problem = _tree_problem(True)
+    exp = problem.experiments[0]
+    for arm in problem.start.arms:
+        for want in (problem.want, frozenset({f"{arm}.offsets", f"{arm}.tool", "other"}), frozenset(), None,
+                     {f"{arm}.twists"}):
+            for _ in range(2):  # computed, then kept
+                assert exp._parts(arm, want) == _parts_before(exp, arm, want)
+    assert all(isinstance(k[1], frozenset) for k in exp.__dict__["_wanted_parts"])
+    assert len(exp.__dict__["_wanted_parts"]) <= base.PARTS_ENTRIES
+
+
+@pytest.mark.parametrize("case", ["markers", "tree lateral"])
+def test_arm_blocks_without_compliance_zeros_are_the_earlier_ones(case):
+    problem = _markers_problem() if case == "markers" else _tree_problem(case == "tree lateral")
+    for exp in problem.experiments:
+        every = exp.residual(problem.start, want=None, jq=True)
+        with pytest.MonkeyPatch.context() as m:
+            m.setattr(base, "arm_jacobians", _arm_jacobians_before)
+            earlier = exp.residual(problem.start, want=None, jq=True)
+        assert every.jac.keys() == earlier.jac.keys() and every.jq.keys() == earlier.jq.keys()
+        for got, want in ((every.jac, earlier.jac), (every.jq, earlier.jq)):
+            assert all(got[k].tobytes() == want[k].tobytes() for k in got)
+
+
+def test_paired_shifted_turns_are_the_earlier_sums_bit_for_bit():
+    rng = np.random.default_rng(3)
+    q = rng.uniform(-7.0, 7.0, (40, 6))
+    q[:5] = [0.0, -0.0, np.pi, -np.pi / 2, 1e-300, 3.0]
+    for offsets in (rng.normal(0, 0.01, 6), np.zeros(6), -np.zeros(6)):
+        want = _shifted_turns_before(np.cos(q), np.sin(q), offsets)
+        for got in (fk.shifted_turns(np.cos(q), np.sin(q), offsets),
+                    fk.paired_shifted_turns(np.stack([np.cos(q), np.sin(q)]), offsets)):
+            assert all(g.tobytes() == w.tobytes() for g, w in zip(got, want))
 
 
 # ------------------------------------------------------------------------------------------- whole solves

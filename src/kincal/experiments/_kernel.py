@@ -30,7 +30,8 @@ def arm_jacobians(a: ArmValues, kin: Kinematics, G: np.ndarray, parts=ARM_PARTS,
     per part (N, k, d), and ``G @ J_q`` (N, k, n) if ``with_jq``; ``q`` (N, n): the readings, which an
     angle-dependent compliance needs (``ArmValues.compliance_basis``)."""
     basis = None if q is None else a.compliance_basis(q)
-    return tool_jacobians(kin, G, a.screws, a.generators, a.joint_compliance, parts, with_jq, basis)
+    # ``a.compliance`` None is ``joint_compliance``'s zeros there, made only where a block reads them
+    return tool_jacobians(kin, G, a.screws, a.generators, a.compliance, parts, with_jq, basis)
 
 
 def coupled(a: ArmValues, gq: np.ndarray) -> np.ndarray:

@@ -14,10 +14,11 @@ from typing import ClassVar, Mapping
 
 import numpy as np
 
+from kincal._memo import remember
 from kincal.data import Dataset
 from kincal.experiments._kernel import ARM_PARTS, arm_jacobians, coupled, tree_jacobians, tree_kin
 from kincal.kinematics import Kinematics, loaded_chain, sample_chain
-from kincal.kinematics.fk import shifted_turns
+from kincal.kinematics.fk import paired_shifted_turns
 from kincal.kinematics.branches import loading_branches
 from kincal.kinematics.model import lineage
 from kincal.noise import Quantity
@@ -43,6 +44,10 @@ class Residual:
     jac: Mapping[str, np.ndarray]
     jq: Mapping[str, np.ndarray]
 
+
+# The (arm, wanted blocks) pairs an experiment keeps the parts of (``Experiment._parts``): a solve asks for two or
+# three sets of blocks (the scale test's columns, the free ones).
+PARTS_ENTRIES = 8
 
 # Experiment -> {arm: (geometry, Kinematics)}: the last kinematics of each arm while a solve remembers them
 # (``remembered_kinematics``); weak keys, so an experiment no longer used takes its entry with it.
@@ -209,7 +214,15 @@ class Experiment:
 
     # helpers
     def _parts(self, arm: str, want) -> tuple[str, ...]:
-        return tuple(p for p in ARM_PARTS if want is None or f"{arm}.{p}" in want)
+        """The parts of ``arm`` whose blocks ``want`` names (all for None); kept per (arm, want) when ``want`` is a
+        frozenset (a problem's, the same at every linearization of a solve): its hash is its own, kept by Python."""
+        if not isinstance(want, frozenset):
+            return tuple(p for p in ARM_PARTS if want is None or f"{arm}.{p}" in want)
+        kept = self.__dict__.setdefault("_wanted_parts", {})  # a frozen dataclass: its own dict, no attribute
+        hit = kept.get((arm, want))
+        if hit is None:
+            hit = remember(kept, (arm, want), tuple(p for p in ARM_PARTS if f"{arm}.{p}" in want), PARTS_ENTRIES)
+        return hit
 
     @staticmethod
     def _residual_only(want, jq: bool) -> bool:
@@ -258,8 +271,8 @@ class Experiment:
         key = q.tobytes()
         hit = kept.get(arm)
         if hit is None or hit[0] != key:
-            hit = kept[arm] = (key, np.cos(q), np.sin(q))
-        return shifted_turns(hit[1], hit[2], offsets)
+            hit = kept[arm] = (key, np.stack([np.cos(q), np.sin(q)]))
+        return paired_shifted_turns(hit[1], offsets)
 
     def _fk(self, state: State, arm: str) -> np.ndarray:
         return self._kin(state, arm).tool
