@@ -263,9 +263,9 @@ class Experiment:
         return loaded_chain(a.screws, theta0, a.base, a.home, a.tool, c, w, a.weights, coupling=a.coupling)
 
     def _turns(self, arm: str, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(cos, sin)`` of the arm's readings plus ``offsets`` (``fk.shifted_turns``) from the readings' own,
-        kept per arm with the readings' bytes: data, not state (the same at every evaluation of a solve); the
-        bytes, so that readings changed in place miss."""
+        """``(cos, sin)`` of the arm's readings plus ``offsets`` (``fk.paired_shifted_turns``) from the readings'
+        own, kept stacked per arm with the readings' bytes: data, not state (the same at every evaluation of a
+        solve); the bytes, so that readings changed in place miss."""
         q = self.dataset.q[arm]
         kept = self.__dict__.setdefault("_reading_turns", {})  # a frozen dataclass: its own dict, no attribute
         key = q.tobytes()
