@@ -238,11 +238,11 @@ def point_jacobian(p: np.ndarray) -> np.ndarray:
     point, its negation or a constant (``-hat``'s diagonal is -0.0, as negating ``so3.hat`` gives)."""
     p = np.asarray(p, dtype=float)
     flat = p.reshape(-1, 3)
-    terms = np.empty((len(flat), 9))  # p, -p, then the constants 0.0, 1.0, -0.0
-    terms[:, :3] = flat
-    np.negative(flat, out=terms[:, 3:6])
-    terms[:, 6:] = _POINT_CONSTANTS
-    return terms.take(_POINT_TAKE, axis=1).reshape(p.shape[:-1] + (3, 6))
+    terms = np.empty((9, len(flat)))  # rows p, -p, then the constants 0.0, 1.0, -0.0: each entry one whole row
+    terms[:3] = flat.T
+    np.negative(terms[:3], out=terms[3:6])
+    terms[6:] = _POINT_CONSTANTS[:, None]
+    return np.ascontiguousarray(terms.take(_POINT_TAKE, axis=0).T).reshape(p.shape[:-1] + (3, 6))
 
 
 # [I, -hat(p)] flattened row by row (3 x 6) as indices into ``terms`` (p_0..p_2, -p_0..-p_2, 0.0, 1.0, -0.0):
