@@ -85,9 +85,11 @@ class ResidualCache:
         hit = self.diagonals.get(id(W))
         return hit[1] if hit is not None and hit[0] is W else _constant_diagonal(W)
 
-    def made(self, W: np.ndarray) -> None:
-        """Remember the diagonal of a whitener just made (held with it: its id is not reused meanwhile)."""
-        d = _constant_diagonal(W)
+    def made(self, W: np.ndarray, diagonal: np.ndarray | None = None) -> None:
+        """Remember the diagonal of a whitener just made (held with it: its id is not reused meanwhile).
+        ``diagonal``: the one W was made from (``np.diag`` of it, broadcast): ``_constant_diagonal(W)`` where
+        finite, read without W."""
+        d = _constant_diagonal(W) if diagonal is None else _finite_copy(diagonal)
         if d is not None:
             d.flags.writeable = False  # shared by every evaluation
         remember(self.diagonals, id(W), (W, d), DIAGONAL_ENTRIES)
@@ -259,8 +261,9 @@ class Problem:
             if own is None:
                 var = np.maximum(stated_sigmas(exp, nz) ** 2, VARIANCE_FLOOR)
                 if sj == 0:  # constant: a diagonal, broadcast over samples
-                    out.append(np.broadcast_to(np.diag(1.0 / np.sqrt(var)), res.r.shape + (res.r.shape[1],)))
-                    self.cache.made(out[-1])
+                    d = 1.0 / np.sqrt(var)
+                    out.append(np.broadcast_to(np.diag(d), res.r.shape + (res.r.shape[1],)))
+                    self.cache.made(out[-1], d)
                     continue
                 own = np.diag(var)
             cov = np.broadcast_to(own, res.r.shape + (res.r.shape[1],)).copy()
@@ -277,7 +280,7 @@ class Problem:
         Returns ``(r, J, whiteners, residuals)``, the last the experiments' residuals before whitening.
         """
         cols = self.free_idx if cols is None else np.asarray(cols)
-        want = self.cache.wants.get(cols.tobytes())
+        want = self.want if cols is self.free_idx else self.cache.wants.get(cols.tobytes())  # ``assemble``'s
         if want is None:
             want = self.cache.wants[cols.tobytes()] = _blocks_of(self.layout, cols)
         fresh = whiteners is None
@@ -308,9 +311,10 @@ class Problem:
 
     def evaluate(self, state0: State, delta_free: np.ndarray, whiteners, jac: bool = True):
         """Whitened stacked residual (m,) at ``retract(state0, delta)`` and, if asked, its Jacobian (m, p_free)."""
-        delta = self.full_delta(delta_free)
         # no step (a trial point retracted already): the same values as retracting by zero
-        state = retract(state0, self.layout, delta, tangents=jac) if delta_free.any() else state0
+        moves = delta_free.any()
+        delta = self.full_delta(delta_free) if moves or jac else None
+        state = retract(state0, self.layout, delta, tangents=jac) if moves else state0
         if not jac:
             return self._stack(state, self._residuals(state, False), whiteners, None, {})[0], None
         Rl = {k: v for k, v in pose_retraction_jacobians(self.layout, delta).items() if k in self.want}
@@ -432,7 +436,12 @@ def _constant_diagonal(W: np.ndarray) -> np.ndarray | None:
         return None
     D = W[0]
     d = np.diagonal(D)  # ``D - diag(d)`` all zeros: no nonzero (nor NaN) entry off the diagonal, d finite
-    return d.copy() if np.count_nonzero(D) == np.count_nonzero(d) and np.isfinite(d).all() else None
+    return _finite_copy(d) if np.count_nonzero(D) == np.count_nonzero(d) else None
+
+
+def _finite_copy(d: np.ndarray) -> np.ndarray | None:
+    """A copy of the diagonal ``d`` where every entry is finite, else None (``_constant_diagonal``'s test)."""
+    return d.copy() if np.isfinite(d).all() else None
 
 
 def _noise_per_experiment(noise, exps) -> list[Noise]:

@@ -30,7 +30,8 @@ def arm_jacobians(a: ArmValues, kin: Kinematics, G: np.ndarray, parts=ARM_PARTS,
     per part (N, k, d), and ``G @ J_q`` (N, k, n) if ``with_jq``; ``q`` (N, n): the readings, which an
     angle-dependent compliance needs (``ArmValues.compliance_basis``)."""
     basis = None if q is None else a.compliance_basis(q)
-    return tool_jacobians(kin, G, a.screws, a.generators, a.joint_compliance, parts, with_jq, basis)
+    # ``a.compliance`` None is ``joint_compliance``'s zeros there, made only where a block reads them
+    return tool_jacobians(kin, G, a.screws, a.generators, a.compliance, parts, with_jq, basis)
 
 
 def coupled(a: ArmValues, gq: np.ndarray) -> np.ndarray:
@@ -233,24 +234,23 @@ def pose_gap_in_b(TA: np.ndarray, TB: np.ndarray):
 
 
 def point_jacobian(p: np.ndarray) -> np.ndarray:
-    """d p / d(left increment of the frame carrying p): [I, -hat(p)], (..., 3, 6); written entry by entry from a
-    constant row (``-hat``'s diagonal is -0.0, as negating ``so3.hat`` gives)."""
+    """d p / d(left increment of the frame carrying p): [I, -hat(p)], (..., 3, 6); each entry taken from the
+    point, its negation or a constant (``-hat``'s diagonal is -0.0, as negating ``so3.hat`` gives)."""
     p = np.asarray(p, dtype=float)
     flat = p.reshape(-1, 3)
-    out = np.empty((len(flat), 18))
-    out[...] = _POINT_ROW
-    out[:, _POINT_PLUS] = flat[:, _POINT_PLUS_OF]
-    out[:, _POINT_MINUS] = -flat[:, _POINT_MINUS_OF]
-    return out.reshape(p.shape[:-1] + (3, 6))
+    terms = np.empty((9, len(flat)))  # rows p, -p, then the constants 0.0, 1.0, -0.0: each entry one whole row
+    terms[:3] = flat.T
+    np.negative(terms[:3], out=terms[3:6])
+    terms[6:] = _POINT_CONSTANTS[:, None]
+    return np.ascontiguousarray(terms.take(_POINT_TAKE, axis=0).T).reshape(p.shape[:-1] + (3, 6))
 
 
-# [I, -hat(p)] flattened row by row (3 x 6): ones at 0, 7, 14; -0.0 on -hat's diagonal (3, 10, 17); p_k at
-# _POINT_PLUS, -p_k at _POINT_MINUS (-hat(p) = [[0, z, -y], [-z, 0, x], [y, -x, 0]]).
-_POINT_ROW = np.zeros(18)
-_POINT_ROW[[0, 7, 14]] = 1.0
-_POINT_ROW[[3, 10, 17]] = -0.0
-_POINT_PLUS, _POINT_PLUS_OF = np.array([4, 11, 15]), np.array([2, 0, 1])
-_POINT_MINUS, _POINT_MINUS_OF = np.array([5, 9, 16]), np.array([1, 2, 0])
+# [I, -hat(p)] flattened row by row (3 x 6) as indices into ``terms`` (p_0..p_2, -p_0..-p_2, 0.0, 1.0, -0.0):
+# -hat(p) = [[-0, z, -y], [-z, -0, x], [y, -x, -0]].
+_POINT_CONSTANTS = np.array([0.0, 1.0, -0.0])
+_POINT_TAKE = np.array([7, 6, 6, 8, 2, 4,
+                        6, 7, 6, 5, 8, 0,
+                        6, 6, 7, 1, 3, 8])
 
 
 def _det_sign(Q: np.ndarray) -> np.ndarray:

@@ -14,10 +14,11 @@ from typing import ClassVar, Mapping
 
 import numpy as np
 
+from kincal._memo import remember
 from kincal.data import Dataset
 from kincal.experiments._kernel import ARM_PARTS, arm_jacobians, coupled, tree_jacobians, tree_kin
 from kincal.kinematics import Kinematics, loaded_chain, sample_chain
-from kincal.kinematics.fk import shifted_turns
+from kincal.kinematics.fk import paired_shifted_turns
 from kincal.kinematics.branches import loading_branches
 from kincal.kinematics.model import lineage
 from kincal.noise import Quantity
@@ -43,6 +44,10 @@ class Residual:
     jac: Mapping[str, np.ndarray]
     jq: Mapping[str, np.ndarray]
 
+
+# The (arm, wanted blocks) pairs an experiment keeps the parts of (``Experiment._parts``): a solve asks for two or
+# three sets of blocks (the scale test's columns, the free ones).
+PARTS_ENTRIES = 8
 
 # Experiment -> {arm: (geometry, Kinematics)}: the last kinematics of each arm while a solve remembers them
 # (``remembered_kinematics``); weak keys, so an experiment no longer used takes its entry with it.
@@ -83,7 +88,23 @@ def _same_geometry(a: tuple, b: tuple) -> bool:
 
 
 def _same_values(a, b) -> bool:
-    return all(same_bits(getattr(a, f.name), getattr(b, f.name)) for f in fields(a) if f.name not in _TANGENT_FIELDS)
+    for name in _compared_fields(type(a)):
+        x, y = getattr(a, name), getattr(b, name)
+        if x is not y and not same_bits(x, y):  # a retraction keeps the fields it does not move: the same objects
+            return False
+    return True
+
+
+# Per values class, the names of the fields ``_same_values`` compares (its fields but the tangent ones), in order:
+# the class's own declaration, read once (``dataclasses.fields`` builds its tuple at every call).
+_COMPARED: dict[type, tuple[str, ...]] = {}
+
+
+def _compared_fields(cls: type) -> tuple[str, ...]:
+    names = _COMPARED.get(cls)
+    if names is None:
+        names = _COMPARED[cls] = tuple(f.name for f in fields(cls) if f.name not in _TANGENT_FIELDS)
+    return names
 
 
 def same_bits(x, y) -> bool:
@@ -193,7 +214,15 @@ class Experiment:
 
     # helpers
     def _parts(self, arm: str, want) -> tuple[str, ...]:
-        return tuple(p for p in ARM_PARTS if want is None or f"{arm}.{p}" in want)
+        """The parts of ``arm`` whose blocks ``want`` names (all for None); kept per (arm, want) when ``want`` is a
+        frozenset (a problem's, the same at every linearization of a solve): its hash is its own, kept by Python."""
+        if not isinstance(want, frozenset):
+            return tuple(p for p in ARM_PARTS if want is None or f"{arm}.{p}" in want)
+        kept = self.__dict__.setdefault("_wanted_parts", {})  # a frozen dataclass: its own dict, no attribute
+        hit = kept.get((arm, want))
+        if hit is None:
+            hit = remember(kept, (arm, want), tuple(p for p in ARM_PARTS if f"{arm}.{p}" in want), PARTS_ENTRIES)
+        return hit
 
     @staticmethod
     def _residual_only(want, jq: bool) -> bool:
@@ -234,16 +263,16 @@ class Experiment:
         return loaded_chain(a.screws, theta0, a.base, a.home, a.tool, c, w, a.weights, coupling=a.coupling)
 
     def _turns(self, arm: str, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(cos, sin)`` of the arm's readings plus ``offsets`` (``fk.shifted_turns``) from the readings' own,
-        kept per arm with the readings' bytes: data, not state (the same at every evaluation of a solve); the
-        bytes, so that readings changed in place miss."""
+        """``(cos, sin)`` of the arm's readings plus ``offsets`` (``fk.paired_shifted_turns``) from the readings'
+        own, kept stacked per arm with the readings' bytes: data, not state (the same at every evaluation of a
+        solve); the bytes, so that readings changed in place miss."""
         q = self.dataset.q[arm]
         kept = self.__dict__.setdefault("_reading_turns", {})  # a frozen dataclass: its own dict, no attribute
         key = q.tobytes()
         hit = kept.get(arm)
         if hit is None or hit[0] != key:
-            hit = kept[arm] = (key, np.cos(q), np.sin(q))
-        return shifted_turns(hit[1], hit[2], offsets)
+            hit = kept[arm] = (key, np.stack([np.cos(q), np.sin(q)]))
+        return paired_shifted_turns(hit[1], offsets)
 
     def _fk(self, state: State, arm: str) -> np.ndarray:
         return self._kin(state, arm).tool

@@ -154,8 +154,15 @@ def shifted_turns(cos: np.ndarray, sin: np.ndarray, offsets: np.ndarray) -> tupl
     """``(cos, sin)`` of ``q + offsets`` from those of q (N, n) and the offsets (n,) by the angle sum: the turns
     of the rounded ``q + offsets`` to round-off (q's own at zero offsets), without a sine per sample (the
     readings' are the data's, computed once: ``Experiment._turns``)."""
+    return paired_shifted_turns(np.stack([cos, sin]), offsets)
+
+
+def paired_shifted_turns(turns: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``shifted_turns`` of ``turns``, (cos, sin) stacked (2, N, n): each offset's cosine and sine multiplies both
+    at once, the same products and sums."""
     co, so = np.cos(offsets), np.sin(offsets)
-    return cos * co - sin * so, sin * co + cos * so
+    by_cos, by_sin = turns * co, turns * so
+    return by_cos[0] - by_sin[1], by_cos[1] + by_sin[0]
 
 
 def _coefficients(screws: np.ndarray, theta: np.ndarray, turns) -> np.ndarray:

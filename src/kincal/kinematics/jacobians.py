@@ -94,13 +94,17 @@ def tool_jacobians(kin: Kinematics, G: np.ndarray, screws: np.ndarray, generator
         out["base"] = G
     if "tool" in parts:
         out["tool"] = G @ se3.adjoint(kin.flange)
-    k_c = np.zeros(n) if compliance is None else np.asarray(compliance, float)
     if loaded:
-        jq = _add_compliance(kin, generators, k_c, basis, jq, out, parts, step)
+        jq = _add_compliance(kin, generators, _coefficients(compliance, n), basis, jq, out, parts, step)
         return out, (jq if with_jq else None)
     if "compliance" in parts:
-        out["compliance"] = np.zeros((N, k, len(k_c)))
+        out["compliance"] = np.zeros((N, k, len(_coefficients(compliance, n))))
     return out, (jq[..., ::step] if with_jq else None)
+
+
+def _coefficients(compliance, n: int) -> np.ndarray:
+    """``tool_jacobians``' compliance coefficients: zeros (n,) for None (read only where a block needs them)."""
+    return np.zeros(n) if compliance is None else np.asarray(compliance, float)
 
 
 def torque_derivatives(kin: LoadedKinematics, generators: Sequence[np.ndarray], parts, step: int = 1,

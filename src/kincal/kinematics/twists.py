@@ -101,7 +101,10 @@ def tangent_frames(screws: np.ndarray, joint_types) -> tuple[tuple, tuple]:
     (an arm's), joint by joint on Python floats (``_revolute_frame``): the same IEEE operations."""
     xi = np.asarray(screws, dtype=float)
     if len(xi) <= _FEW and all(t == REVOLUTE for t in joint_types):
-        BG = np.array([c for x in xi.tolist() for c in _revolute_frame(x[:3], x[3:])]).reshape(len(xi), 2, 6, 4)
+        flat = []
+        for x in xi.tolist():
+            flat += _revolute_frame(x[:3], x[3:])  # joined by ``list``'s own extend, not element by element
+        BG = np.array(flat).reshape(len(xi), 2, 6, 4)
         return tuple(BG[:, 0]), tuple(BG[:, 1])
     bases, gens = [None] * len(xi), [None] * len(xi)
     for kind, frames in ((REVOLUTE, _revolute_frames), (PRISMATIC, _prismatic_frames)):

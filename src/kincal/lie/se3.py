@@ -83,12 +83,12 @@ def _few_exps(xi: np.ndarray, t: np.ndarray) -> np.ndarray:
     a, b, c3 = exp_coeffs(t)
     out = []
     for (v0, v1, v2, x, y, z), ak, bk, ck, c in zip(xi.tolist(), a, b, c3, np.cos(t).tolist()):
-        wv = so3.cross_tuple((x, y, z), (v0, v1, v2))
-        wwv = so3.cross_tuple((x, y, z), wv)
+        p0, p1, p2 = y * v2 - z * v1, z * v0 - x * v2, x * v1 - y * v0  # w x v (``so3.cross_tuple``'s operations)
+        q0, q1, q2 = y * p2 - z * p1, z * p0 - x * p2, x * p1 - y * p0  # w x (w x v)
         bxy, bxz, byz = bk * x * y, bk * x * z, bk * y * z
-        out += [c + bk * x * x, bxy - ak * z, bxz + ak * y, v0 + bk * wv[0] + ck * wwv[0],
-                bxy + ak * z, c + bk * y * y, byz - ak * x, v1 + bk * wv[1] + ck * wwv[1],
-                bxz - ak * y, byz + ak * x, c + bk * z * z, v2 + bk * wv[2] + ck * wwv[2], 0.0, 0.0, 0.0, 1.0]
+        out += [c + bk * x * x, bxy - ak * z, bxz + ak * y, v0 + bk * p0 + ck * q0,
+                bxy + ak * z, c + bk * y * y, byz - ak * x, v1 + bk * p1 + ck * q1,
+                bxz - ak * y, byz + ak * x, c + bk * z * z, v2 + bk * p2 + ck * q2, 0.0, 0.0, 0.0, 1.0]
     return np.array(out).reshape(len(xi), 4, 4)
 
 
