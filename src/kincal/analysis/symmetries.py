@@ -106,11 +106,11 @@ def _scale_gap(lin: Linearization, layout: Layout, structure: Structure | None =
     if not lin.every:
         raise AssertionError("the scale test needs a linearization with every column")
     last = structure.derived.get("scale gap") if structure is not None else None
-    if last is not None and last[0] is lin and last[1] is layout:
+    if last is not None and last[0]() is lin and last[1] is layout:
         return last[2]
     terms = _scale_terms(lin, layout)
-    if structure is not None:
-        structure.derived["scale gap"] = (lin, layout, terms)
+    if structure is not None:  # the linearization held weakly: a solve's Structure outlives each of them
+        structure.derived["scale gap"] = (weakref.ref(lin), layout, terms)
     return terms
 
 

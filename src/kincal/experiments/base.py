@@ -7,6 +7,8 @@ Known frames are extras too (fixed unless the user frees them), so one code path
 
 from __future__ import annotations
 
+import hashlib
+
 import weakref
 from contextlib import contextmanager
 from dataclasses import dataclass, fields
@@ -264,11 +266,11 @@ class Experiment:
 
     def _turns(self, arm: str, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(cos, sin)`` of the arm's readings plus ``offsets`` (``fk.paired_shifted_turns``) from the readings'
-        own, kept stacked per arm with the readings' bytes: data, not state (the same at every evaluation of a
-        solve); the bytes, so that readings changed in place miss."""
+        own, kept stacked per arm with a digest of the readings' bytes: data, not state (the same at every evaluation
+        of a solve); the digest, so that readings changed in place miss without a copy of them kept per arm."""
         q = self.dataset.q[arm]
         kept = self.__dict__.setdefault("_reading_turns", {})  # a frozen dataclass: its own dict, no attribute
-        key = q.tobytes()
+        key = _digest(q)
         hit = kept.get(arm)
         if hit is None or hit[0] != key:
             hit = kept[arm] = (key, np.stack([np.cos(q), np.sin(q)]))
@@ -303,3 +305,10 @@ def hung_arms(state: State, line) -> list[str]:
     if not state.mounts:
         return []
     return loading_branches(state.mounts, {a: v.weights for a, v in state.arms.items()}, line)
+
+
+def _digest(a: np.ndarray) -> bytes:
+    """A 16-byte digest of an array's bytes (BLAKE2b), with its shape and dtype."""
+    h = hashlib.blake2b(str((a.shape, a.dtype.str)).encode(), digest_size=16)
+    h.update(np.ascontiguousarray(a).data)
+    return h.digest()
