@@ -11,6 +11,7 @@ same Result bit for bit."""
 from __future__ import annotations
 
 import importlib
+import weakref
 from dataclasses import replace
 
 import numpy as np
@@ -223,9 +224,12 @@ def test_scale_terms_are_kept_for_the_same_linearization_only(ur10_sets):
     assert (a is None and b is None) or a.tobytes() == b.tobytes()
     assert symmetries.scale_visible(lin, layout, st) == symmetries.scale_visible(lin, layout)
     kept = st.derived["scale gap"]
-    assert kept[0] is lin
+    assert kept[0]() is lin  # held weakly since session 13: the Structure outlives the solve's linearizations
     moved = replace(lin, R=lin.R * 2.0)  # another linearization: its own terms, not the kept ones
     assert symmetries._scale_gap(moved, layout, st)[0] == symmetries._scale_terms(moved, layout)[0] != kept[2][0]
+    gone = weakref.ref(moved)
+    del moved
+    assert gone() is None  # the memo does not keep a linearization (its residuals, whiteners) alive
 
 
 def test_priority_and_degenerate_are_their_earlier_forms(ur10_sets):
