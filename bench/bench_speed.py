@@ -302,7 +302,7 @@ def markdown(head, rows) -> str:
 
 
 def ms(s: float) -> str:
-    return f"{s * 1e3:.1f} ms" if s < 1 else f"{s:.2f} s"
+    return f"{s * 1e3:.2f} ms" if s < 1 else f"{s:.2f} s"
 
 
 def speed_table(rows, fig) -> str:
@@ -313,7 +313,7 @@ def speed_table(rows, fig) -> str:
         k, m = r["kincal"][0], r["minimal"][0]
         f = [fig.get((n, meth)) for meth in ("structural", "excitation")]
         ratio = " / ".join(f"{x[0] / k:.0f}x" for x in f if x) or "-"
-        out.append([str(n), ms(k), *(ms(x[0]) if x else "-" for x in f), ratio, ms(m), f"{k / m:.1f}x",
+        out.append([str(n), ms(k), *(ms(x[0]) if x else "-" for x in f), ratio, ms(m), f"{k / m:.2f}x",
                     ms(r["kincal"][1]), ms(r["minimal"][1]), ms(r["kincal_cold"]),
                     ms(r["kincal_read"]) if "kincal_read" in r else "-"])
     return markdown(head, out)

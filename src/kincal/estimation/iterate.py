@@ -23,7 +23,6 @@ from kincal.estimation import steps
 from kincal.estimation.gauge import gauge_basis, priority, rigid_gauges
 from kincal.estimation.options import SolverOptions
 from kincal.estimation.problem import Problem
-from kincal.estimation.stats import ResidualStats
 from kincal.params import State, conform, recentre, retract
 
 log = logging.getLogger(__name__)
@@ -35,8 +34,8 @@ class Iteration:
     iterations (linearizations, the one that confirmed convergence included); ``evaluations``: residual
     evaluations spent on steps; ``linearization``: at ``state`` when the loop stopped without moving (else None);
     ``whiteners``: the ones held at the end; ``first``: the identifiability report at the start (named when
-    first read), with ``before`` the residual statistics there; ``analysis``: the identifiability at
-    ``linearization`` (not named)."""
+    first read), with ``start_whiteners`` the whiteners there (the residual statistics at the start, ``before``,
+    are computed from them when read); ``analysis``: the identifiability at ``linearization`` (not named)."""
 
     state: State
     status: str
@@ -45,7 +44,7 @@ class Iteration:
     linearization: Linearization | None
     whiteners: tuple | None
     first: DeferredReport | None
-    before: tuple[ResidualStats, ...]
+    start_whiteners: tuple | None
     order: tuple[int, ...]  # the free coordinates' pivot order (``gauge.priority``)
     analysis: Identifiability | None = None  # at ``linearization`` (``identify(report=False)``), when it is kept
     held: np.ndarray | None = None  # the rigid model's gauges the solve holds (``gauge.rigid_gauges``, at the start)
@@ -61,7 +60,7 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
     order = priority(problem, options.gauge)
     every = scale_test_needed(problem)
     state, W, lin, ana, hold, structure = problem.start, None, None, None, None, None
-    first, before, lengths = None, (), []  # lengths: of the steps taken, whitened
+    first, start_whiteners, lengths = None, None, []  # lengths: of the steps taken, whitened
     evaluations, status, it, fast = 0, "not converged", 0, True  # Gauss-Newton first while it converges fast
     for it in range(1, options.max_outer + 1):
         # Whiten at the start and once more at the first estimate, then hold: when the model cannot explain
@@ -84,7 +83,7 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
                 every = False  # the data measure lengths: later linearizations skip the scale test's columns
             if first is None:  # named only if a report asks for it (``Result.identifiability_before``)
                 first = DeferredReport.of(ana, lin, problem.layout, problem.experiments, order)
-                before = tuple(problem.statistics(state, W))
+                start_whiteners = W
                 if first.degenerate:
                     status = "degenerate"
                     break
@@ -101,7 +100,7 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
         if done:
             status = "converged"
             break
-    return Iteration(state, status, it, evaluations, lin, W, first, before, tuple(order),
+    return Iteration(state, status, it, evaluations, lin, W, first, start_whiteners, tuple(order),
                      None if lin is None else ana, hold)
 
 

@@ -178,7 +178,7 @@ class _Lazy:
 
 
 # The fields ``finalize`` may leave ``Deferred``: computed for a pickle or a copy.
-_DEFERRED = ("after", "correlated", "twists")
+_DEFERRED = ("before", "after", "correlated", "twists")
 
 
 @dataclass(frozen=True, eq=False)
@@ -196,7 +196,7 @@ class Result:
     correlated: tuple[tuple[str, str, float], ...] = _Lazy()  # computed on first read (``Deferred``)
     identifiability: Identifiability = _Named("report")  # after solving (named on first read: ``FinalReport``)
     start_identifiability: DeferredReport | None  # at the start; read as ``identifiability_before``
-    before: tuple[ResidualStats, ...]  # per experiment at the start (the nominal values)
+    before: tuple[ResidualStats, ...] = _Lazy()  # per experiment at the start (computed on first read: ``Deferred``)
     after: tuple[ResidualStats, ...] = _Lazy()  # at ``state`` (computed on first read: ``Deferred``)
     sigma2: float  # residual variance factor (chi^2 / (m - rank)) that scales the covariance
     status: str  # converged | misfit | not converged | degenerate (docs/calibration.md "Statuses and exit codes")
