@@ -102,5 +102,16 @@ def complete_q(a: np.ndarray, overwrite: bool = False) -> np.ndarray:
         return _kernels.qr_complete(a, tau, signature="dd->d")
 
 
+def null_and_range(A: np.ndarray, scratch: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Orthonormal bases of span(A) (p, k independent columns) and of its complement (p, p - k), from one complete
+    QR (Householder: as accurate as an SVD for independent columns, half its cost at p = 45, k = 18). ``scratch``:
+    A is the caller's to overwrite."""
+    p, k = A.shape
+    if k == 0:
+        return A, np.eye(p)
+    Q = complete_q(A, overwrite=scratch)
+    return Q[:, :k], Q[:, k:]
+
+
 def _qr_error(err, flag):
     raise np.linalg.LinAlgError("Incorrect argument found while performing QR factorization")

@@ -15,7 +15,7 @@ import numpy as np
 
 from kincal.analysis import Identifiability, Linearization
 from kincal.analysis.factor import Factor
-from kincal.analysis.linalg import complete_q, lstsq, norm
+from kincal.analysis.linalg import lstsq, norm, null_and_range
 from kincal.errors import DegenerateExperimentError
 from kincal.estimation import blocks, levenberg
 from kincal.estimation.problem import Problem, triangular_factor
@@ -151,10 +151,16 @@ def gauss_newton(lin: Linearization, V: np.ndarray, factor: Factor | None = None
     with ``J = Q R``, ``z = argmin |R V z + Q^T r|`` and ``|r + J V z|^2 = |r|^2 - |Q^T r|^2 + |R V z + Q^T r|^2``.
     ``factor``: the rank analysis' own SVD of ``lin.Rf`` when V is its identifiable subspace (``analysis.factor``):
     the step from it, without another least-squares solve."""
-    RV, qtr = lin.Rf @ V, lin.qtr
-    z = V.T @ factor.step(-qtr) if factor is not None else lstsq(RV, -qtr)
-    e = qtr + RV @ z
-    return z, max(lin.cost2 - float(qtr @ qtr) + float(e @ e), 0.0)
+    RV = lin.Rf @ V
+    z = V.T @ factor.step(-lin.qtr) if factor is not None else lstsq(RV, -lin.qtr)
+    return z, _predicted(lin, RV @ z)
+
+
+def _predicted(lin: Linearization, image: np.ndarray) -> float:
+    """|r|^2 after a step whose image under ``lin.Rf`` is ``image``, by ``lin``'s linear model (``gauss_newton``)."""
+    qtr = lin.qtr
+    e = qtr + image
+    return max(lin.cost2 - float(qtr @ qtr) + float(e @ e), 0.0)
 
 
 # A step is carried from an earlier linearization's rank analysis (``carried_step``) while the factor on the
@@ -186,9 +192,7 @@ def carried_step(lin: Linearization, ana: Identifiability, rtol: float):
     VP = V0 @ factor.inverse_gram_root(V0)
     r = VP.shape[1]
     C = lin.Rf @ VP
-    R = triangular_factor([C, lin.qtr])
-    if len(R) < r:
-        return None
+    R = triangular_factor([C, lin.qtr])  # (r + 1) rows, or r where r = p: every row of R[:r, :r]
     inverse, info = dtrtri(R[:r, :r])  # the smallest singular value of C is at least 1 / |R^-1|_F
     if info != 0 or not norm(inverse) <= 1.0 / CARRY_MIN:
         return None
@@ -198,11 +202,9 @@ def carried_step(lin: Linearization, ana: Identifiability, rtol: float):
     w, info = dtrtrs(R[:r, :r], R[:r, r])
     if info != 0:
         return None
-    null = N0 - VP @ (inverse @ (Q.T @ (lin.Rf @ N0)))
-    V = complete_q(null, overwrite=True)[:, null.shape[1]:] if null.shape[1] else np.eye(lin.p)
+    V = null_and_range(N0 - VP @ (inverse @ (Q.T @ (lin.Rf @ N0))), scratch=True)[1]
     z = V.T @ (VP @ -w)
-    e = lin.qtr + lin.Rf @ (V @ z)
-    return V, z, max(lin.cost2 - float(lin.qtr @ lin.qtr) + float(e @ e), 0.0)
+    return V, z, _predicted(lin, lin.Rf @ (V @ z))
 
 
 def negligible(lin: Linearization, V: np.ndarray, z: np.ndarray, r1sq: float) -> bool:
