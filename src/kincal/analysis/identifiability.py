@@ -343,12 +343,13 @@ def analyse(
     if callable(scale):
         scale, u = _scale_at_rank(scale, J, sv)
     has_scale = scale is not None and norm(scale) > 0
-    Ns, rank, lifted, held_scale, own = _hold(sv, ([scale] if has_scale else []) + list(held), has_scale, gauges)
+    Ns, rank, lifted, held_scale, spectral = _hold(sv, ([scale] if has_scale else []) + list(held), has_scale,
+                                                   gauges)
     identifiable = norms(Ns, 1) < IDENTIFIABLE_TOL
     N, R = _null_and_range(Ns / sv.c[:, None], scratch=True)
     if has_scale and u is not None and sv.rank < p:
         # N's first columns span Ns's first (the spectrum's null space, where the gauges did not replace it)
-        N0 = N[:, :p - sv.rank] if own else complete_q(sv.Vt[sv.rank:].T / sv.c[:, None])[:, :p - sv.rank]
+        N0 = N[:, :p - sv.rank] if spectral else complete_q(sv.Vt[sv.rank:].T / sv.c[:, None])[:, :p - sv.rank]
         scale = _minimum_norm(scale, u, N0)
     weak_idx = _weak_indices(sv, rank, rtol, weak_rtol, lifted)
     weak = tuple(_top_names(sv.Vt[i], names) for i in weak_idx)
@@ -400,13 +401,12 @@ def _scale_at_rank(scale: Callable, J: np.ndarray, sv: _Spectrum):
     elsewhere (and for any other matrix) numpy's ``lstsq``, as before."""
     if sv.U is None:
         return scale(lstsq), None
-    cut = []
+    cut, spectrum = [], Factor(sv.U, sv.S, sv.Vt, sv.c, sv.rank)  # its step: the solve cut at the rank
 
     def solve(A, b):
         if A is not J:
             return lstsq(A, b)
-        r = sv.rank
-        cut.append((sv.Vt[:r].T @ ((sv.U[:, :r].T @ b) / sv.S[:r])) / sv.c)
+        cut.append(spectrum.step(b))
         return cut[-1]
 
     d = scale(solve)
@@ -437,7 +437,7 @@ def _hold(sv: _Spectrum, symmetries: list, has_scale: bool, gauges: np.ndarray |
         if lifted:
             Ns = np.column_stack([G, _outside(Ns, G)])
             rank = len(sv.c) - Ns.shape[1]
-    own = not lifted
+    spectral = not lifted
     for k, h in enumerate(symmetries):
         hc = sv.c * h
         hc /= norm(hc)
@@ -447,7 +447,7 @@ def _hold(sv: _Spectrum, symmetries: list, has_scale: bool, gauges: np.ndarray |
             rank -= 1
             lifted.append(hc)
             held_scale = held_scale or (has_scale and k == 0)
-    return Ns, rank, lifted, held_scale, own
+    return Ns, rank, lifted, held_scale, spectral
 
 
 def _outside(A: np.ndarray, B: np.ndarray) -> np.ndarray:
