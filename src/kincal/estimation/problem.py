@@ -206,8 +206,7 @@ class Problem:
         """(experiment index, row range, sub-problem) of every block of configurations (``estimation.blocks``);
         the sub-problems hold no prior or constraint rows (``tail``)."""
         if self.cache.parts is None:
-            rows = sum(e.size * len(e.components()) for e in self.experiments)
-            per = chunk_rows(len(self.free_idx)) if by_blocks(rows, len(self.free_idx)) else rows
+            per = chunk_rows(len(self.free_idx)) if self._by_blocks else self._rows
             self.cache.parts = [(i, rows, blocks.part_problem(self, i, rows, ResidualCache(keeps=False)))
                                 for i, rows in blocks.split(self.experiments, lambda e: max(per // len(e.components()), 1))]
         return self.cache.parts
@@ -222,8 +221,17 @@ class Problem:
     def blocked(self) -> bool:
         """Whether the problem is evaluated by blocks (``memory.by_blocks``; decided once, with ``parts``). Not
         by blocks, ``parts`` are the experiments whole: no need to make them to know."""
-        rows = sum(e.size * len(e.components()) for e in self.experiments)
-        return by_blocks(rows, len(self.free_idx)) and len(self.parts()) > len(self.experiments)
+        return self._by_blocks and len(self.parts()) > len(self.experiments)
+
+    @cached_property
+    def _rows(self) -> int:
+        """The experiments' residual rows."""
+        return sum(e.size * len(e.components()) for e in self.experiments)
+
+    @cached_property
+    def _by_blocks(self) -> bool:
+        """Whether the experiments' rows call for blocks (``memory.by_blocks``)."""
+        return by_blocks(self._rows, len(self.free_idx))
 
     @cached_property
     def _small(self) -> bool:
