@@ -22,7 +22,7 @@ from kincal.experiments._kernel import ARM_PARTS, arm_jacobians, coupled, tree_j
 from kincal.kinematics import Kinematics, loaded_chain, sample_chain
 from kincal.kinematics.fk import paired_shifted_turns
 from kincal.kinematics.branches import loading_branches
-from kincal.kinematics.model import lineage
+from kincal.kinematics.model import lineage, same_array_bits
 from kincal.noise import Quantity
 from kincal.params import State
 from kincal.schema import NONE, Field, Schema, register
@@ -114,7 +114,7 @@ def same_bits(x, y) -> bool:
     if x is y:
         return True
     if isinstance(x, np.ndarray) and isinstance(y, np.ndarray):
-        return x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
+        return same_array_bits(x, y)
     if isinstance(x, tuple) and isinstance(y, tuple):
         return len(x) == len(y) and all(same_bits(u, v) for u, v in zip(x, y))
     return isinstance(x, (str, int, float)) and type(x) is type(y) and x == y

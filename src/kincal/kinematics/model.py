@@ -193,7 +193,7 @@ class ArmModel:
         for key in ("home", "base", "tool"):
             if key in changes:  # a transform bit for bit this model's passed its checks: its frozen copy is kept
                 own = getattr(self, key)
-                fields[key] = own if _same_bits(changes[key], own) else _checked_transform(new, key, where)
+                fields[key] = own if same_array_bits(changes[key], own) else _checked_transform(new, key, where)
         for key, default in (("offsets", 0.0), ("compliance", 0.0)):
             if key in changes:
                 fields[key] = _joint_vector(new, key, default, new.dof, where)
@@ -237,8 +237,8 @@ class ArmModel:
 _GEOMETRY = frozenset({"screws", "offsets", "base", "home", "tool", "compliance"})
 
 
-def _same_bits(x, frozen: np.ndarray) -> bool:
-    """Whether ``x`` is a float array equal to ``frozen`` bit for bit (shape and bytes: -0.0 is not 0.0)."""
+def same_array_bits(x, frozen: np.ndarray) -> bool:
+    """Whether ``x`` is an array equal to ``frozen`` bit for bit (dtype, shape and bytes: -0.0 is not 0.0)."""
     return isinstance(x, np.ndarray) and x.dtype == frozen.dtype and x.shape == frozen.shape and \
         x.tobytes() == frozen.tobytes()
 

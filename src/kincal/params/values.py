@@ -20,6 +20,7 @@ from kincal.kinematics import ArmModel, Robot, conform_twists, tangent_frames
 from kincal.kinematics.couplings import coupling_map
 from kincal.kinematics.elastic import compliance_basis, compliance_coefficients, node_angles
 from kincal.kinematics.gravity import GravityLoad, gravity_load
+from kincal.kinematics.model import same_array_bits
 from kincal.lie import se3, so3
 
 
@@ -199,7 +200,7 @@ def _compliance_fields(a: ArmValues, model: ArmModel | None = None) -> dict:
     if a.lateral is not None:
         negative.update(lateral=a.lateral, lateral_axes=a.lateral_axes)
     if not a.compliance_nodes:
-        if not negative and model is not None and _same_bits(k, model.compliance):
+        if not negative and model is not None and same_array_bits(k, model.compliance):
             return {}
         return {"compliance": k, **negative}
     c, nodes = np.zeros(a.dof), {}
@@ -209,11 +210,6 @@ def _compliance_fields(a: ArmValues, model: ArmModel | None = None) -> dict:
         else:
             nodes.setdefault(a.joint_names[j], []).append((at, value))
     return {"compliance": c, "compliance_nodes": nodes, **negative}
-
-
-def _same_bits(x: np.ndarray, y: np.ndarray) -> bool:
-    """Whether float arrays ``x`` and ``y`` hold the same bits (dtype, shape, bytes: -0.0 is not 0.0)."""
-    return x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
 
 
 @dataclass(frozen=True)
