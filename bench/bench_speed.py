@@ -12,8 +12,9 @@ away and one unknown marker on the tool, marker positions with 0.05 mm noise per
   virtualenv (``--figaroh-python``, default /tmp/venv-figaroh/bin/python, run with this checkout's kincal on
   PYTHONPATH and the same data); skipped with a note when that interpreter or figaroh is missing.
 
-Times are process CPU times, medians of ``--repeat`` calls after one warm-up call (FIGAROH: ``--figaroh-repeat``,
-default 1: its time is Python loops and steady), BLAS pinned to one thread (threadpoolctl). Validation: 1000
+Times are process CPU times, medians of ``--repeat`` calls after one warm-up call, kincal's and the minimal
+solver's calls alternating (``paired_medians``: the noise of a shared machine falls on both), FIGAROH's
+``--figaroh-repeat`` (default 1: its time is Python loops and steady), BLAS pinned to one thread (threadpoolctl). Validation: 1000
 fresh configurations, marker position in the tracker frame against the noise-free truth.
 
 The phase table times kincal at N = 50 (and the sizes in ``--phases``) with a timer around each function
@@ -164,14 +165,29 @@ def cpu_median(fn, repeat: int, before=None):
     return float(np.median(cpu)), float(np.median(wall)), out
 
 
+def paired_medians(f, g, repeat: int):
+    """``cpu_median`` of f and of g with their calls alternating (f, g, f, g, ...): a neighbour's load or a clock
+    change falls on both alike, so the ratio of the two medians is steadier than from two runs one after the
+    other."""
+    outs, cpu, wall = [f(), g()], ([], []), ([], [])
+    for _ in range(repeat):
+        for k, fn in enumerate((f, g)):
+            t0, c0 = time.perf_counter(), time.process_time()
+            outs[k] = fn()
+            cpu[k].append(time.process_time() - c0)
+            wall[k].append(time.perf_counter() - t0)
+    return tuple((float(np.median(cpu[k])), float(np.median(wall[k])), outs[k]) for k in (0, 1))
+
+
 def measure(nominal, sets, q_val, y_val, repeat: int) -> dict:
-    """Per N: CPU and wall medians, iterations and validation RMS of kincal and the minimal solver."""
+    """Per N: CPU and wall medians, iterations and validation RMS of kincal and the minimal solver (their calls
+    alternating: ``paired_medians``)."""
     rows = {}
     for n, ds in sets.items():
-        kc, kw, res = cpu_median(lambda: kincal_fit(nominal, ds), repeat)
+        (kc, kw, res), (mc, mw, fit) = paired_medians(lambda: kincal_fit(nominal, ds), lambda: minimal_fit(ds),
+                                                      repeat)
         cold = cpu_median(lambda: kincal_fit(nominal, ds), repeat, before=forget_structures)[0]
         read = cpu_median(lambda: kincal_fit(nominal, ds).messages, repeat)[0]  # the final report named too
-        mc, mw, fit = cpu_median(lambda: minimal_fit(ds), repeat)
         rows[n] = {"kincal": (kc, kw), "kincal_cold": cold, "kincal_read": read, "minimal": (mc, mw),
                    "kincal_rms": rms_mm(kincal_val(res, q_val), y_val),
                    "minimal_rms": rms_mm(reference_solver.predict(fit.model, q_val), y_val),

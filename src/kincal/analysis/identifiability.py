@@ -47,6 +47,8 @@ from kincal.analysis.naming import context, degenerate, describer
 from kincal.analysis.symmetries import Structure, consistent_nulls, rotation_nulls, scale_null
 from kincal.params import Layout
 
+# No identifiable direction whose relative singular value is at least this is weak (with ``weak_rtol`` below it).
+WEAK_CEILING = 1e-3
 IDENTIFIABLE_TOL = 1e-6  # a parameter is identifiable when its row of the (scaled) null basis is below this
 
 
@@ -343,8 +345,8 @@ def analyse(
     if callable(scale):
         scale, u = _scale_at_rank(scale, J, sv)
     has_scale = scale is not None and norm(scale) > 0
-    Ns, rank, lifted, held_scale, spectral = _hold(sv, ([scale] if has_scale else []) + list(held), has_scale,
-                                                   gauges)
+    Ns, rank, lifted, held_scale, spectral = hold_exact(sv.Vt[sv.rank:].T, sv.c, ([scale] if has_scale else [])
+                                                        + list(held), has_scale, gauges)
     identifiable = norms(Ns, 1) < IDENTIFIABLE_TOL
     N, R = _null_and_range(Ns / sv.c[:, None], scratch=True)
     if has_scale and u is not None and sv.rank < p:
@@ -420,26 +422,27 @@ def _minimum_norm(d: np.ndarray, u: np.ndarray, N0: np.ndarray) -> np.ndarray:
     return d - N0 @ (N0.T @ u)
 
 
-def _hold(sv: _Spectrum, symmetries: list, has_scale: bool, gauges: np.ndarray | None = None):
-    """The scaled null basis with the exact gauges of the noise-free problem added (``gauges``, a basis), then
-    the exact symmetries of the cost where residuals left lift them out of it (scale without a measured length:
-    shrinking every length shrinks them; the rotations of ``held``): (null basis, rank, lifted directions,
-    whether the scale was lifted, whether its first columns are the spectrum's own null space)."""
-    Ns, rank = sv.Vt[sv.rank:].T, sv.rank
+def hold_exact(Ns: np.ndarray, c: np.ndarray, symmetries: list, has_scale: bool, gauges: np.ndarray | None = None):
+    """The scaled null basis ``Ns`` (p, k orthonormal, of the Jacobian with columns scaled by ``c``) with the exact
+    gauges of the noise-free problem added (``gauges``, a basis), then the exact symmetries of the cost where
+    residuals left lift them out of it (scale without a measured length: shrinking every length shrinks them; the
+    rotations of ``held``): (null basis, rank, lifted directions, whether the scale was lifted, whether its first
+    columns are ``Ns`` itself)."""
+    rank = len(c) - Ns.shape[1]
     lifted, held_scale = [], False
     if gauges is not None and gauges.shape[1]:
         # the null space is the gauges' (noise lifts exact gauges out of Ns, and a direction of Ns at the rank
         # threshold may only tilt towards them); both bases come from round-off-level singular values, so a
         # dimension one lacks has singular value ~1 outside it, a tilt far less. Where none was lifted, Ns is
         # kept as it is: the structure cache (``consistent_nulls``) then gives the same basis without G.
-        G = _orth(sv.c[:, None] * gauges)
+        G = _orth(c[:, None] * gauges)
         lifted += list(_outside(G, Ns).T)
         if lifted:
             Ns = np.column_stack([G, _outside(Ns, G)])
-            rank = len(sv.c) - Ns.shape[1]
+            rank = len(c) - Ns.shape[1]
     spectral = not lifted
     for k, h in enumerate(symmetries):
-        hc = sv.c * h
+        hc = c * h
         hc /= norm(hc)
         outside = hc - Ns @ (Ns.T @ hc)
         if norm(outside) > 1e-6:
@@ -588,11 +591,11 @@ WEAK_GAP = 100.0
 
 def _weak_limit(s: np.ndarray, weak_rtol: float) -> float:
     """Relative singular value below which identifiable directions count as weak (see the module docstring)."""
-    if len(s) < 2 or s[0] <= 0 or s[-1] / s[0] >= 1e-3:  # rel descends: no gap below 1e-3 then
+    if len(s) < 2 or s[0] <= 0 or s[-1] / s[0] >= WEAK_CEILING:  # rel descends: no gap below the ceiling then
         return weak_rtol
     rel = (s / s[0]).tolist()  # Python floats: the same divisions and comparisons, without numpy's calls
     for a, b in zip(rel, rel[1:]):
-        if b < 1e-3 and a / max(b, 1e-300) > WEAK_GAP:
+        if b < WEAK_CEILING and a / max(b, 1e-300) > WEAK_GAP:
             return max(weak_rtol, b * (1 + 1e-12))
     return weak_rtol
 

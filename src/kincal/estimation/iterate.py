@@ -3,17 +3,19 @@ identifiable subspace (the gauge), take a Gauss-Newton step or solve the inner p
 geodesic Levenberg-Marquardt, or ``scipy.optimize.least_squares`` with a robust loss), re-centre (conform
 twists, re-linearize tangent bases). A plain Gauss-Newton step between the first and the last linearization is
 taken with the null space carried from the last rank analysis where that linearization provably has the same rank
-(``_carried``, ``steps.carried_step``: the same step to round-off), without an analysis of its own."""
+(``_carried``, ``steps.carried_step``: the same step to round-off), without an analysis of its own; where that
+step is negligible, the result's analysis is carried too (``analysis.carried``) where it provably is the
+linearization's own, else the linearization is analysed."""
 
 from __future__ import annotations
 
 import logging
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from kincal.analysis import Identifiability, Linearization, identify
+from kincal.analysis.carried import CarriedAnalysis, carried_analysis
 from kincal.analysis.identifiability import DeferredReport
 from kincal.analysis.covariance import right_svd
 from kincal.analysis.linalg import norm
@@ -35,7 +37,8 @@ class Iteration:
     evaluations spent on steps; ``linearization``: at ``state`` when the loop stopped without moving (else None);
     ``whiteners``: the ones held at the end; ``first``: the identifiability report at the start (named when
     first read), with ``start_whiteners`` the whiteners there (the residual statistics at the start, ``before``,
-    are computed from them when read); ``analysis``: the identifiability at ``linearization`` (not named)."""
+    are computed from them when read); ``analysis``: the identifiability at ``linearization`` (not named; a
+    ``CarriedAnalysis`` where it was carried)."""
 
     state: State
     status: str
@@ -46,7 +49,7 @@ class Iteration:
     first: DeferredReport | None
     start_whiteners: tuple | None
     order: tuple[int, ...]  # the free coordinates' pivot order (``gauge.priority``)
-    analysis: Identifiability | None = None  # at ``linearization`` (``identify(report=False)``), when it is kept
+    analysis: Identifiability | CarriedAnalysis | None = None  # at ``linearization`` (``identify(report=False)``), when it is kept
     held: np.ndarray | None = None  # the rigid model's gauges the solve holds (``gauge.rigid_gauges``, at the start)
 
 
@@ -60,7 +63,7 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
     order = priority(problem, options.gauge)
     every = scale_test_needed(problem)
     state, W, lin, ana, hold, structure = problem.start, None, None, None, None, None
-    first, start_whiteners, lengths = None, None, []  # lengths: of the steps taken, whitened
+    first, start_whiteners = None, None
     evaluations, status, it, fast = 0, "not converged", 0, True  # Gauss-Newton first while it converges fast
     for it in range(1, options.max_outer + 1):
         # Whiten at the start and once more at the first estimate, then hold: when the model cannot explain
@@ -70,9 +73,17 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
             W = None
         lin = steps.linearize(problem, state, W, every)
         W = lin.W
-        carried = None if it == 1 or _likely_last(lin, lengths) else _carried(lin, ana, options, fast, hold)
-        if carried is not None and not steps.negligible(lin, *carried):
-            V, z, r1sq = carried  # a step between two rank analyses (``_carried``)
+        carrying = None if it == 1 else _carried(lin, ana, options, fast, hold)
+        carried = None
+        if carrying is not None and carrying.negligible(lin):  # converged: carry the result's analysis too
+            final = _final(problem, options, lin, ana, carrying, structure)
+            if final is not None:
+                ana, status = final, "converged"
+                break
+        elif carrying is not None:  # a step between two rank analyses (``_carried``)
+            carried = steps.carried_step(lin, ana, options.rank_rtol)
+        if carried is not None:
+            V, z, r1sq = carried
         else:
             hold = rigid_gauges(problem, lin) if it == 1 else hold
             # the problem's structure, read once: the same at every linearization of this solve (``Structure``)
@@ -93,9 +104,8 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
             if it > 1 and steps.negligible(lin, V, z, r1sq):
                 status = "converged"  # the re-linearized problem asks for no step
                 break
-        state, done, fast, spent, length = _step(problem, options, lin, V, z, r1sq, fast, it)
+        state, done, fast, spent = _step(problem, options, lin, V, z, r1sq, fast, it)
         evaluations += spent
-        lengths.append(length)
         lin = None  # the state moved
         if done:
             status = "converged"
@@ -104,34 +114,32 @@ def iterate(problem: Problem, options: SolverOptions) -> Iteration:
                      None if lin is None else ana, hold)
 
 
-def _likely_last(lin: Linearization, lengths: list) -> bool:
-    """Whether Gauss-Newton's quadratic convergence, fitted to the last two steps (``s2 = K s1^2``), predicts a
-    negligible step at ``lin``: a carried step would then be computed only to be decided again on a rank analysis
-    (``_carried``). A guess that costs time when wrong, never a result."""
-    if len(lengths) < 2 or not lengths[-2] > 0:
-        return False
-    limit = steps.step_limit(math.sqrt(lin.cost2), 0.5 * lin.cost2, len(lin.r) - lin.p)
-    return lengths[-1] ** 3 < limit * lengths[-2] ** 2
-
-
 def _carried(lin: Linearization, ana: Identifiability, options: SolverOptions, fast: bool, hold):
-    """``(V, z, r1sq)``: the Gauss-Newton step at ``lin`` with the null space carried from the last rank analysis
-    ``ana`` (``steps.carried_step``: the same step to round-off), or None where the step needs a rank analysis of
-    its own: the first and the last linearization have theirs (the start's report; the result's rank, covariance
-    and report), so does any step that is not a plain Gauss-Newton step in the min-change gauge of an analysis from
-    its own SVD with nothing weak, held or pinned, or a linearization whose rank may differ. The loop only calls it
-    after a step, so the analysis is that of an earlier state; a step it finds negligible is decided again on a
-    rank analysis of ``lin`` (the loop's own test), so that the last linearization is always analysed."""
+    """``ana`` carried to ``lin`` (``steps.carrying``; its step, ``steps.carried_step``, is the Gauss-Newton step
+    from a rank analysis of ``lin`` to round-off), or None where the step needs a rank analysis of its own: the
+    first linearization has its own (the start's report), so does any step that is not a plain Gauss-Newton step
+    in the min-change gauge of an analysis from its own SVD with nothing weak, held or pinned, or a linearization
+    whose rank may differ. The loop only calls it after a step, so the analysis is
+    that of an earlier state. A step it finds negligible ends the loop; the result's analysis is then carried
+    (``analysis.carried``) or, where that is not provably ``lin``'s own, made afresh."""
     if not (fast and options.loss == "linear" and isinstance(options.gauge, str) and hold is None
             and ana.factor is not None and not ana.weak):
         return None
-    return steps.carried_step(lin, ana, options.rank_rtol)
+    return steps.carrying(lin, ana, options.rank_rtol)
+
+
+def _final(problem: Problem, options: SolverOptions, lin: Linearization, ana: Identifiability,
+           carrying: steps.Carrying, structure: Structure | None) -> CarriedAnalysis | None:
+    """The analysis of the last linearization ``lin`` carried from ``ana`` (``analysis.carried``), or None."""
+    null, V = carrying.subspaces(lin)
+    return carried_analysis(lin, problem.layout, problem.experiments, options.rank_rtol, ana.names, null, V,
+                            carrying.VP, carrying.inverse, structure)
 
 
 def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.ndarray, z: np.ndarray,
-          r1sq: float, fast: bool, it: int) -> tuple[State, bool, bool, int, float]:
+          r1sq: float, fast: bool, it: int) -> tuple[State, bool, bool, int]:
     """One step from ``lin`` in the subspace V: (new state, whether it was negligible, whether Gauss-Newton is
-    still fast, residual evaluations spent, the step's whitened length).
+    still fast, residual evaluations spent).
 
     The Gauss-Newton step ``z`` first (it costs one residual evaluation); ``steps.inner_solve`` (geodesic
     Levenberg-Marquardt, or TRF with a robust loss) solves the inner problem when the full step does not reduce
@@ -168,7 +176,7 @@ def _step(problem: Problem, options: SolverOptions, lin: Linearization, V: np.nd
               "Gauss-Newton" if accepted else "inner solve", 2 * cost, step, biggest)
     # stop when the step is negligible against the residual (or, with noise, well below one sigma)
     done = finished and (steps.converged(step, np.sqrt(lin.cost2), cost, len(lin.r) - V.shape[1]) or biggest < 1e-13)
-    return state, done, fast, evaluations, step
+    return state, done, fast, evaluations
 
 
 # Singular values below this fraction of the largest are exact zeros (structure, not weak data).

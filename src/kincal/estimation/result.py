@@ -9,6 +9,7 @@ from typing import Mapping
 import numpy as np
 
 from kincal.analysis import Identifiability, Linearization, covariance, identify
+from kincal.analysis.carried import CarriedAnalysis
 from kincal.analysis.derived import Derived, derived
 from kincal.analysis.gauge import GaugeView, min_change, representative, weights
 from kincal.analysis.identifiability import DeferredReport, named
@@ -101,9 +102,10 @@ class FinalReport:
     """The final identifiability report and the messages that carry its words, named when first read: a solve's
     steps and estimates need only the analysis (``analysis``: ``identify(report=False)`` of ``lin``); the words
     (row reduction, forward kinematics for the joint axes, each direction described) are for reports. ``head``
-    and ``tail``: the solve's messages before and after the report's own."""
+    and ``tail``: the solve's messages before and after the report's own. A carried analysis
+    (``analysis.carried``: no spectrum, no words) is made afresh for the report, with the same rank."""
 
-    analysis: Identifiability
+    analysis: Identifiability | CarriedAnalysis
     lin: Linearization
     layout: Layout
     experiments: tuple
@@ -115,7 +117,11 @@ class FinalReport:
     @cached_property
     def report(self) -> Identifiability:
         """``named``'s report of ``analysis``, computed once."""
-        return named(self.analysis, self.lin, self.layout, self.experiments, list(self.order), self.structural)
+        ana = self.analysis
+        if isinstance(ana, CarriedAnalysis):  # the loop's own call (a carried analysis held nothing)
+            ana = identify(self.lin, self.layout, self.experiments, rtol=ana.rtol, priority=list(self.order),
+                           report=False)
+        return named(ana, self.lin, self.layout, self.experiments, list(self.order), self.structural)
 
     @property
     def messages(self) -> tuple[str, ...]:

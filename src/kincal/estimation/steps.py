@@ -10,6 +10,8 @@ identifiable subspace with the analytic Jacobian: Levenberg-Marquardt with geode
 from __future__ import annotations
 
 import math
+import weakref
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -171,12 +173,50 @@ def _predicted(lin: Linearization, image: np.ndarray) -> float:
 CARRY_MIN = 1e-3
 
 
-def carried_step(lin: Linearization, ana: Identifiability, rtol: float):
-    """``gauss_newton`` in the min-change gauge at ``lin`` from an earlier linearization's rank analysis ``ana`` at
-    ``rtol`` (one whose null space is its SVD's own, ``ana.factor``), without a rank analysis of ``lin``:
-    ``(V, z, r1sq)`` with V an orthonormal basis of the complement of ``lin``'s null space, as ``identify`` would
-    give it; None where ``lin``'s rank differs from ``ana``'s or its factor on ``ana``'s identifiable subspace is too
-    weak (``CARRY_MIN``).
+@dataclass(frozen=True, eq=False)
+class Carrying:
+    """An earlier linearization's rank analysis carried to a linearization ``lin`` (``carrying``): ``VP`` (p, r) the
+    analysis' identifiable basis preconditioned (``Factor.inverse_gram_root``), ``Q``, ``R`` the QR of
+    ``[Rf VP, qtr]`` (``R``'s first r columns: ``Rf VP``'s factor, its column r: ``Q^T qtr``), ``inverse`` =
+    ``R[:r, :r]^-1``, ``null0`` the analysis' null space. The step's image ``-Q Q^T qtr`` (its length, its predicted
+    cost: ``negligible``) needs no step; ``subspaces`` and ``step`` give the rest."""
+
+    VP: np.ndarray
+    Q: np.ndarray
+    R: np.ndarray
+    inverse: np.ndarray
+    null0: np.ndarray
+
+    def negligible(self, lin: Linearization) -> bool:
+        """``negligible(lin, *step)`` without the step: its image under ``Rf`` (``Rf V z``, the null part of the
+        least-squares solution in span(VP) removed, which ``Rf`` maps to round-off) is ``-Q Q^T qtr``."""
+        r = self.VP.shape[1]
+        image = self.Q @ -self.R[:r, r]
+        return converged(norm(image), math.sqrt(lin.cost2), 0.5 * _predicted(lin, image), len(lin.r) - r)
+
+    def subspaces(self, lin: Linearization) -> tuple[np.ndarray, np.ndarray]:
+        """(null space, its complement) of ``lin`` (natural units, orthonormal): ``N0 + VP X`` with ``Rf VP X =
+        -Rf N0``."""
+        N0 = self.null0
+        return null_and_range(N0 - self.VP @ (self.inverse @ (self.Q.T @ (lin.Rf @ N0))), scratch=True)
+
+    def step(self, lin: Linearization):
+        """``(V, z, r1sq)``: ``gauss_newton``'s step at ``lin`` in the min-change gauge, or None (a singular factor)."""
+        from scipy.linalg.lapack import dtrtrs  # here: importing scipy.linalg costs more than importing kincal
+
+        r = self.VP.shape[1]
+        w, info = dtrtrs(self.R[:r, :r], self.R[:r, r])
+        if info != 0:
+            return None
+        V = self.subspaces(lin)[1]
+        z = V.T @ (self.VP @ -w)
+        return V, z, _predicted(lin, lin.Rf @ (V @ z))
+
+
+def carrying(lin: Linearization, ana: Identifiability, rtol: float) -> Carrying | None:
+    """``ana`` (a rank analysis at ``rtol`` of an earlier linearization, one whose null space is its SVD's own,
+    ``ana.factor``) carried to ``lin``: None where ``lin``'s rank differs from ``ana``'s or its factor on ``ana``'s
+    identifiable subspace is too weak (``CARRY_MIN``). Remembered for ``lin`` (``carried_step`` asks again).
 
     With ``M^-1`` the factor's ``inverse_gram_root``, ``C = Rf V0 M^-1`` (V0 = ``ana.range_space``) has orthonormal
     columns at the analysed linearization; its QR ``C = Q R`` carries the rest. Where ``C`` keeps its rank and the
@@ -184,11 +224,27 @@ def carried_step(lin: Linearization, ana: Identifiability, rtol: float):
     bound on its next singular value: no direction has become identifiable, as a compliance lifts the gauges it
     couples at its first move from 0), ``lin`` has ``ana``'s rank and V0 is a complement of its null space. That
     null space is then ``N0 + V0 X`` with ``Rf V0 X = -Rf N0`` (N0 = ``ana.null_space``), one solve with ``C``'s
-    factor; the least-squares step in V0 projected on its orthogonal complement is ``gauss_newton``'s step from a
-    rank analysis of ``lin``, up to round-off."""
-    from scipy.linalg.lapack import dtrtri, dtrtrs  # here: importing scipy.linalg costs more than importing kincal
+    factor."""
+    try:
+        hit = _CARRYING.get(lin)
+    except TypeError:  # not weakly referable (a stand-in for a linearization): not remembered
+        return _carrying(lin, ana, rtol)
+    if hit is not None and hit[0]() is ana and hit[1] == rtol:
+        return hit[2]
+    out = _carrying(lin, ana, rtol)
+    _CARRYING[lin] = (weakref.ref(ana), rtol, out)
+    return out
 
-    V0, N0, factor = ana.range_space, ana.null_space, ana.factor
+
+# ``carrying``'s answer per linearization, forgotten with it (its value holds neither the linearization nor the
+# analysis, so neither is kept alive by it); the loop asks once to decide and ``carried_step`` again to step.
+_CARRYING: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def _carrying(lin: Linearization, ana: Identifiability, rtol: float) -> Carrying | None:
+    from scipy.linalg.lapack import dtrtri  # here: importing scipy.linalg costs more than importing kincal
+
+    V0, factor = ana.range_space, ana.factor
     VP = V0 @ factor.inverse_gram_root(V0)
     r = VP.shape[1]
     C = lin.Rf @ VP
@@ -199,12 +255,17 @@ def carried_step(lin: Linearization, ana: Identifiability, rtol: float):
     Q, Rs = C @ inverse, lin.Rf / factor.c
     if not norm(Rs - Q @ (Q.T @ Rs)) <= rtol * factor.S[0]:
         return None
-    w, info = dtrtrs(R[:r, :r], R[:r, r])
-    if info != 0:
-        return None
-    V = null_and_range(N0 - VP @ (inverse @ (Q.T @ (lin.Rf @ N0))), scratch=True)[1]
-    z = V.T @ (VP @ -w)
-    return V, z, _predicted(lin, lin.Rf @ (V @ z))
+    return Carrying(VP, Q, R, inverse, ana.null_space)
+
+
+def carried_step(lin: Linearization, ana: Identifiability, rtol: float):
+    """``gauss_newton`` in the min-change gauge at ``lin`` from an earlier linearization's rank analysis ``ana`` at
+    ``rtol`` (``carrying``), without a rank analysis of ``lin``: ``(V, z, r1sq)`` with V an orthonormal basis of
+    the complement of ``lin``'s null space, as ``identify`` would give it; None where ``ana`` cannot be carried to
+    ``lin``. The least-squares step in V0 projected on V is ``gauss_newton``'s step from a rank analysis of
+    ``lin``, up to round-off."""
+    carried = carrying(lin, ana, rtol)
+    return None if carried is None else carried.step(lin)
 
 
 def negligible(lin: Linearization, V: np.ndarray, z: np.ndarray, r1sq: float) -> bool:

@@ -37,6 +37,13 @@ class ParamKind:
     on_arm = False
     additive = False  # displacement ``value - nominal`` (``offset``), its derivative the identity
 
+    def __reduce__(self):
+        # the module's own instance when unpickled (a result sent back by a Dask worker): kinds are compared by
+        # identity (``b.kind is POSE``), which a copy would fail silently
+        if _BY_NAME.get(self.name) is self:
+            return kind_named, (self.name,)
+        return super().__reduce__()
+
     def coordinates(self, prefix: str, value) -> tuple[list[str], list[str]]:
         raise NotImplementedError
 
@@ -438,3 +445,9 @@ POINT = _Points(single=True)
 POINTS = _Points(single=False)
 PLANE = _Plane()
 FRAME_KINDS = {k.name: k for k in (POSE, POINT, POINTS, PLANE)}  # by the names experiment schemas use
+_BY_NAME = {k.name: k for k in (*ARM_KINDS, *FRAME_KINDS.values())}
+
+
+def kind_named(name: str) -> ParamKind:
+    """The module's kind of that name (what a pickled kind unpickles to)."""
+    return _BY_NAME[name]
