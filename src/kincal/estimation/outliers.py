@@ -15,8 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from kincal._memo import remember
 from kincal.errors import ModelError
 from kincal.experiments import KINDS
+from kincal.params.layout import on_clear
 
 # Tail probability below which a row is an outlier: one false alarm in a million clean rows.
 DEFAULT_THRESHOLD = 1e-6
@@ -65,10 +67,35 @@ def scaled_chi2(c: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """(scaled chi^2, tail probability) of rows with chi^2 ``c`` (N,) over ``k`` components each: the robust
     scale of the module doc (the median row over the chi^2 median at ``k`` dof, at least 1)."""
     # here, not at the top: scipy.special (through scipy's array-API layer) costs more than importing kincal
-    from scipy.special import chdtrc, chdtri
-    scale = max(median(c) / chdtri(k, 0.5), 1.0) if len(c) else 1.0  # chi^2 median at k dof
-    scaled = c / scale
+    from scipy.special import chdtrc
+    scaled = c / _scale(c, k)
     return scaled, chdtrc(k, scaled)  # upper tail probability
+
+
+def _scale(c: np.ndarray, k: int) -> float:
+    """The robust scale of rows with chi^2 ``c`` over ``k`` components (``scaled_chi2``)."""
+    return max(median(c) / chi2_quantile(k, 0.5), 1.0) if len(c) else 1.0  # chi^2 median at k dof
+
+
+def chi2_quantile(k: int, p: float) -> float:
+    """``chdtri(k, p)``: the chi^2 value at ``k`` dof with upper tail probability ``p``; remembered per (k, p) for
+    a Python int ``k`` and float ``p`` (a function of them alone: the components of a residual, a threshold)."""
+    from scipy.special import chdtri
+    if type(k) is not int or type(p) is not float:
+        return chdtri(k, p)
+    hit = _QUANTILES.get((k, p))
+    return hit if hit is not None else remember(_QUANTILES, (k, p), chdtri(k, p), QUANTILE_ENTRIES)
+
+
+# chi2_quantile's memory: (dof, tail probability) -> chdtri's value (a numpy float, as chdtri returns it)
+_QUANTILES: dict[tuple, np.floating] = {}
+QUANTILE_ENTRIES = 64
+
+
+@on_clear
+def clear_quantiles() -> None:
+    """Forget what ``chi2_quantile`` remembered (``kincal.params.clear_caches`` runs this)."""
+    _QUANTILES.clear()
 
 
 def median(c: np.ndarray) -> float:
@@ -121,8 +148,25 @@ def states_noise(ds, noise) -> bool:
 
 
 def any_beyond(problem, state, threshold: float) -> bool:
-    """Whether any row is beyond ``threshold`` at ``state`` (the screen before a robust pass)."""
-    return any(bool((p < row_threshold(threshold, len(p))).any()) for _, p in standardized(problem, state))
+    """Whether any row is beyond ``threshold`` at ``state`` (the screen before a robust pass): ``standardized``'s
+    tail probabilities below ``row_threshold``, read from the largest scaled chi^2 where it is clearly below the
+    threshold's quantile (the tail probability decreases with chi^2; the margin, 1e-6 relative, is far above
+    the round-off of ``chdtrc`` and ``chdtri``), else from every row's tail probability."""
+    from scipy.special import chdtrc
+    for exp, c in zip(problem.experiments, row_chi2(problem, state)):
+        if not len(c):
+            continue
+        k, t = len(exp.components()), row_threshold(threshold, len(c))
+        scaled = c / _scale(c, k)
+        if float(scaled.max()) < (1 - QUANTILE_MARGIN) * chi2_quantile(k, t):  # a nan row fails: read exactly
+            continue
+        if bool((chdtrc(k, scaled) < t).any()):
+            return True
+    return False
+
+
+# any_beyond's relative margin below the threshold's chi^2 quantile within which it reads tail probabilities
+QUANTILE_MARGIN = 1e-6
 
 
 def kept(datasets, outliers: list[Outlier]):
