@@ -183,3 +183,35 @@ def test_calibrated_robot_is_the_general_paths(k):
         assert arm == want
         for f in ("screws", "home", "base", "tool", "offsets", "compliance"):
             assert getattr(arm, f).tobytes() == getattr(want, f).tobytes()
+
+
+def _old_screw_ok(x, revolute):
+    """``_joint_screw_ok`` as it was (``not (... > tol or ...)``)."""
+    v0, v1, v2, w0, w1, w2 = x
+    nw = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    if revolute:
+        return not (abs(nw - 1) > M._UNIT_TOL or abs(w0 * v0 + w1 * v1 + w2 * v2) > M._UNIT_TOL)
+    return not (nw > M._UNIT_TOL or abs(np.sqrt(v0 * v0 + v1 * v1 + v2 * v2) - 1) > M._UNIT_TOL)
+
+
+def test_screw_test_is_the_old_one_on_finite_screws_and_fails_non_finite_ones():
+    rng = np.random.default_rng(4)
+    seen = set()
+    for k in range(4000):
+        revolute = bool(k % 2)
+        v, w = rng.normal(size=3), rng.normal(size=3)
+        if revolute:
+            w /= np.linalg.norm(w)
+            v -= (w @ v) * w
+        else:
+            v, w = v / np.linalg.norm(v), w * 0
+        x = np.concatenate([v, w]) + rng.normal(size=6) * 10.0 ** rng.uniform(-12, -8)
+        ok = M._joint_screw_ok(x.tolist(), revolute)
+        assert ok == _old_screw_ok(x, revolute)
+        seen.add(ok)
+        for bad in (np.nan, np.inf, -np.inf):
+            y = x.copy()
+            y[k % 6] = bad
+            assert not M._joint_screw_ok(y.tolist(), revolute)
+            assert not M._valid_screws(y[None], ("revolute" if revolute else "prismatic",))
+    assert seen == {True, False}

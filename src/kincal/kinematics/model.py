@@ -312,21 +312,19 @@ def _check_joint_screws(screws: np.ndarray, types, names, where: str) -> None:
 
 def _valid_screws(screws, types) -> bool:
     """Whether ``screws``, a float array (n, 6) (``replace`` checked the shape), is finite and passes
-    ``_check_joint_screws``: one pass on Python floats."""
-    if type(screws) is not np.ndarray or screws.dtype != np.float64:
-        return False
-    rows = screws.tolist()
-    return all(map(math.isfinite, sum(rows, []))) and \
-        all(_joint_screw_ok(x, t == REVOLUTE) for x, t in zip(rows, types))
+    ``_check_joint_screws``: one pass on Python floats (``_joint_screw_ok`` fails a screw with nan or inf)."""
+    return type(screws) is np.ndarray and screws.dtype == np.float64 and \
+        all(_joint_screw_ok(x, t == REVOLUTE) for x, t in zip(screws.tolist(), types))
 
 
 def _joint_screw_ok(x: list, revolute: bool) -> bool:
-    """``_check_joint_screws``' test of one screw (v, w) on Python floats (an arm's few joints: no numpy calls)."""
+    """``_check_joint_screws``' test of one screw (v, w) on Python floats (an arm's few joints: no numpy calls).
+    Written as "within": a screw with nan or inf fails it (``_valid_screws`` needs no finiteness test)."""
     v0, v1, v2, w0, w1, w2 = x
     nw = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
     if revolute:
-        return not (abs(nw - 1) > _UNIT_TOL or abs(w0 * v0 + w1 * v1 + w2 * v2) > _UNIT_TOL)
-    return not (nw > _UNIT_TOL or abs(math.sqrt(v0 * v0 + v1 * v1 + v2 * v2) - 1) > _UNIT_TOL)
+        return abs(nw - 1) <= _UNIT_TOL and abs(w0 * v0 + w1 * v1 + w2 * v2) <= _UNIT_TOL
+    return nw <= _UNIT_TOL and abs(math.sqrt(v0 * v0 + v1 * v1 + v2 * v2) - 1) <= _UNIT_TOL
 
 
 def _lateral_fields(arm: ArmModel, where: str) -> dict:
