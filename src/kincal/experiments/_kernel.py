@@ -270,6 +270,8 @@ def pose_mean(T: np.ndarray) -> np.ndarray:
 def fit_transform(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """Rigid T minimizing sum |T src - dst|^2 (Kabsch): points (..., K, 3), batches broadcast (one layout
     against many rows of measured points), -> (..., 4, 4)."""
+    if src.ndim == 2 and src.shape == dst.shape:
+        return _fit_one(src, dst)
     if src.shape != dst.shape:
         src, dst = np.broadcast_arrays(src, dst)
     K = src.shape[-2]
@@ -281,3 +283,23 @@ def fit_transform(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
         U[..., :, 2] *= sign[..., None]
         R = U @ Vt
     return se3.make(R, cd - np.einsum("...ij,...j->...i", R, cs))
+
+
+def _fit_one(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """``fit_transform`` of one set of points (K, 3): the same operations without the batch axes' handling."""
+    # both sets side by side (K, 6): one sum and one subtraction (a sum over rows adds row by row either way)
+    X = np.concatenate((dst, src), axis=1)
+    c = np.add.reduce(X, axis=0) / len(X)
+    X -= c
+    cd, cs = c[:3], c[3:]
+    U, _, Vt = np.linalg.svd(X[:, :3].T @ X[:, 3:])
+    R = U @ Vt
+    d = det3(R)
+    if not d > 0:  # a reflected best fit (or nan): ``np.sign`` as the batch path
+        U[:, 2] *= np.sign(np.float64(d))
+        R = U @ Vt
+    T = np.zeros((4, 4))
+    T[:3, :3] = R
+    T[:3, 3] = cd - np.einsum("ij,j->i", R, cs)
+    T[3, 3] = 1.0
+    return T

@@ -9,7 +9,7 @@ from typing import Mapping
 
 import numpy as np
 
-from kincal._validate import as_array, check_transform
+from kincal._validate import DET_MARGIN, as_array, check_transform
 from kincal.errors import ModelError
 from kincal.kinematics.couplings import checked_couplings
 from kincal.kinematics.lateral import lateral_axes
@@ -187,9 +187,11 @@ class ArmModel:
         fields = new.__dict__  # written directly: a frozen dataclass without slots, as object.__setattr__ would
         fields.update(self.__dict__, **changes)
         if "screws" in changes:
-            screws = as_array(fields["screws"], f"{where}: screws", (6,))
+            screws = fields["screws"]
+            if not _valid_screws(screws, new.joint_types):  # the checks below decide, and say what fails
+                screws = as_array(screws, f"{where}: screws", (6,))
+                _check_joint_screws(screws, new.joint_types, new.joint_names, where)
             fields["screws"] = _frozen(screws)
-            _check_joint_screws(screws, new.joint_types, new.joint_names, where)
         for key in ("home", "base", "tool"):
             if key in changes:  # a transform bit for bit this model's passed its checks: its frozen copy is kept
                 own = getattr(self, key)
@@ -244,7 +246,27 @@ def same_array_bits(x, frozen: np.ndarray) -> bool:
 
 
 def _checked_transform(arm: ArmModel, key: str, where: str) -> np.ndarray:
-    return _frozen(check_transform(getattr(arm, key), f"{where}: {key}", tol=1e-6))
+    T = getattr(arm, key)
+    if type(T) is np.ndarray and T.dtype == np.float64 and T.shape == (4, 4) and _rigid(T.tolist()):
+        return _frozen(T)
+    return _frozen(check_transform(T, f"{where}: {key}", tol=_RIGID_TOL))
+
+
+_RIGID_TOL = 1e-6  # an arm's transforms: last row and orthonormality (``check_transform``'s tol)
+
+
+def _rigid(rows: list) -> bool:
+    """Whether one transform (as Python lists) passes ``check_transform`` at ``_RIGID_TOL``, decided on Python
+    floats (no numpy calls): True only with a margin (``DET_MARGIN``) inside the tolerance and an exact last row
+    (0, 0, 0, 1); False leaves the decision, and its message, to ``check_transform``."""
+    (a, b, c, x), (d, e, f, y), (g, h, i, z), last = rows
+    if last != [0.0, 0.0, 0.0, 1.0] or not all(map(math.isfinite, (a, b, c, x, d, e, f, y, g, h, i, z))):
+        return False
+    tol = _RIGID_TOL - DET_MARGIN
+    gram = (a * a + d * d + g * g - 1, b * b + e * e + h * h - 1, c * c + f * f + i * i - 1,
+            a * b + d * e + g * h, a * c + d * f + g * i, b * c + e * f + h * i)  # R^T R - I, upper triangle
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)  # ``det3``'s, term for term
+    return all(abs(v) <= tol for v in gram) and abs(det - 1.0) <= tol
 
 
 def _joint_vector(arm: ArmModel, key: str, default: float, n: int, where: str) -> np.ndarray:
@@ -288,13 +310,21 @@ def _check_joint_screws(screws: np.ndarray, types, names, where: str) -> None:
             )
 
 
+def _valid_screws(screws, types) -> bool:
+    """Whether ``screws``, a float array (n, 6) (``replace`` checked the shape), is finite and passes
+    ``_check_joint_screws``: one pass on Python floats (``_joint_screw_ok`` fails a screw with nan or inf)."""
+    return type(screws) is np.ndarray and screws.dtype == np.float64 and \
+        all(_joint_screw_ok(x, t == REVOLUTE) for x, t in zip(screws.tolist(), types))
+
+
 def _joint_screw_ok(x: list, revolute: bool) -> bool:
-    """``_check_joint_screws``' test of one screw (v, w) on Python floats (an arm's few joints: no numpy calls)."""
+    """``_check_joint_screws``' test of one screw (v, w) on Python floats (an arm's few joints: no numpy calls).
+    Written as "within": a screw with nan or inf fails it (``_valid_screws`` needs no finiteness test)."""
     v0, v1, v2, w0, w1, w2 = x
     nw = math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
     if revolute:
-        return not (abs(nw - 1) > _UNIT_TOL or abs(w0 * v0 + w1 * v1 + w2 * v2) > _UNIT_TOL)
-    return not (nw > _UNIT_TOL or abs(math.sqrt(v0 * v0 + v1 * v1 + v2 * v2) - 1) > _UNIT_TOL)
+        return abs(nw - 1) <= _UNIT_TOL and abs(w0 * v0 + w1 * v1 + w2 * v2) <= _UNIT_TOL
+    return nw <= _UNIT_TOL and abs(math.sqrt(v0 * v0 + v1 * v1 + v2 * v2) - 1) <= _UNIT_TOL
 
 
 def _lateral_fields(arm: ArmModel, where: str) -> dict:
