@@ -134,3 +134,28 @@ def test_the_comparison_can_fail(monkeypatch, cases, rng):
     with monkeypatch.context() as m:
         m.setattr(se3, "_few_jacobians_inv", lambda *a: inv(*a) * (1 + 1e-15))
         assert not _same(displacement(state, p.nominal, p.layout)[1], D)
+
+
+def _with_priors(case):
+    """(robot, data, free) and the keywords of a calibration with priors on its poses."""
+    from kincal.params import Prior
+
+    _, robot, sets, free, noise = case
+    return (robot, sets, free), dict(noise=noise, priors={"tracker": Prior(1e-3), "arm.home": Prior(1e-3)})
+
+
+def test_calibration_with_pose_priors(monkeypatch, cases):
+    """Priors on poses: the displacement and its Jacobian at every evaluation, the std of the pose blocks finite
+    (so the reported std hold the few-pose Jacobian): the same digest with and without the few-pose path, and a
+    Jacobian off by round-off shows."""
+    args, kw = _with_priors(cases[0])
+    res = calibrate(*args, **kw)
+    assert any(np.isfinite(e.std) for e in res.estimates if e.name.startswith("tracker."))
+    shipped = _digest(res)
+    with monkeypatch.context() as m:
+        m.setattr(se3, "_few_logs", lambda T: None)
+        assert _digest(calibrate(*args, **kw)) == shipped
+    inv = se3._few_jacobians_inv
+    with monkeypatch.context() as m:
+        m.setattr(se3, "_few_jacobians_inv", lambda *a: inv(*a) * (1 + 1e-15))
+        assert _digest(calibrate(*args, **kw)) != shipped
