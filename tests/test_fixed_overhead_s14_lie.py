@@ -58,6 +58,18 @@ def test_few_logs_are_the_batched_ones(rng, angle, m):
             assert fast, (angle, m)
 
 
+def test_many_random_few_pose_batches(rng):
+    """``einsum``'s sums depend on the arrays' layout and a one-ulp change of an angle seldom moves a series' value:
+    thousands of batches, results and their layouts against the batched path's."""
+    for k in range(2000):
+        m = int(rng.integers(1, se3._FEW_POSES + 1))
+        T = _poses(rng, rng.uniform(0.2, 1.0, m) * [1e-9, 1e-3, 0.1, 0.5, 0.9, 0.999][k % 6], [1e-6, 0.01, 1.0][k % 3])
+        x, J = se3.log_with_jacobian_inv(T)
+        x0, J0 = _batched(T)
+        assert _same(x, x0) and _same(J, J0) and x.strides == x0.strides and J.strides == J0.strides, k
+        assert se3._few_logs(T) is not None
+
+
 def test_identity_and_mixed_batches(rng):
     cases = [np.eye(4)[None], np.stack([np.eye(4)] * 3), _poses(rng, [0.0, 0.3, 0.0]),
              _poses(rng, [0.2, 3.0, 1e-9]),  # one near pi: the batched path for all

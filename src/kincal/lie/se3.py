@@ -285,8 +285,8 @@ _I9 = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
 def _few_logs(T: np.ndarray) -> tuple | None:
     """``_log`` of a few poses (m, 4, 4) whose angles are all below the series' branch point (else None): its
     elementwise steps on Python floats, in its order (``so3.log``'s skew-part branch, ``so3.left_jacobian_inv``);
-    the arctangent, the dot products (``einsum``) and ``W @ W`` by numpy on arrays shaped as ``_log``'s. Returns
-    x (m, 6), Ji (m, 3, 3), x's angles and Ji (lists) for ``_few_jacobians_inv``."""
+    the arctangent, the dot products (``einsum``) and ``W @ W`` by numpy on arrays shaped and laid out as ``_log``'s.
+    Returns x (m, 6), Ji (m, 3, 3), the angles of x's rotations and Ji (lists) for ``_few_jacobians_inv``."""
     if T.ndim != 3 or not 0 < len(T) <= _FEW_POSES:
         return None
     s, c, sin_t = [], [], []
@@ -299,7 +299,8 @@ def _few_logs(T: np.ndarray) -> tuple | None:
     if not all(a < _TAYLOR_BELOW and b >= 0.0 for a, b in zip(t, c)):
         return None
     w = [(s0 / k, s1 / k, s2 / k) for (s0, s1, s2), k in zip(s, series_at(_SIN_OVER_T, t))]
-    wa = np.array(w)
+    # laid out as ``so3.log``'s (its fancy indexing's): column by column. ``einsum``'s sums depend on the layout
+    wa = np.array(list(zip(*w))).T
     theta = so3.angle(wa).tolist()
     if not all(a < _TAYLOR_BELOW for a in theta):
         return None
@@ -310,7 +311,7 @@ def _few_logs(T: np.ndarray) -> tuple | None:
           for hk, wk, d in zip(hats, WW, series_at(_LOG_D, theta))]
     Jia = np.array(Ji).reshape(-1, 3, 3)
     x = np.concatenate([np.einsum("...ij,...j->...i", Jia, T[..., :3, 3]), wa], axis=-1)
-    return x, Jia, theta, Ji
+    return x, Jia, so3.angle(x[:, 3:]).tolist(), Ji  # the angles as ``left_jacobian`` takes them (x's columns)
 
 
 _Q = (3, 4, 5, 9, 10, 11, 15, 16, 17)  # flat indices of a 6 x 6 matrix's top right 3 x 3 block
@@ -319,6 +320,8 @@ _Q = (3, 4, 5, 9, 10, 11, 15, 16, 17)  # flat indices of a 6 x 6 matrix's top ri
 def _few_jacobians_inv(x: np.ndarray, Jia: np.ndarray, theta: list, Ji: list) -> np.ndarray:
     """``_inverse_blocks(Ji, left_jacobian(x)[..., :3, 3:])`` of ``_few_logs``: ``left_jacobian``'s top right block
     on Python floats (its sums in its order), its powers of ``ad(x)`` and the block products by numpy."""
+    if not all(a < _TAYLOR_BELOW for a in theta):  # ``left_jacobian``'s closed form: its own path
+        return _inverse_blocks(Jia, left_jacobian(x)[..., :3, 3:])
     X = np.array([_ad_row(*xk) for xk in x.tolist()]).reshape(-1, 6, 6)
     X2 = X @ X
     powers = zip(X.reshape(-1, 36).tolist(), X2.reshape(-1, 36).tolist(), (X2 @ X).reshape(-1, 36).tolist(),
