@@ -39,7 +39,7 @@ def _poses(rng, angles, shift=1.0):
 
 
 @pytest.mark.parametrize("angle", ANGLES)
-@pytest.mark.parametrize("m", [1, 2, 3, 9, 16, 17])
+@pytest.mark.parametrize("m", [1, 2, 3, 4, 5, 9, 17])
 def test_few_logs_are_the_batched_ones(rng, angle, m):
     for shift in (0.0, 1e-6, 0.05, 3.0):
         angles = rng.uniform(0.5, 1.0, m) * angle
