@@ -60,6 +60,29 @@ def _horner_float(cs: list, out: float, t2: float) -> float:
     return out
 
 
+def series_at(series: _Series, ts: list) -> list:
+    """``_branch``'s series at angles below the branch point (Python floats; ``t * t`` the square)."""
+    cs, top = series.rest, series.top
+    return [_horner_float(cs, top, t * t) for t in ts]
+
+
+_JL_TOPS = (_A1.top, _A2.top, _A3.top, _A4.top)
+_JL_RESTS = tuple(zip(_A1.rest, _A2.rest, _A3.rest, _A4.rest))
+
+
+def jl_coeffs_at(ts: list) -> list[tuple[float, float, float, float]]:
+    """``se3_jl_coeffs``' (a1, a2, a3, a4) at each angle below the branch point (Python floats): the four series
+    side by side in one loop (``_horner_float``'s operations)."""
+    out = []
+    for t in ts:
+        t2 = t * t
+        a1, a2, a3, a4 = _JL_TOPS
+        for c1, c2, c3, c4 in _JL_RESTS:
+            a1, a2, a3, a4 = a1 * t2 + c1, a2 * t2 + c2, a3 * t2 + c3, a4 * t2 + c4
+        out.append((a1, a2, a3, a4))
+    return out
+
+
 def _few_small(theta: np.ndarray) -> list | None:
     """The angles (an array of 1 to ``_FEW`` dimensions) as Python floats when there are at most ``_FEW`` of them,
     all below the branch point; else None."""

@@ -117,7 +117,7 @@ def displacement(state: State, nominal: State, layout: Layout, only: np.ndarray 
     if poses:
         # ``T @ inverse(T0)`` pose by pose (the same products as in a batch), the nominal poses' inverses remembered:
         # the model's own, or the frames the solve's first evaluation met (``se3.remembered``)
-        D_T = np.stack([T @ se3.remembered(se3.inverse, T0) for _, T, T0 in poses])
+        D_T = np.array([T @ se3.remembered(se3.inverse, T0) for _, T, T0 in poses])  # ``np.stack``'s array, sooner
         x, Jinv = se3.log_with_jacobian_inv(D_T) if jacobian else (se3.log(D_T), None)
         for k, (b, _, _) in enumerate(poses):
             disp[b.slice] = x[k]
