@@ -98,6 +98,8 @@ def test_stacked_pickles_and_copies_as_a_plain_tuple():
     for other in (pickle.loads(pickle.dumps(B)), copy.deepcopy(B), copy.copy(B)):
         assert type(other) in (tuple, twists.Stacked) and _bits(other) == _bits(B)
     assert type(pickle.loads(pickle.dumps(B))) is tuple
+    again = twists.Stacked(x for x in B)  # from the arrays (``dataclasses.asdict``'s way): stacked anew
+    assert _bits(again) == _bits(B) and _bits(again.stack) == _bits(B.stack) and again.stack is not B.stack
 
 
 @pytest.mark.parametrize("share", [0.0, 0.4])

@@ -14,10 +14,11 @@ TWIST_COORDS = ("v_x", "v_y", "v_z", "w_x", "w_y", "w_z")  # names of a twist's 
 
 class Stacked(tuple):
     """A tuple of equal-shape arrays that are the rows of one array ``stack`` (an arm's tangent bases or
-    generators, ``tangent_frames``): what ``np.stack`` of them gives, without the copy. Pickled (and copied) as a
-    plain tuple."""
+    generators, ``tangent_frames``): what ``np.stack`` of them gives, without the copy. Made from that array (or
+    from the arrays, stacked); pickled (and copied) as a plain tuple."""
 
-    def __new__(cls, stack: np.ndarray):
+    def __new__(cls, rows):
+        stack = rows if isinstance(rows, np.ndarray) else np.stack(list(rows))
         out = super().__new__(cls, stack)
         out.stack = stack
         return out
