@@ -27,11 +27,6 @@ class Stacked(tuple):
         return tuple, (tuple(self),)
 
 
-def stacked(arrays) -> np.ndarray:
-    """``np.stack(arrays)``: a ``Stacked`` tuple's own array."""
-    return arrays.stack if type(arrays) is Stacked else np.stack(arrays)
-
-
 def conform_twists(screws: np.ndarray, joint_types, mode: str = "line") -> np.ndarray:
     """Project joint twists (n, 6) onto valid joint screws.
 
@@ -121,7 +116,8 @@ def tangent_generators(screw: np.ndarray, kind: str) -> np.ndarray:
 def tangent_frames(screws: np.ndarray, joint_types) -> tuple[tuple, tuple]:
     """``tangent_basis`` and ``tangent_generators`` of every joint of an arm, each joint type in one batch:
     (bases, generators), each a tuple of (6, k) per joint. Up to ``_FEW`` revolute joints and no prismatic one
-    (an arm's), joint by joint on Python floats (``_revolute_frame``): the same IEEE operations."""
+    (an arm's), joint by joint on Python floats (``_frame_entries``): the same IEEE operations, the bases and the
+    generators each the rows of one (n, 6, 4) array (``Stacked``)."""
     xi, types = np.asarray(screws, dtype=float), tuple(joint_types)
     n = len(xi)
     if n <= _FEW and types.count(REVOLUTE) == len(types):  # every joint revolute
@@ -166,11 +162,11 @@ def _revolute_frame(v, w) -> list:
     return [e[i] for i in _FRAME_INDEX]
 
 
-def _frame_entries(x) -> tuple:
-    """The 18 values ``_revolute_frames`` lays out for one joint (x its 6 floats), u1, u2, w x u2, u1 x p, u2 x p
+def _frame_entries(xi) -> tuple:
+    """The 18 values ``_revolute_frames`` lays out for one joint (xi its 6 floats), u1, u2, w x u2, u1 x p, u2 x p
     and (w x u2) x p, with its operations (``argmin`` keeps the first of equal magnitudes, the norm sums the
     squares in order; the cross products written out, as ``so3.cross_tuple``)."""
-    v0, v1, v2, w0, w1, w2 = x
+    v0, v1, v2, w0, w1, w2 = xi
     p0, p1, p2 = w1 * v2 - w2 * v1, w2 * v0 - w0 * v2, w0 * v1 - w1 * v0  # w x v
     x, y, z = abs(w0), abs(w1), abs(w2)
     a0, a1, a2 = (1.0, 0.0, 0.0) if x <= y and x <= z else (0.0, 1.0, 0.0) if y <= z else (0.0, 0.0, 1.0)
