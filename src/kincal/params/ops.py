@@ -19,17 +19,17 @@ def retract(state: State, layout: Layout, delta: np.ndarray, tangents: bool = Tr
     # for a pose, as ``kind.retract``; ``values.retract_twists`` for the screws)
     twists, poses = [], []
     for b in _moved_blocks(layout, delta):
-        d = delta[b.slice]
-        if b.kind.pose_of(b.value(state)) is not None:
+        kind = b.kind
+        if kind is TWISTS:
+            twists.append((b, twist_motions(state.arms[b.arm], delta[b.slice])))
+        elif kind.pose_of(b.value(state)) is not None:
             poses.append(b)
-        elif b.kind is TWISTS:
-            twists.append((b, twist_motions(state.arms[b.arm], d)))
         elif b.arm is not None:
-            arms[b.arm] = b.kind.retract(arms[b.arm], d)
+            arms[b.arm] = kind.retract(arms[b.arm], delta[b.slice])
         else:
-            extras[b.name] = b.kind.retract(extras[b.name], d)
+            extras[b.name] = kind.retract(extras[b.name], delta[b.slice])
     if not twists and not poses:
-        return state.replace(arms, extras)
+        return state.moved(arms, extras)
     E = se3.exp(np.concatenate([g for _, g in twists] + [delta[b.slice][None] for b in poses]))
     k = 0
     for b, g in twists:
@@ -44,7 +44,7 @@ def retract(state: State, layout: Layout, delta: np.ndarray, tangents: bool = Tr
             extras[b.name] = b.kind.with_pose(extras[b.name], Ek @ extras[b.name])
     for arm, ps in moved.items():
         arms[arm] = with_arm_poses(arms[arm], ps)
-    return state.replace(arms, extras)
+    return state.moved(arms, extras)
 
 
 def _moved_blocks(layout: Layout, delta: np.ndarray) -> list:
@@ -62,7 +62,7 @@ def recentre(state: State, conformed: bool = False) -> State:
             a = TWISTS.with_tangents(a) if conformed and kind is TWISTS else kind.recentre(a)
         arms[name] = a
     extras = {k: _recentred(state.kinds[k], v) for k, v in state.extras.items()}
-    return state.replace(arms, extras)
+    return state.moved(arms, extras)
 
 
 def _recentred(kind, value):
@@ -77,7 +77,7 @@ _RECENTRING = tuple(k for k in ARM_KINDS if type(k).recentre is not ParamKind.re
 def conform(state: State) -> State:
     """``state`` with every arm's twists conformed as ``recentre`` conforms them (screws only, no tangent bases):
     a trial point that ``recentre(..., conformed=True)`` makes the next linearization point with the same screws."""
-    return state.replace({name: TWISTS.conform(a) for name, a in state.arms.items()})
+    return state.moved({name: TWISTS.conform(a) for name, a in state.arms.items()}, dict(state.extras))
 
 
 def pose_retraction_jacobians(layout: Layout, delta: np.ndarray) -> dict[str, np.ndarray]:

@@ -21,6 +21,7 @@ from kincal.kinematics.couplings import coupling_map
 from kincal.kinematics.elastic import compliance_basis, compliance_coefficients, node_angles
 from kincal.kinematics.gravity import GravityLoad, gravity_load
 from kincal.kinematics.model import same_array_bits
+from kincal.kinematics.twists import Stacked
 from kincal.lie import se3, so3
 
 
@@ -159,11 +160,19 @@ _FROM_MODEL_ENTRIES = 64
 
 def twist_motions(a: ArmValues, d: np.ndarray) -> np.ndarray:
     """The rigid motions ``G_j d_j`` (n, 6) that retract the joint screws by tangent coordinates ``d``."""
-    if len({G.shape[1] for G in a.generators}) == 1:  # joints of one kind (all revolute, say): one batched product
-        G = np.stack(a.generators)
+    G = _one_width(a.generators)
+    if G is not None:  # joints of one kind (all revolute, say): one batched product
         return np.einsum("jak,jk->ja", G, d.reshape(len(G), -1))
     cuts = np.cumsum([0] + [G.shape[1] for G in a.generators])
     return np.stack([G @ d[i:k] for G, i, k in zip(a.generators, cuts[:-1], cuts[1:])])  # all joints at once
+
+
+def _one_width(frames) -> np.ndarray | None:
+    """The joints' frames (bases or generators, (6, k) each) stacked (n, 6, k) when every joint has the same k
+    (``tangent_frames``' ``Stacked``: its own array); else None."""
+    if type(frames) is Stacked:
+        return frames.stack if frames else None
+    return np.stack(frames) if len({G.shape[1] for G in frames}) == 1 else None
 
 
 def retract_twists(a: ArmValues, d: np.ndarray, tangents: bool = True, motion=None) -> ArmValues:
@@ -179,9 +188,10 @@ def retract_twists(a: ArmValues, d: np.ndarray, tangents: bool = True, motion=No
     if not tangents:
         return arm_replace(a, screws=screws, bases=None, generators=None, lateral_axes=axes)
     Jl, ad = se3.left_jacobian(g), se3.ad(screws)
-    if len({G.shape[1] for G in a.generators}) == 1:
-        gens = Jl @ np.stack(a.generators)  # retracting again from here keeps basis == -ad(xi) G
-        gens, bs = tuple(gens), tuple(-ad @ gens)
+    G = _one_width(a.generators)
+    if G is not None:
+        G = Jl @ G  # retracting again from here keeps basis == -ad(xi) G
+        gens, bs = Stacked(G), Stacked(-ad @ G)
     else:
         gens = tuple(Jl[j] @ G for j, G in enumerate(a.generators))
         bs = tuple(-ad[j] @ G for j, G in enumerate(gens))
@@ -267,6 +277,16 @@ class State:
         """A new state with ``arms`` and/or ``extras`` (and their ``kinds``) replaced."""
         return State(dict(self.arms if arms is None else arms), dict(self.extras if extras is None else extras),
                      {**self.kinds, **(kinds or {})}, self.mounts)
+
+    def moved(self, arms: dict[str, ArmValues], extras: dict[str, object]) -> "State":
+        """``replace(arms, extras)`` for new values of the same frames (a retraction, a re-centring): the dicts
+        are the new state's own (the caller made them), the kinds and mounts this state's, and no frame without
+        a kind can come in (the frames' names are checked to be this state's)."""
+        if type(self) is not State or extras.keys() != self.extras.keys():
+            return self.replace(arms, extras)
+        new = object.__new__(State)
+        new.__dict__.update(arms=arms, extras=extras, kinds=self.kinds, mounts=self.mounts)
+        return new
 
     def to_robot(self, robot: Robot) -> Robot:
         """The calibrated Robot: ``robot`` with this state's (conformed) values."""
