@@ -268,8 +268,9 @@ def log(T: np.ndarray) -> np.ndarray:
 
 
 def log_with_jacobian_inv(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(x, left_jacobian_inv(x))`` with ``x = log(T)``, the rotation's inverse Jacobian computed once (the same
-    numbers as the two calls)."""
+    """``(x, left_jacobian_inv(x))`` with ``x = log(T)``, the rotation's inverse Jacobian computed once: the same
+    numbers as the two calls to round-off (not always bit for bit: a batch's ``einsum`` sums arrays laid out
+    differently from the two calls', which can move the last bit, mostly at angles of 1 rad or more)."""
     T = np.asarray(T, dtype=float)
     few = _few_logs(T)
     if few is not None:
