@@ -288,7 +288,7 @@ def _few_logs(T: np.ndarray) -> tuple | None:
     """``_log`` of a few poses (m, 4, 4) whose angles are all below the series' branch point (else None): its
     elementwise steps on Python floats, in its order (``so3.log``'s skew-part branch, ``so3.left_jacobian_inv``);
     the arctangent, the dot products (``einsum``) and ``W @ W`` by numpy on arrays shaped and laid out as ``_log``'s.
-    Returns x (m, 6), Ji (m, 3, 3), the angles of x's rotations and Ji (lists) for ``_few_jacobians_inv``."""
+    Returns x (m, 6), Ji (m, 3, 3) and the angles of x's rotations (a list) for ``_few_jacobians_inv``."""
     if T.ndim != 3 or not 0 < len(T) <= _FEW_POSES:
         return None
     s, c, sin_t = [], [], []
@@ -313,35 +313,25 @@ def _few_logs(T: np.ndarray) -> tuple | None:
           for hk, wk, d in zip(hats, WW, series_at(_LOG_D, theta))]
     Jia = np.array(Ji).reshape(-1, 3, 3)
     x = np.concatenate([np.einsum("...ij,...j->...i", Jia, T[..., :3, 3]), wa], axis=-1)
-    return x, Jia, so3.angle(x[:, 3:]).tolist(), Ji  # the angles as ``left_jacobian`` takes them (x's columns)
+    return x, Jia, so3.angle(x[:, 3:]).tolist()  # the angles as ``left_jacobian`` takes them (x's columns)
 
 
 _Q = (3, 4, 5, 9, 10, 11, 15, 16, 17)  # flat indices of a 6 x 6 matrix's top right 3 x 3 block
 
 
-def _few_jacobians_inv(x: np.ndarray, Jia: np.ndarray, theta: list, Ji: list) -> np.ndarray:
+def _few_jacobians_inv(x: np.ndarray, Jia: np.ndarray, theta: list) -> np.ndarray:
     """``_inverse_blocks(Ji, left_jacobian(x)[..., :3, 3:])`` of ``_few_logs``: ``left_jacobian``'s top right block
     on Python floats (its sums in its order), its powers of ``ad(x)`` and the block products by numpy."""
     if not all(a < _TAYLOR_BELOW for a in theta):  # ``left_jacobian``'s closed form: its own path
         return _inverse_blocks(Jia, left_jacobian(x)[..., :3, 3:])
-    X = np.array([_ad_row(*xk) for xk in x.tolist()]).reshape(-1, 6, 6)
+    X = ad(x)
     X2 = X @ X
     powers = zip(X.reshape(-1, 36).tolist(), X2.reshape(-1, 36).tolist(), (X2 @ X).reshape(-1, 36).tolist(),
                  (X2 @ X2).reshape(-1, 36).tolist())
     a = jl_coeffs_at(theta)
     Q = [[(((0.0 + a1 * p1[i]) + a2 * p2[i]) + a3 * p3[i]) + a4 * p4[i] for i in _Q]
          for (a1, a2, a3, a4), (p1, p2, p3, p4) in zip(a, powers)]
-    out = np.zeros((len(Ji), 6, 6))
-    out[:, :3, :3] = Jia
-    out[:, 3:, 3:] = Jia
-    out[:, :3, 3:] = -Jia @ np.array(Q).reshape(-1, 3, 3) @ Jia
-    return out
-
-
-def _ad_row(v0, v1, v2, w0, w1, w2) -> list:
-    """``ad``'s 36 entries of one twist, row by row (zeros +0.0, the negated ones negated as there)."""
-    return [0.0, -w2, w1, 0.0, -v2, v1, w2, 0.0, -w0, v2, 0.0, -v0, -w1, w0, 0.0, -v1, v0, 0.0,
-            0.0, 0.0, 0.0, 0.0, -w2, w1, 0.0, 0.0, 0.0, w2, 0.0, -w0, 0.0, 0.0, 0.0, -w1, w0, 0.0]
+    return _inverse_blocks(Jia, np.array(Q).reshape(-1, 3, 3))
 
 
 def _log(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
