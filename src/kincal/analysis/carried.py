@@ -60,10 +60,6 @@ class CarriedAnalysis:
     factor: CarriedFactor
     weak: tuple[str, ...] = ()
 
-    @property
-    def deficiency(self) -> int:
-        return len(self.names) - self.rank
-
 
 def carried_analysis(lin: Linearization, layout: Layout, experiments: Sequence, rtol: float, names: Sequence[str],
                      null: np.ndarray, range_space: np.ndarray, VP: np.ndarray, inverse: np.ndarray,

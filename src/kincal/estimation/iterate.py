@@ -49,7 +49,8 @@ class Iteration:
     first: DeferredReport | None
     start_whiteners: tuple | None
     order: tuple[int, ...]  # the free coordinates' pivot order (``gauge.priority``)
-    analysis: Identifiability | CarriedAnalysis | None = None  # at ``linearization`` (``identify(report=False)``), when it is kept
+    # at ``linearization`` (``identify(report=False)``, or carried: ``analysis.carried``), when it is kept
+    analysis: Identifiability | CarriedAnalysis | None = None
     held: np.ndarray | None = None  # the rigid model's gauges the solve holds (``gauge.rigid_gauges``, at the start)
 
 
@@ -119,9 +120,9 @@ def _carried(lin: Linearization, ana: Identifiability, options: SolverOptions, f
     from a rank analysis of ``lin`` to round-off), or None where the step needs a rank analysis of its own: the
     first linearization has its own (the start's report), so does any step that is not a plain Gauss-Newton step
     in the min-change gauge of an analysis from its own SVD with nothing weak, held or pinned, or a linearization
-    whose rank may differ. The loop only calls it after a step, so the analysis is
-    that of an earlier state. A step it finds negligible ends the loop; the result's analysis is then carried
-    (``analysis.carried``) or, where that is not provably ``lin``'s own, made afresh."""
+    whose rank may differ. The loop only calls it after a step, so the analysis is that of an earlier state. A
+    step it finds negligible ends the loop; the result's analysis is then carried (``analysis.carried``) or, where
+    that is not provably ``lin``'s own, made afresh."""
     if not (fast and options.loss == "linear" and isinstance(options.gauge, str) and hold is None
             and ana.factor is not None and not ana.weak):
         return None

@@ -192,7 +192,7 @@ class Carrying:
         least-squares solution in span(VP) removed, which ``Rf`` maps to round-off) is ``-Q Q^T qtr``."""
         r = self.VP.shape[1]
         image = self.Q @ -self.R[:r, r]
-        return converged(norm(image), math.sqrt(lin.cost2), 0.5 * _predicted(lin, image), len(lin.r) - r)
+        return _negligible_image(lin, image, _predicted(lin, image), r)
 
     def subspaces(self, lin: Linearization) -> tuple[np.ndarray, np.ndarray]:
         """(null space, its complement) of ``lin`` (natural units, orthonormal): ``N0 + VP X`` with ``Rf VP X =
@@ -270,5 +270,10 @@ def carried_step(lin: Linearization, ana: Identifiability, rtol: float):
 
 def negligible(lin: Linearization, V: np.ndarray, z: np.ndarray, r1sq: float) -> bool:
     """Convergence test at a new linearization point: the Gauss-Newton step asked for there is negligible."""
-    step = norm(lin.Rf @ (V @ z))
-    return converged(step, math.sqrt(lin.cost2), 0.5 * r1sq, len(lin.r) - V.shape[1])
+    return _negligible_image(lin, lin.Rf @ (V @ z), r1sq, V.shape[1])
+
+
+def _negligible_image(lin: Linearization, image: np.ndarray, r1sq: float, rank: int) -> bool:
+    """``converged`` for a step of whitened image ``image`` (under ``lin.Rf``) in a subspace of dimension ``rank``
+    that leaves ``r1sq`` (``negligible``, ``Carrying.negligible``)."""
+    return converged(norm(image), math.sqrt(lin.cost2), 0.5 * r1sq, len(lin.r) - rank)
