@@ -186,7 +186,12 @@ def _frame_index() -> list:
     their negatives (18 on) and a zero (36): B = [[-wu1, -wu2, -(u1 x p), -(u2 x p)], [0, 0, u1, u2]] and
     G = [[u1, u2, -(wu1 x p), -(wu2 x p)], [0, 0, wu1, wu2]] (``_revolute_frames``; wu1 = u2)."""
     at = {name: 3 * k for k, name in enumerate(("u", "s", "t", "d", "e", "h"))}  # u1, u2, wu2, u1 x p, ...
-    place = lambda name, r: 36 if name == "0" else 18 + at[name[1:]] + r if name[0] == "-" else at[name] + r  # noqa: E731
+
+    def place(name: str, r: int) -> int:  # "0": the zero; "-x": x's negative; "x": x itself (row r of it)
+        if name == "0":
+            return 36
+        return 18 + at[name[1:]] + r if name[0] == "-" else at[name] + r
+
     rows = ((("-s", "-t", "-d", "-e"), ("0", "0", "u", "s")), (("u", "s", "-e", "-h"), ("0", "0", "s", "t")))
     return [place(name, r) for top, bottom in rows for half in (top, bottom) for r in range(3) for name in half]
 
